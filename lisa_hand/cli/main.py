@@ -1,0 +1,53 @@
+"""The ``lisa`` command line: thin verbs over the library. The only module that imports typer."""
+
+from __future__ import annotations
+
+import os
+import sys
+
+import typer
+
+from . import demo
+
+app = typer.Typer(
+    name="lisa",
+    help=(
+        "LISA-open: train, fit, mesh, render and animate neural implicit hands "
+        "(LISA, CVPR 2022). Run 'lisa COMMAND --help' for each command."
+    ),
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
+)
+
+@app.callback()
+def _root() -> None:
+    """LISA-open command line."""
+
+
+# Each verb lives in its own module with a ``register(app)`` function.
+for _module in (demo,):
+    _module.register(app)
+
+
+class UserError(Exception):
+    """An error caused by the user's input: printed as one line, no traceback."""
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the ``lisa`` console script.
+
+    Errors from bad input (``ValueError``, ``TypeError``, ``OSError``) print one line naming the
+    problem and exit with status 2; set ``LISA_DEBUG=1`` to see the traceback instead.
+    """
+    try:
+        app(args=argv)
+    except (ValueError, TypeError, OSError, UserError) as exc:
+        if os.environ.get("LISA_DEBUG"):
+            raise
+        print(f"lisa: error: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,156 @@
+"""Forward kinematics on MANO's tree, linear blend skinning, and left/right mirroring."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+from ..geometry.rotations import axis_angle_to_matrix
+from ..geometry.transforms import make_transform
+from .tree import NUM_JOINTS, PARENTS, POSE_DIM
+
+__all__ = [
+    "Kinematics",
+    "forward_kinematics",
+    "linear_blend_skinning",
+    "check_pose",
+    "mirror_pose",
+    "mirror_points",
+    "check_side",
+]
+
+
+@dataclass
+class Kinematics:
+    """Result of :func:`forward_kinematics` (world frame, metres).
+
+    joints: [B, 16, 3] posed joint positions.
+    transforms: [B, 16, 4, 4] rest-to-posed bone transforms ``A_j``: a rest-pose point rigidly
+        attached to bone ``j`` lands at ``A_j x``. These are LBS's transforms; LISA unposes a
+        query point into bone ``j``'s rest frame with ``A_j^-1``.
+    bone_frames: [B, 16, 4, 4] world-from-bone frames: origin at the posed joint, axes the rest
+        axes carried along by the chain of rotations. ``A_j = bone_frames_j @ [I | -J_rest_j]``.
+    rotmats: [B, 16, 3, 3] the relative (parent-frame) joint rotations.
+    """
+
+    joints: torch.Tensor
+    transforms: torch.Tensor
+    bone_frames: torch.Tensor
+    rotmats: torch.Tensor
+
+
+def check_pose(pose: torch.Tensor, name: str = "pose") -> torch.Tensor:
+    """Validate a pose and return it as ``[B, 16, 3]``.
+
+    pose: [B, 48] or [B, 16, 3] axis-angle, radians.
+    """
+    if not isinstance(pose, torch.Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(pose).__name__}")
+    if pose.dim() == 2 and pose.shape[-1] == POSE_DIM:
+        pose = pose.reshape(pose.shape[0], NUM_JOINTS, 3)
+    if pose.dim() != 3 or pose.shape[1:] != (NUM_JOINTS, 3):
+        raise ValueError(
+            f"{name} must have shape [B, {POSE_DIM}] or [B, {NUM_JOINTS}, 3] (axis-angle: 3 global "
+            f"+ 45 finger values), got {tuple(pose.shape)}"
+        )
+    if not torch.isfinite(pose).all():
+        raise ValueError(f"{name} contains NaN or inf values")
+    return pose
+
+
+def forward_kinematics(
+    pose: torch.Tensor,
+    rest_joints: torch.Tensor,
+    translation: torch.Tensor | None = None,
+) -> Kinematics:
+    """Pose MANO's kinematic tree.
+
+    The first joint's rotation is the global orientation about the wrist; every other rotation is
+    relative to its parent. Differentiable in pose, rest joints and translation.
+
+    pose: [B, 48] or [B, 16, 3] axis-angle radians.
+    rest_joints: [16, 3] or [B, 16, 3] joint positions in the rest (zero) pose, metres.
+    translation: [B, 3] metres, added after the rotations (MANO's ``transl``); None for zero.
+    """
+    pose = check_pose(pose)
+    batch = pose.shape[0]
+    if rest_joints.shape[-2:] != (NUM_JOINTS, 3) or rest_joints.dim() not in (2, 3):
+        raise ValueError(f"rest_joints must be [16, 3] or [B, 16, 3], got {tuple(rest_joints.shape)}")
+    rest_joints = rest_joints.to(pose.dtype).expand(batch, NUM_JOINTS, 3)
+    rotmats = axis_angle_to_matrix(pose)  # [B, 16, 3, 3]
+
+    parents = torch.as_tensor(PARENTS[1:], device=pose.device)
+    offsets = torch.cat([rest_joints[:, :1], rest_joints[:, 1:] - rest_joints[:, parents]], dim=1)
+    local = make_transform(rotmats, offsets)  # [B, 16, 4, 4]
+    # The tree is shallow (depth 4): chain per joint in order, parents always come first.
+    frames = [local[:, 0]]
+    for j in range(1, NUM_JOINTS):
+        frames.append(frames[PARENTS[j]] @ local[:, j])
+    bone_frames = torch.stack(frames, dim=1)
+    if translation is not None:
+        if translation.shape != (batch, 3):
+            raise ValueError(f"translation must be [B, 3] with B={batch}, got {tuple(translation.shape)}")
+        if not torch.isfinite(translation).all():
+            raise ValueError("translation contains NaN or inf values")
+        shift = torch.zeros_like(bone_frames)
+        shift[..., :3, 3] = translation[:, None].to(pose.dtype)
+        bone_frames = bone_frames + shift
+    joints = bone_frames[..., :3, 3]
+    rot_world = bone_frames[..., :3, :3]
+    transl_lbs = joints - (rot_world @ rest_joints[..., None])[..., 0]
+    transforms = make_transform(rot_world, transl_lbs)
+    return Kinematics(joints=joints, transforms=transforms, bone_frames=bone_frames, rotmats=rotmats)
+
+
+def linear_blend_skinning(
+    points_rest: torch.Tensor, weights: torch.Tensor, transforms: torch.Tensor
+) -> torch.Tensor:
+    """Linear blend skinning ``v = sum_j w_j A_j v_rest`` (paper Eq. 2).
+
+    points_rest: [B, V, 3] or [V, 3] rest-pose points, metres.
+    weights: [V, J] or [B, V, J], rows summing to 1.
+    transforms: [B, J, 4, 4] rest-to-posed bone transforms (:attr:`Kinematics.transforms`).
+    -> [B, V, 3] posed points.
+    """
+    batch = transforms.shape[0]
+    if points_rest.dim() == 2:
+        points_rest = points_rest.expand(batch, *points_rest.shape)
+    if weights.dim() == 2:
+        weights = weights.expand(batch, *weights.shape)
+    if weights.shape[-1] != transforms.shape[1] or weights.shape[1] != points_rest.shape[1]:
+        raise ValueError(
+            f"weights {tuple(weights.shape)} do not match points {tuple(points_rest.shape)} and "
+            f"transforms {tuple(transforms.shape)}"
+        )
+    blended = torch.einsum("bvj,bjrc->bvrc", weights.to(transforms.dtype), transforms[..., :3, :])
+    return (blended[..., :3] @ points_rest.to(transforms.dtype)[..., None])[..., 0] + blended[..., 3]
+
+
+_SIDES = ("right", "left")
+
+
+def check_side(side: str) -> str:
+    """Validate a hand side name ('right' or 'left')."""
+    if side not in _SIDES:
+        raise ValueError(f"unknown hand side {side!r}: expected 'right' or 'left'")
+    return side
+
+
+def mirror_points(points: torch.Tensor) -> torch.Tensor:
+    """Mirror points through the x = 0 plane (right hand <-> left hand, as MANO's left model).
+
+    points: [..., 3] -> [..., 3]
+    """
+    return points * points.new_tensor([-1.0, 1.0, 1.0])
+
+
+def mirror_pose(pose: torch.Tensor) -> torch.Tensor:
+    """Mirror axis-angle rotations through the x = 0 plane: ``(x, y, z) -> (x, -y, -z)``.
+
+    With mirrored rest joints, ``FK(mirror_pose(p))`` is the mirror of ``FK(p)``.
+    pose: [..., 48] or [..., 16, 3] -> same shape
+    """
+    shape = pose.shape
+    flipped = pose.reshape(*shape[:-1], -1, 3) * pose.new_tensor([1.0, -1.0, -1.0])
+    return flipped.reshape(shape)
