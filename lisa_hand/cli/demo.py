@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated
 
 import typer
 
 
 def demo(
-    out: Path = typer.Option(Path("lisa_demo"), "--out", help="Folder for the demo's outputs."),
-    seed: int = typer.Option(0, help="Random seed of the synthesized hand."),
+    out: Annotated[Path, typer.Option("--out", help="Folder for the demo's outputs.")] = Path(
+        "lisa_demo"
+    ),
+    seed: Annotated[int, typer.Option(help="Random seed of the synthesized hand.")] = 0,
 ) -> None:
     """Run the end-to-end demo and write its outputs to OUT."""
     from ..demo import run_demo

@@ -27,7 +27,7 @@ def skew(vectors: torch.Tensor) -> torch.Tensor:
 
 
 def axis_angle_to_matrix(axis_angle: torch.Tensor) -> torch.Tensor:
-    """Rodrigues' formula, batched: ``R = I + a [k]_x + b [k]_x^2`` with the unnormalised axis ``k``.
+    """Rodrigues' formula, batched: ``R = I + a [k]_x + b [k]_x^2``, ``k`` the unnormalised axis.
 
     ``a = sin(theta)/theta`` and ``b = (1 - cos theta)/theta^2`` switch to their Taylor series near
     zero, so both the value and the gradient are exact at zero angle (no NaN from ``|k|``).
@@ -58,27 +58,22 @@ def matrix_to_axis_angle(rotmats: torch.Tensor) -> torch.Tensor:
     """
     if rotmats.shape[-2:] != (3, 3):
         raise ValueError(f"rotmats must have shape [..., 3, 3], got {tuple(rotmats.shape)}")
-    m = rotmats
-    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
-    # Four candidate quaternions (w, x, y, z), each well conditioned in a different region; pick
-    # the one with the largest denominator.
+    m00, m01, m02 = rotmats[..., 0, 0], rotmats[..., 0, 1], rotmats[..., 0, 2]
+    m10, m11, m12 = rotmats[..., 1, 0], rotmats[..., 1, 1], rotmats[..., 1, 2]
+    m20, m21, m22 = rotmats[..., 2, 0], rotmats[..., 2, 1], rotmats[..., 2, 2]
+    # Four candidate quaternions (w, x, y, z), each scaled by 4 times one of its components and so
+    # well conditioned where that component is large; pick the one with the largest.
+    diag = torch.stack(
+        [1 + m00 + m11 + m22, 1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22], -1
+    )
     cands = torch.stack(
         [
-            torch.stack([1 + trace, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0],
-                         m[..., 1, 0] - m[..., 0, 1]], -1),
-            torch.stack([m[..., 2, 1] - m[..., 1, 2], 1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
-                         m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0]], -1),
-            torch.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 0, 1] + m[..., 1, 0],
-                         1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2], m[..., 1, 2] + m[..., 2, 1]], -1),
-            torch.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0],
-                         m[..., 1, 2] + m[..., 2, 1], 1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2]], -1),
+            torch.stack([diag[..., 0], m21 - m12, m02 - m20, m10 - m01], -1),
+            torch.stack([m21 - m12, diag[..., 1], m01 + m10, m02 + m20], -1),
+            torch.stack([m02 - m20, m01 + m10, diag[..., 2], m12 + m21], -1),
+            torch.stack([m10 - m01, m02 + m20, m12 + m21, diag[..., 3]], -1),
         ],
         dim=-2,
-    )
-    diag = torch.stack(
-        [1 + trace, 1 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
-         1 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2], 1 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2]],
-        -1,
     )
     best = diag.argmax(-1)
     quat = torch.gather(cands, -2, best[..., None, None].expand(*best.shape, 1, 4)).squeeze(-2)
@@ -88,5 +83,7 @@ def matrix_to_axis_angle(rotmats: torch.Tensor) -> torch.Tensor:
     sin_half = xyz.norm(dim=-1)
     angle = 2.0 * torch.atan2(sin_half, w)
     # angle / sin(angle/2) -> 2 as the angle -> 0
-    scale = torch.where(sin_half > 1e-8, angle / sin_half.clamp_min(1e-12), 2.0 / w.clamp_min(1e-12))
+    scale = torch.where(
+        sin_half > 1e-8, angle / sin_half.clamp_min(1e-12), 2.0 / w.clamp_min(1e-12)
+    )
     return xyz * scale[..., None]

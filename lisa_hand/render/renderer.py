@@ -1,0 +1,273 @@
+"""Render rays through a signed-distance / colour field with VolSDF's density (LISA Section 4.1).
+
+The field is a callback (nerfacc style), so the renderer never imports the model and is tested
+on analytic fields:
+
+    field_fn(points [N, 3] metres, directions [N, 3] unit) -> (sdf [N] metres, rgb [N, C])
+    sdf_fn(points [N, 3] metres) -> sdf [N] metres     (geometry only, used to place samples)
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+
+from .composite import RenderOutput, composite
+from .density import LaplaceDensity
+from .samplers import (
+    SdfFn,
+    error_bounded_samples,
+    sphere_traced_samples,
+    uniform_samples,
+)
+
+__all__ = ["FieldFn", "SAMPLERS", "RenderConfig", "render_rays", "apply_gain_bias"]
+
+FieldFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
+"""``field_fn(points [N, 3] metres, directions [N, 3] unit) -> (sdf [N] metres, rgb [N, C])``."""
+
+SAMPLERS = ("error_bounded", "sphere_traced", "uniform")
+
+
+@dataclass(frozen=True)
+class RenderConfig:
+    """How rays are sampled and composited."""
+
+    sampler: str = "error_bounded"
+    """Sample placement: 'error_bounded' (VolSDF Algorithm 1), 'sphere_traced' (band around the
+    sphere-traced surface, cheaper) or 'uniform'."""
+    num_samples: int = 64
+    """Uniform: samples per ray. Error-bounded: samples drawn from the opacity's inverse CDF.
+    Sphere-traced: samples in the band around the surface."""
+    num_samples_extra: int = 32
+    """Error-bounded: samples of the bounding set T added to the final ones (VolSDF: 32).
+    Sphere-traced: uniform samples over [near, far] added to the band. Unused by 'uniform'."""
+    num_samples_eval: int = 128
+    """Error-bounded: size of the initial uniform set and of each upsampling step (VolSDF: 128)."""
+    eps: float = 0.1
+    """Error-bounded: bound on the opacity approximation error (VolSDF: 0.1)."""
+    num_bisection: int = 10
+    """Error-bounded: bisection steps on beta+ per iteration (VolSDF: 10)."""
+    max_iters: int = 5
+    """Error-bounded: maximum upsampling iterations (VolSDF: 5)."""
+    sphere_num_steps: int = 64
+    """Sphere-traced: maximum marching steps per ray."""
+    sphere_band_outside: float = 8.0
+    """Sphere-traced: the band starts where sdf <= this many beta (density below e^-8 / 2beta)."""
+    sphere_band_inside: float = 16.0
+    """Sphere-traced: the band ends this many beta (metres along the ray) past the surface hit."""
+    stratified: bool = False
+    """Jitter the samples randomly inside their bins (training); False is deterministic."""
+    chunk_size: int = 8192
+    """Rays processed at once (bounds memory: chunk_size x samples field evaluations)."""
+    background: tuple[float, ...] = (0.0, 0.0, 0.0)
+    """Colour behind the volume, one value per channel (used when no per-ray background is
+    given; also the colour of rays that miss the bounds)."""
+
+    def __post_init__(self) -> None:
+        if self.sampler not in SAMPLERS:
+            raise ValueError(f"sampler must be one of {SAMPLERS}, got {self.sampler!r}")
+        for name in ("num_samples", "num_samples_eval", "sphere_num_steps", "chunk_size"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive int, got {value!r}")
+        for name in ("num_samples_extra", "num_bisection", "max_iters"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or value < 0:
+                raise ValueError(f"{name} must be a non-negative int, got {value!r}")
+        if self.num_samples_eval < 2:
+            raise ValueError(f"num_samples_eval must be >= 2, got {self.num_samples_eval}")
+        if self.max_iters < 1:
+            raise ValueError(f"max_iters must be >= 1, got {self.max_iters}")
+        for name in ("eps", "sphere_band_outside", "sphere_band_inside"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        if len(self.background) < 1:
+            raise ValueError("background must have at least one channel")
+
+    @property
+    def samples_per_ray(self) -> int:
+        """S, the number of samples each processed ray gets."""
+        if self.sampler == "uniform":
+            return self.num_samples
+        return self.num_samples + self.num_samples_extra
+
+
+def _place_samples(config, sdf_fn, origins, directions, near, far, beta, generator):
+    if config.sampler == "uniform":
+        return uniform_samples(near, far, config.num_samples, config.stratified, generator)
+    if sdf_fn is None:
+        raise ValueError(f"sdf_fn is required by the {config.sampler!r} sampler")
+    if config.sampler == "error_bounded":
+        return error_bounded_samples(
+            sdf_fn,
+            origins,
+            directions,
+            near,
+            far,
+            beta,
+            num_samples=config.num_samples,
+            num_samples_eval=config.num_samples_eval,
+            num_samples_extra=config.num_samples_extra,
+            eps=config.eps,
+            num_bisection=config.num_bisection,
+            max_iters=config.max_iters,
+            stratified=config.stratified,
+            generator=generator,
+        )
+    return sphere_traced_samples(
+        sdf_fn,
+        origins,
+        directions,
+        near,
+        far,
+        beta,
+        num_samples=config.num_samples,
+        num_uniform=config.num_samples_extra,
+        num_steps=config.sphere_num_steps,
+        band_outside=config.sphere_band_outside,
+        band_inside=config.sphere_band_inside,
+        stratified=config.stratified,
+        generator=generator,
+    )
+
+
+def render_rays(
+    field_fn: FieldFn,
+    sdf_fn: SdfFn | None,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    near: torch.Tensor,
+    far: torch.Tensor,
+    config: RenderConfig,
+    density: LaplaceDensity,
+    *,
+    hit: torch.Tensor | None = None,
+    background: torch.Tensor | None = None,
+    generator: torch.Generator | None = None,
+) -> RenderOutput:
+    """Volume-render rays: ``c = int_near^far T(t) sigma(r(t)) c(r(t), d) dt`` over a background.
+
+    Only rays with ``hit`` are processed, in chunks of ``config.chunk_size``: samples are placed
+    by ``config.sampler`` (using ``sdf_fn`` and the density's current beta, without gradients),
+    ``field_fn`` is evaluated there, ``sigma = density(sdf)`` and the samples are composited
+    (:func:`composite`). Other rays cost nothing and get the background, zero opacity, depth
+    and weights.
+
+    Differentiable w.r.t. the field outputs (hence the field's parameters), the density's beta
+    and the background. *Not* differentiable w.r.t. the sample positions ``t``: they are chosen
+    under ``torch.no_grad`` (points ``o + t d`` still carry gradients of ``origins`` and
+    ``directions``, if those require them).
+
+    field_fn: points [N, 3] metres, directions [N, 3] -> (sdf [N] metres, rgb [N, C]).
+    sdf_fn: points [N, 3] -> sdf [N] metres, for sample placement; may be None for 'uniform'.
+    origins: [R, 3] metres. directions: [R, 3] unit length.
+    near, far: [R] metres along the ray (e.g. from :func:`ray_sphere_bounds`).
+    density: the VolSDF density (its ``beta`` drives the samplers).
+    hit: [R] bool, rays to process; None means ``far > near``.
+    background: [C] or [R, C]; None uses ``config.background``.
+    generator: random generator for stratified sampling (on the rays' device).
+    Returns RenderOutput with rgb [R, C], opacity [R], depth [R], weights [R, S], t_vals [R, S]
+    (``S = config.samples_per_ray``; zeros for skipped rays).
+    """
+    if not isinstance(config, RenderConfig):
+        raise TypeError(f"config must be a RenderConfig, got {type(config).__name__}")
+    if origins.dim() != 2 or origins.shape[-1] != 3:
+        raise ValueError(f"origins must have shape [R, 3], got {tuple(origins.shape)}")
+    num_rays, device, dtype = origins.shape[0], origins.device, origins.dtype
+    if directions.shape != origins.shape:
+        raise ValueError(
+            f"directions must have shape [R, 3]={tuple(origins.shape)}, "
+            f"got {tuple(directions.shape)}"
+        )
+    for name, value in (("near", near), ("far", far)):
+        if value.shape != (num_rays,):
+            raise ValueError(f"{name} must have shape [R]=({num_rays},), got {tuple(value.shape)}")
+    if hit is None:
+        hit = far > near
+    elif hit.shape != (num_rays,) or hit.dtype != torch.bool:
+        raise ValueError(
+            f"hit must be a bool tensor of shape [R]=({num_rays},), got "
+            f"{hit.dtype} {tuple(hit.shape)}"
+        )
+    norms = torch.linalg.vector_norm(directions.detach(), dim=-1)
+    if num_rays > 0 and not bool(((norms - 1.0).abs() < 1e-3).all()):
+        raise ValueError("directions must have unit length (t is measured in metres)")
+    if background is None:
+        background = torch.tensor(config.background, dtype=dtype, device=device)
+    num_channels = background.shape[-1]
+    if background.shape not in ((num_channels,), (num_rays, num_channels)):
+        raise ValueError(f"background must have shape [C] or [R, C], got {tuple(background.shape)}")
+
+    num_samples = config.samples_per_ray
+    beta = density.beta.detach()
+    ray_ids = torch.nonzero(hit).squeeze(-1)
+    chunks = []
+    for start in range(0, ray_ids.shape[0], config.chunk_size):
+        ids = ray_ids[start : start + config.chunk_size]
+        ray_o, ray_d, ray_far = origins[ids], directions[ids], far[ids]
+        t_vals = _place_samples(
+            config, sdf_fn, ray_o, ray_d, near[ids], ray_far, beta, generator
+        ).detach()
+        points = ray_o[:, None, :] + t_vals[..., None] * ray_d[:, None, :]
+        view_dirs = ray_d[:, None, :].expand(-1, num_samples, -1)
+        sdf, rgb = field_fn(points.reshape(-1, 3), view_dirs.reshape(-1, 3))
+        count = ids.shape[0] * num_samples
+        if sdf.shape != (count,) or rgb.dim() != 2 or rgb.shape != (count, num_channels):
+            raise ValueError(
+                f"field_fn must return sdf [N]=({count},) and rgb [N, C]=({count}, "
+                f"{num_channels}), got {tuple(sdf.shape)} and {tuple(rgb.shape)}"
+            )
+        sigma = density(sdf).reshape(ids.shape[0], num_samples)
+        chunk_bg = background if background.dim() == 1 else background[ids]
+        colors = rgb.reshape(ids.shape[0], num_samples, num_channels)
+        chunks.append(composite(sigma, colors, t_vals, ray_far, chunk_bg))
+
+    full_bg = background.expand(num_rays, num_channels)
+    zeros = torch.zeros(num_rays, dtype=dtype, device=device)
+    zeros_s = torch.zeros(num_rays, num_samples, dtype=dtype, device=device)
+    if not chunks:
+        return RenderOutput(
+            rgb=full_bg.clone(),
+            opacity=zeros,
+            depth=zeros.clone(),
+            weights=zeros_s,
+            t_vals=zeros_s.clone(),
+        )
+
+    def gather(field: str, base: torch.Tensor) -> torch.Tensor:
+        values = torch.cat([getattr(chunk, field) for chunk in chunks], dim=0)
+        return base.to(values.dtype).index_copy(0, ray_ids, values)
+
+    return RenderOutput(
+        rgb=gather("rgb", full_bg),
+        opacity=gather("opacity", zeros),
+        depth=gather("depth", zeros),
+        weights=gather("weights", zeros_s),
+        t_vals=gather("t_vals", zeros_s),
+    )
+
+
+def apply_gain_bias(rgb: torch.Tensor, gain: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:
+    """Per-camera, per-channel colour calibration ``gain * rgb + bias`` (Neural Volumes; LISA
+    Section 4.2 "Color calibration").
+
+    At training time each ray uses its camera's gain and bias; at inference LISA uses their
+    average over the cameras (pass ``gain.mean(0)``, ``bias.mean(0)`` of the per-camera tables).
+
+    rgb: [R, C] rendered colours. gain: [R, C] or [C] (unitless). bias: [R, C] or [C].
+    Returns [R, C]; differentiable w.r.t. all three.
+    """
+    if rgb.dim() != 2:
+        raise ValueError(f"rgb must have shape [R, C], got {tuple(rgb.shape)}")
+    for name, value in (("gain", gain), ("bias", bias)):
+        if not isinstance(value, torch.Tensor):
+            raise TypeError(f"{name} must be a torch.Tensor, got {type(value).__name__}")
+        if value.shape not in (rgb.shape, rgb.shape[-1:]):
+            raise ValueError(
+                f"{name} must have shape [R, C]={tuple(rgb.shape)} or [C]=({rgb.shape[-1]},), "
+                f"got {tuple(value.shape)}"
+            )
+    return rgb * gain + bias

@@ -1,0 +1,470 @@
+"""Sample distances along rays: uniform, VolSDF's error-bounded sampler, and a sphere-traced band.
+
+All samplers return sorted ``t_vals [R, S]`` inside ``[near, far]`` and are *not* differentiable:
+they run under ``torch.no_grad`` and only choose where the field is evaluated afterwards. The
+SDF callbacks take ``points [N, 3]`` (metres) and return ``sdf [N]`` (metres, negative inside).
+Ray directions must have unit length so that ``t`` is a distance in metres (the SDF bounds below
+compare ``t`` intervals with signed distances).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+
+from .density import volsdf_density
+
+__all__ = [
+    "SdfFn",
+    "ErrorBoundedSamples",
+    "uniform_samples",
+    "error_bounded_sampling",
+    "error_bounded_samples",
+    "sphere_traced_samples",
+    "opacity_error_bound",
+]
+
+SdfFn = Callable[[torch.Tensor], torch.Tensor]
+"""``sdf_fn(points [N, 3] metres) -> sdf [N] metres`` (negative inside)."""
+
+
+def _check_rays(origins, directions, near, far) -> None:
+    if origins.dim() != 2 or origins.shape[-1] != 3:
+        raise ValueError(f"origins must have shape [R, 3], got {tuple(origins.shape)}")
+    if directions.shape != origins.shape:
+        raise ValueError(
+            f"directions must have the shape of origins {tuple(origins.shape)}, "
+            f"got {tuple(directions.shape)}"
+        )
+    _check_near_far(near, far)
+    if near.shape[0] != origins.shape[0]:
+        raise ValueError(f"near must have shape [R]=({origins.shape[0]},), got {tuple(near.shape)}")
+
+
+def _check_near_far(near, far) -> None:
+    if not isinstance(near, torch.Tensor) or near.dim() != 1:
+        raise ValueError(f"near must be a tensor of shape [R], got {getattr(near, 'shape', near)}")
+    if not isinstance(far, torch.Tensor) or far.shape != near.shape:
+        raise ValueError(
+            f"far must have the shape of near {tuple(near.shape)}, got {getattr(far, 'shape', far)}"
+        )
+
+
+def _eval_sdf(sdf_fn: SdfFn, origins, directions, t_vals) -> torch.Tensor:
+    """sdf at ``o + t d`` for t_vals [R, M] -> [R, M] (same dtype as t_vals)."""
+    points = origins[:, None, :] + t_vals[..., None] * directions[:, None, :]
+    sdf = sdf_fn(points.reshape(-1, 3))
+    if sdf.shape != (points.shape[0] * points.shape[1],):
+        raise ValueError(
+            f"sdf_fn must return shape [N]=({points.shape[0] * points.shape[1]},) for points "
+            f"[N, 3], got {tuple(sdf.shape)}"
+        )
+    return sdf.reshape(t_vals.shape).to(t_vals.dtype)
+
+
+def uniform_samples(
+    near: torch.Tensor,
+    far: torch.Tensor,
+    num_samples: int,
+    stratified: bool = False,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """Split ``[near, far]`` into ``num_samples`` equal bins and take one sample per bin.
+
+    Deterministic: the left edge of each bin, so that with the last interval running up to
+    ``far`` the composite quadrature is the left Riemann sum over exactly ``[near, far]``.
+    Stratified (training): a uniform random position inside each bin.
+
+    near, far: [R] metres. generator: optional torch.Generator on the tensors' device.
+    Returns t_vals [R, num_samples], sorted, in ``[near, far)``.
+    """
+    _check_near_far(near, far)
+    if num_samples < 1:
+        raise ValueError(f"num_samples must be >= 1, got {num_samples}")
+    steps = torch.arange(num_samples, device=near.device, dtype=near.dtype)
+    steps = steps.expand(near.shape[0], num_samples)
+    if stratified:
+        steps = steps + torch.rand(
+            steps.shape, generator=generator, device=near.device, dtype=near.dtype
+        )
+    return near[:, None] + (far - near)[:, None] * (steps / num_samples)
+
+
+def _sample_inverse_cdf(
+    bins: torch.Tensor, weights: torch.Tensor, unit: torch.Tensor
+) -> torch.Tensor:
+    """Invert the piecewise-linear CDF of a piecewise-constant pdf.
+
+    bins: [R, M] sorted bin edges. weights: [R, M-1] non-negative, not all zero, per bin.
+    unit: [R, N] values in [0, 1]. Returns [R, N] positions inside ``[bins_0, bins_{M-1}]``.
+    """
+    pdf = weights / weights.sum(-1, keepdim=True)
+    cdf = torch.cumsum(pdf, dim=-1)
+    cdf = torch.cat([torch.zeros_like(cdf[:, :1]), cdf], dim=-1)
+    cdf[:, -1] = 1.0
+    index = torch.searchsorted(cdf.contiguous(), unit.contiguous(), right=True)
+    last = bins.shape[-1] - 1
+    below = torch.clamp(index - 1, 0, last)
+    above = torch.clamp(index, 0, last)
+    cdf_below, cdf_above = cdf.gather(-1, below), cdf.gather(-1, above)
+    bin_below, bin_above = bins.gather(-1, below), bins.gather(-1, above)
+    span = cdf_above - cdf_below
+    span = torch.where(span < 1e-12, torch.ones_like(span), span)
+    frac = torch.clamp((unit - cdf_below) / span, 0.0, 1.0)
+    return bin_below + frac * (bin_above - bin_below)
+
+
+def _unit_positions(num_rays, num, stratified, generator, like) -> torch.Tensor:
+    """[R, num] in [0, 1): bin midpoints, or uniform random inside each bin when stratified."""
+    steps = torch.arange(num, device=like.device, dtype=like.dtype).expand(num_rays, num)
+    if stratified:
+        offsets = torch.rand(steps.shape, generator=generator, device=like.device, dtype=like.dtype)
+    else:
+        offsets = torch.full_like(steps, 0.5)
+    return (steps + offsets) / num
+
+
+def _distance_lower_bound(t_vals: torch.Tensor, sdf: torch.Tensor) -> torch.Tensor:
+    """VolSDF's ``d*_i``: a lower bound of the distance to the surface on ``[t_i, t_{i+1}]``.
+
+    For an exact SDF the surface avoids the balls ``B(x_i, |s_i|)`` and ``B(x_{i+1}, |s_{i+1}|)``;
+    ``d*`` is the distance from the segment to the complement of their union: ``|s_i|`` or
+    ``|s_{i+1}|`` when the other ball's boundary is not reached above the segment (obtuse angle),
+    the height of the triangle (segment, two radii) otherwise, and 0 when the balls do not cover
+    the segment or the sign changes (VolSDF Section 3.3, Theorem 1).
+
+    t_vals: [R, M] sorted metres (unit directions); sdf: [R, M] metres. Returns [R, M-1] >= 0.
+    """
+    seg = t_vals[:, 1:] - t_vals[:, :-1]
+    rad_a, rad_b = sdf[:, :-1].abs(), sdf[:, 1:].abs()
+    seg2, rad_a2, rad_b2 = seg * seg, rad_a * rad_a, rad_b * rad_b
+    obtuse_at_a = seg2 + rad_a2 <= rad_b2
+    obtuse_at_b = seg2 + rad_b2 <= rad_a2
+    covered = rad_a + rad_b > seg
+    # Foot of the triangle's height, measured from x_i along the segment, then the height itself.
+    foot = (seg2 + rad_a2 - rad_b2) / (2.0 * torch.clamp(seg, min=1e-20))
+    height = torch.sqrt(torch.clamp(rad_a2 - foot * foot, min=0.0))
+    d_star = torch.where(covered, height, torch.zeros_like(height))
+    d_star = torch.where(obtuse_at_b, rad_b, d_star)
+    d_star = torch.where(obtuse_at_a, rad_a, d_star)
+    same_sign = (sdf[:, :-1] * sdf[:, 1:]) > 0
+    return torch.where(same_sign, d_star, torch.zeros_like(d_star))
+
+
+def opacity_error_bound(
+    t_vals: torch.Tensor,
+    sdf: torch.Tensor,
+    beta: torch.Tensor,
+    d_star: torch.Tensor | None = None,
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """VolSDF's bound on the opacity error of the left Riemann sum on ``t_vals``.
+
+    With ``sigma = volsdf_density(sdf, beta)`` (``alpha = 1 / beta``), ``R_hat(t_k)`` the left
+    Riemann sum of ``sigma`` up to ``t_k`` and (VolSDF Theorem 1, Eq. 13)
+
+        E_hat(t_{k+1}) = 1 / (4 beta^2) * sum_{i<=k} delta_i^2 exp(-d*_i / beta),
+
+    the opacity error on ``[t_k, t_{k+1}]`` is at most (VolSDF Eq. 14)
+    ``B_k = (exp(E_hat(t_{k+1})) - 1) exp(-R_hat(t_k))``; ``B = max_k B_k``.
+
+    t_vals: [R, M] sorted metres, covering the interval of interest. sdf: [R, M] metres.
+    beta: [R, 1] or [] metres. d_star: [R, M-1] from the SDF (computed when None).
+    Returns ``(bound [R], per_section [R, M-1])``.
+    """
+    if d_star is None:
+        d_star = _distance_lower_bound(t_vals, sdf)
+    deltas = t_vals[:, 1:] - t_vals[:, :-1]
+    sigma = volsdf_density(sdf[:, :-1], beta)
+    riemann = torch.cumsum(sigma[:, :-1] * deltas[:, :-1], dim=-1)
+    riemann = torch.cat([torch.zeros_like(riemann[:, :1]), riemann], dim=-1)
+    error = torch.cumsum(deltas * deltas * torch.exp(-d_star / beta), dim=-1) / (4.0 * beta * beta)
+    # exp(60) is finite in float32; past that the bound is meaningless anyway.
+    per_section = torch.expm1(torch.clamp(error, max=60.0)) * torch.exp(-riemann)
+    return per_section.max(dim=-1).values, per_section
+
+
+def _section_weights(t_vals, sdf, beta) -> torch.Tensor:
+    """Composite weights of the sections ``[t_i, t_{i+1})``: [R, M-1]."""
+    deltas = t_vals[:, 1:] - t_vals[:, :-1]
+    depth = volsdf_density(sdf[:, :-1], beta) * deltas
+    before = torch.cat([torch.zeros_like(depth[:, :1]), torch.cumsum(depth[:, :-1], dim=-1)], -1)
+    return torch.exp(-before) * -torch.expm1(-depth)
+
+
+@dataclass
+class ErrorBoundedSamples:
+    """Result of :func:`error_bounded_sampling`.
+
+    t_vals: [R, S] final samples, sorted (``S = num_samples + num_samples_extra``).
+    t_bound: [R, M] the set ``T`` on which the opacity error bound was computed (sorted; starts
+        at ``near`` and ends at ``far``). Rays that converged before the last upsampling are
+        padded at the end with copies of ``far`` (zero-length sections).
+    sdf_bound: [R, M] sdf at ``t_bound``, metres.
+    beta_plus: [R] the ``beta+`` of Algorithm 1: the smallest scale found for which the bound on
+        ``T`` is ``<= eps``; equals the target beta on converged rays.
+    error_bound: [R] the bound ``B_{T, beta+}``.
+    converged: [R] bool, True where ``B_{T, beta} <= eps`` for the target beta.
+    num_bound: [R] long, number of SDF evaluations of each ray (real members of ``T``).
+    """
+
+    t_vals: torch.Tensor
+    t_bound: torch.Tensor
+    sdf_bound: torch.Tensor
+    beta_plus: torch.Tensor
+    error_bound: torch.Tensor
+    converged: torch.Tensor
+    num_bound: torch.Tensor
+
+
+@torch.no_grad()
+def error_bounded_sampling(
+    sdf_fn: SdfFn,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    near: torch.Tensor,
+    far: torch.Tensor,
+    beta: float | torch.Tensor,
+    *,
+    num_samples: int = 64,
+    num_samples_eval: int = 128,
+    num_samples_extra: int = 32,
+    eps: float = 0.1,
+    num_bisection: int = 10,
+    max_iters: int = 5,
+    stratified: bool = False,
+    generator: torch.Generator | None = None,
+) -> ErrorBoundedSamples:
+    """VolSDF's error-bounded sampler (VolSDF Algorithm 1, Section 3.4).
+
+    1. ``T`` = ``num_samples_eval`` uniform samples from ``near`` to ``far`` (inclusive); the SDF
+       is evaluated there without gradients.
+    2. ``beta+`` from VolSDF Lemma 2, ``sqrt(sum delta^2 / (4 log(1 + eps)))``, which makes the
+       bound ``<= eps`` whatever the SDF.
+    3. Up to ``max_iters`` times: if ``B_{T, beta} <= eps`` the ray has converged
+       (``beta+ = beta``); otherwise ``beta+`` is lowered by ``num_bisection`` bisection steps
+       on ``(beta, beta+)`` keeping ``B_{T, beta+} <= eps``, and ``num_samples_eval`` samples
+       are added to ``T`` by inverting the CDF of the per-section error bound (the SDF is
+       evaluated at them). Converged rays are left alone (no further SDF evaluations).
+    4. ``num_samples`` fresh samples are drawn by inverting the opacity ``O_hat_{T, beta+}``
+       (bin midpoints, or stratified), and ``num_samples_extra`` samples of ``T`` (evenly spaced
+       indices) are added, as VolSDF does.
+
+    The density is assumed to be :func:`volsdf_density` with ``alpha = 1 / beta``. The final
+    inverse CDF uses the section weights plus a floor of total mass 1e-3 spread by length (VolSDF
+    adds 1e-5 per section). Not differentiable (runs under ``torch.no_grad``).
+
+    sdf_fn: points [N, 3] metres -> sdf [N] metres.
+    origins: [R, 3] metres. directions: [R, 3] unit. near, far: [R] metres, ``far > near``.
+    beta: target Laplace scale (float or [] tensor), metres.
+    eps: bound on the opacity error. generator: for the stratified draws.
+    """
+    _check_rays(origins, directions, near, far)
+    if num_samples < 1 or num_samples_eval < 2 or num_samples_extra < 0:
+        raise ValueError(
+            "need num_samples >= 1, num_samples_eval >= 2, num_samples_extra >= 0, got "
+            f"{num_samples}, {num_samples_eval}, {num_samples_extra}"
+        )
+    if not eps > 0:
+        raise ValueError(f"eps must be > 0, got {eps}")
+    num_rays, dtype, device = origins.shape[0], origins.dtype, origins.device
+    beta_t = torch.as_tensor(beta, dtype=dtype, device=device).detach().reshape(1, 1)
+    beta_t = beta_t.expand(num_rays, 1)
+    log_eps = math.log1p(eps)
+
+    def lemma2_beta(t_vals: torch.Tensor) -> torch.Tensor:
+        deltas = t_vals[:, 1:] - t_vals[:, :-1]
+        return torch.sqrt((deltas * deltas).sum(-1, keepdim=True) / (4.0 * log_eps))
+
+    unit = torch.linspace(0.0, 1.0, num_samples_eval, dtype=dtype, device=device)
+    t_bound = near[:, None] + (far - near)[:, None] * unit
+    sdf_bound = _eval_sdf(sdf_fn, origins, directions, t_bound)
+    beta_plus = torch.maximum(lemma2_beta(t_bound), beta_t)
+    converged = torch.zeros(num_rays, dtype=torch.bool, device=device)
+    num_bound = torch.full((num_rays,), num_samples_eval, dtype=torch.long, device=device)
+
+    for iteration in range(max_iters):
+        # Only unconverged rays are worked on; converged ones keep their T and beta+ = beta.
+        rows = torch.nonzero(~converged).squeeze(-1)
+        if rows.numel() == 0:
+            break
+        t_rows, sdf_rows, beta_rows = t_bound[rows], sdf_bound[rows], beta_t[rows]
+        d_star = _distance_lower_bound(t_rows, sdf_rows)
+        rows_converged = opacity_error_bound(t_rows, sdf_rows, beta_rows, d_star)[0] <= eps
+        # After upsampling the previous beta+ may no longer satisfy the bound; Lemma 2 on the
+        # new T always does.
+        high = beta_plus[rows]
+        high_fails = opacity_error_bound(t_rows, sdf_rows, high, d_star)[0] > eps
+        high = torch.where(high_fails[:, None], lemma2_beta(t_rows), high)
+        low = beta_rows.clone()
+        for _ in range(num_bisection):
+            mid = 0.5 * (low + high)
+            ok = (opacity_error_bound(t_rows, sdf_rows, mid, d_star)[0] <= eps)[:, None]
+            high = torch.where(ok, mid, high)
+            low = torch.where(ok, low, mid)
+        beta_rows_plus = torch.where(rows_converged[:, None], beta_rows, high)
+        beta_plus[rows] = beta_rows_plus
+        converged[rows] = rows_converged
+        if bool(rows_converged.all()) or iteration == max_iters - 1:
+            break
+
+        # Upsample the unconverged rays where the error bound is largest (VolSDF Algorithm 1).
+        keep = ~rows_converged
+        rows, t_rows, sdf_rows = rows[keep], t_rows[keep], sdf_rows[keep]
+        _, per_section = opacity_error_bound(t_rows, sdf_rows, beta_rows_plus[keep], d_star[keep])
+        unit_new = _unit_positions(rows.shape[0], num_samples_eval, False, None, t_rows)
+        t_new = _sample_inverse_cdf(t_rows, per_section + 1e-6, unit_new)
+        sdf_new = _eval_sdf(sdf_fn, origins[rows], directions[rows], t_new)
+        t_rows, order = torch.sort(torch.cat([t_rows, t_new], dim=-1), dim=-1)
+        sdf_rows = torch.cat([sdf_rows, sdf_new], dim=-1).gather(-1, order)
+        # Other rays are padded with copies of their last sample (t = far): zero-length sections
+        # that change neither the bound nor the weights.
+        t_bound = torch.cat([t_bound, t_bound[:, -1:].expand(-1, num_samples_eval)], dim=-1)
+        sdf_bound = torch.cat([sdf_bound, sdf_bound[:, -1:].expand(-1, num_samples_eval)], dim=-1)
+        t_bound[rows] = t_rows
+        sdf_bound[rows] = sdf_rows
+        num_bound[rows] += num_samples_eval
+
+    error_bound, _ = opacity_error_bound(t_bound, sdf_bound, beta_plus)
+    weights = _section_weights(t_bound, sdf_bound, beta_plus)
+    # A floor of total mass 1e-3, spread by length, keeps the pdf positive on empty rays.
+    section = t_bound[:, 1:] - t_bound[:, :-1]
+    floor = 1e-3 * section / torch.clamp(section.sum(-1, keepdim=True), min=1e-20)
+    unit_final = _unit_positions(num_rays, num_samples, stratified, generator, t_bound)
+    t_vals = _sample_inverse_cdf(t_bound, weights + floor + 1e-20, unit_final)
+    if num_samples_extra > 0:
+        # Evenly spaced (or, stratified, random) members of each ray's own T.
+        if stratified:
+            frac = torch.rand(
+                num_rays, num_samples_extra, generator=generator, device=device, dtype=dtype
+            )
+        else:
+            frac = torch.linspace(0.0, 1.0, num_samples_extra, dtype=dtype, device=device)
+            frac = frac.expand(num_rays, num_samples_extra)
+        pick = torch.round(frac * (num_bound[:, None] - 1).to(dtype)).long()
+        t_vals = torch.cat([t_vals, t_bound.gather(-1, pick)], dim=-1)
+    t_vals, _ = torch.sort(t_vals, dim=-1)
+    return ErrorBoundedSamples(
+        t_vals=t_vals,
+        t_bound=t_bound,
+        sdf_bound=sdf_bound,
+        beta_plus=beta_plus[:, 0],
+        error_bound=error_bound,
+        converged=converged,
+        num_bound=num_bound,
+    )
+
+
+def error_bounded_samples(
+    sdf_fn: SdfFn,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    near: torch.Tensor,
+    far: torch.Tensor,
+    beta: float | torch.Tensor,
+    **kwargs,
+) -> torch.Tensor:
+    """The ``t_vals [R, S]`` of :func:`error_bounded_sampling` (same arguments)."""
+    return error_bounded_sampling(sdf_fn, origins, directions, near, far, beta, **kwargs).t_vals
+
+
+@torch.no_grad()
+def sphere_traced_samples(
+    sdf_fn: SdfFn,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    near: torch.Tensor,
+    far: torch.Tensor,
+    beta: float | torch.Tensor,
+    *,
+    num_samples: int = 32,
+    num_uniform: int = 8,
+    num_steps: int = 64,
+    band_outside: float = 8.0,
+    band_inside: float = 16.0,
+    min_step: float = 1.0,
+    hit_tolerance: float = 0.1,
+    stratified: bool = False,
+    generator: torch.Generator | None = None,
+) -> torch.Tensor:
+    """Samples concentrated where VolSDF's density matters, found by sphere tracing.
+
+    Outside the shell ``sdf <= band_outside * beta`` the density is below
+    ``exp(-band_outside) / (2 beta)``; behind the surface the transmittance falls at least as
+    ``exp(-dt / (2 beta))``. So the ray is sphere traced (step = distance to the shell, then to
+    the surface, at least ``min_step * beta``; only the still-active rays are evaluated) to find
+    where it first enters the shell, and where it first reaches the surface
+    (``sdf <= hit_tolerance * beta``). The band runs from the entry (less one minimum step) to
+    ``band_inside * beta`` past that hit; a ray that crosses the shell without hitting the surface
+    gets the band up to its last exit from the shell (``far`` when it ran out of steps inside).
+    ``num_samples`` evenly spaced samples (stratified: one random sample per bin) go in the band
+    and ``num_uniform`` uniform samples in ``[near, far]``; rays that never enter the shell get all
+    ``num_samples + num_uniform`` samples uniformly (their opacity is negligible).
+
+    Assumes an SDF that does not overestimate distances (sphere tracing never steps past the
+    surface by more than the minimum step). Not differentiable (runs under ``torch.no_grad``).
+
+    sdf_fn: points [N, 3] metres -> sdf [N] metres.
+    origins: [R, 3] metres. directions: [R, 3] unit. near, far: [R] metres.
+    beta: the density's current Laplace scale, metres (float or [] tensor).
+    Returns t_vals [R, num_samples + num_uniform], sorted, in ``[near, far]``.
+    """
+    _check_rays(origins, directions, near, far)
+    if num_samples < 1 or num_uniform < 0 or num_steps < 1:
+        raise ValueError(
+            f"need num_samples >= 1, num_uniform >= 0, num_steps >= 1, got {num_samples}, "
+            f"{num_uniform}, {num_steps}"
+        )
+    num_rays, dtype, device = origins.shape[0], origins.dtype, origins.device
+    beta_value = torch.as_tensor(beta, dtype=dtype, device=device).detach()
+    shell = band_outside * beta_value
+    step_min = min_step * beta_value
+    tolerance = hit_tolerance * beta_value
+
+    t_cur = near.clone()
+    t_enter = torch.full_like(near, math.inf)  # first entry into the shell
+    t_leave = far.clone()  # band end for rays that never hit
+    t_hit = torch.full_like(near, math.inf)
+    inside = torch.zeros(num_rays, dtype=torch.bool, device=device)  # currently in the shell
+    active = torch.arange(num_rays, device=device)
+    for _ in range(num_steps):
+        if active.numel() == 0:
+            break
+        t_act = t_cur[active]
+        points = origins[active] + t_act[:, None] * directions[active]
+        sdf = sdf_fn(points).to(dtype)
+        in_shell = sdf <= shell
+        t_enter[active] = torch.where(
+            in_shell, torch.minimum(t_enter[active], t_act), t_enter[active]
+        )
+        left_shell = inside[active] & ~in_shell
+        t_leave[active] = torch.where(left_shell, t_act, t_leave[active])
+        # A ray that re-enters after leaving goes back to 'band up to far' until it leaves again.
+        t_leave[active] = torch.where(in_shell & ~inside[active], far[active], t_leave[active])
+        inside[active] = in_shell
+        hit_now = sdf <= tolerance
+        t_hit[active] = torch.where(hit_now, t_act, t_hit[active])
+        step = torch.where(in_shell, sdf, sdf - shell)
+        t_next = t_act + torch.clamp(step, min=step_min)
+        t_cur[active] = t_next
+        keep = ~hit_now & (t_next <= far[active])
+        active = active[keep]
+
+    entered = torch.isfinite(t_enter)
+    hit = torch.isfinite(t_hit)
+    band_start = torch.maximum(t_enter - step_min, near)
+    band_end = torch.where(hit, t_hit + band_inside * beta_value, t_leave)
+    band_end = torch.minimum(band_end, far)
+    band_start = torch.where(entered, band_start, near)
+    band_end = torch.where(entered, torch.maximum(band_end, band_start), far)
+
+    total = num_samples + num_uniform
+    in_band = uniform_samples(band_start, band_end, num_samples, stratified, generator)
+    if num_uniform > 0:
+        coarse = uniform_samples(near, far, num_uniform, stratified, generator)
+        in_band = torch.cat([in_band, coarse], dim=-1)
+    everywhere = uniform_samples(near, far, total, stratified, generator)
+    t_vals = torch.where(entered[:, None], in_band, everywhere)
+    return torch.sort(t_vals, dim=-1).values
