@@ -521,9 +521,11 @@ def _marching_cubes(volume: np.ndarray, level: float, mask: np.ndarray | None):
     """Run skimage's Lewiner marching cubes; returns vertices in index units and int64 faces."""
     from skimage.measure import marching_cubes
 
+    # skimage's "descent" (its default, meant for fields that grow into the object) emits the
+    # faces in the order that makes normals point to growing values: outward for an SDF.
     try:
         vertices, faces, _, _ = marching_cubes(
-            volume, level=level, gradient_direction="ascent", mask=mask
+            volume, level=level, gradient_direction="descent", mask=mask
         )
     except RuntimeError as exc:  # skimage: "No surface found at the given iso value."
         raise ValueError(f"the level set sdf = {level} was not found in the box ({exc})") from None

@@ -13,6 +13,7 @@ from .renderer import SAMPLERS, FieldFn, RenderConfig, apply_gain_bias, render_r
 from .samplers import (
     ErrorBoundedSamples,
     SdfFn,
+    distance_lower_bound,
     error_bounded_samples,
     error_bounded_sampling,
     opacity_error_bound,
@@ -38,6 +39,7 @@ __all__ = [
     "error_bounded_sampling",
     "error_bounded_samples",
     "opacity_error_bound",
+    "distance_lower_bound",
     "sphere_traced_samples",
     "uniform_samples",
 ]

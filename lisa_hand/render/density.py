@@ -112,4 +112,4 @@ class LaplaceDensity(nn.Module):
         return volsdf_density(sdf, beta)
 
     def extra_repr(self) -> str:
-        return f"beta={float(self.beta):.3g}, beta_min={self.beta_min:.3g}"
+        return f"beta={float(self.beta.detach()):.3g}, beta_min={self.beta_min:.3g}"

@@ -25,6 +25,7 @@ __all__ = [
     "error_bounded_samples",
     "sphere_traced_samples",
     "opacity_error_bound",
+    "distance_lower_bound",
 ]
 
 SdfFn = Callable[[torch.Tensor], torch.Tensor]
@@ -127,7 +128,7 @@ def _unit_positions(num_rays, num, stratified, generator, like) -> torch.Tensor:
     return (steps + offsets) / num
 
 
-def _distance_lower_bound(t_vals: torch.Tensor, sdf: torch.Tensor) -> torch.Tensor:
+def distance_lower_bound(t_vals: torch.Tensor, sdf: torch.Tensor) -> torch.Tensor:
     """VolSDF's ``d*_i``: a lower bound of the distance to the surface on ``[t_i, t_{i+1}]``.
 
     For an exact SDF the surface avoids the balls ``B(x_i, |s_i|)`` and ``B(x_{i+1}, |s_{i+1}|)``;
@@ -175,7 +176,7 @@ def opacity_error_bound(
     Returns ``(bound [R], per_section [R, M-1])``.
     """
     if d_star is None:
-        d_star = _distance_lower_bound(t_vals, sdf)
+        d_star = distance_lower_bound(t_vals, sdf)
     deltas = t_vals[:, 1:] - t_vals[:, :-1]
     sigma = volsdf_density(sdf[:, :-1], beta)
     riemann = torch.cumsum(sigma[:, :-1] * deltas[:, :-1], dim=-1)
@@ -291,7 +292,7 @@ def error_bounded_sampling(
         if rows.numel() == 0:
             break
         t_rows, sdf_rows, beta_rows = t_bound[rows], sdf_bound[rows], beta_t[rows]
-        d_star = _distance_lower_bound(t_rows, sdf_rows)
+        d_star = distance_lower_bound(t_rows, sdf_rows)
         rows_converged = opacity_error_bound(t_rows, sdf_rows, beta_rows, d_star)[0] <= eps
         # After upsampling the previous beta+ may no longer satisfy the bound; Lemma 2 on the
         # new T always does.

@@ -9,6 +9,15 @@ from .kinematics import (
     mirror_points,
     mirror_pose,
 )
+from .mano import (
+    ManoData,
+    ManoLayer,
+    ManoOutput,
+    load_mano_pkl,
+    mano_forward,
+    mano_full_pose,
+    mano_pose_features,
+)
 from .tree import (
     FINGER_JOINTS,
     FINGER_NAMES,
@@ -31,6 +40,13 @@ __all__ = [
     "linear_blend_skinning",
     "mirror_points",
     "mirror_pose",
+    "ManoData",
+    "ManoLayer",
+    "ManoOutput",
+    "load_mano_pkl",
+    "mano_forward",
+    "mano_full_pose",
+    "mano_pose_features",
     "FINGER_JOINTS",
     "FINGER_NAMES",
     "JOINT_NAMES",

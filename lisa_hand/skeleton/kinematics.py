@@ -76,7 +76,9 @@ def forward_kinematics(
     pose = check_pose(pose)
     batch = pose.shape[0]
     if rest_joints.shape[-2:] != (NUM_JOINTS, 3) or rest_joints.dim() not in (2, 3):
-        raise ValueError(f"rest_joints must be [16, 3] or [B, 16, 3], got {tuple(rest_joints.shape)}")
+        raise ValueError(
+            f"rest_joints must be [16, 3] or [B, 16, 3], got {tuple(rest_joints.shape)}"
+        )
     rest_joints = rest_joints.to(pose.dtype).expand(batch, NUM_JOINTS, 3)
     rotmats = axis_angle_to_matrix(pose)  # [B, 16, 3, 3]
 
@@ -90,7 +92,9 @@ def forward_kinematics(
     bone_frames = torch.stack(frames, dim=1)
     if translation is not None:
         if translation.shape != (batch, 3):
-            raise ValueError(f"translation must be [B, 3] with B={batch}, got {tuple(translation.shape)}")
+            raise ValueError(
+                f"translation must be [B, 3] with B={batch}, got {tuple(translation.shape)}"
+            )
         if not torch.isfinite(translation).all():
             raise ValueError("translation contains NaN or inf values")
         shift = torch.zeros_like(bone_frames)
@@ -100,7 +104,9 @@ def forward_kinematics(
     rot_world = bone_frames[..., :3, :3]
     transl_lbs = joints - (rot_world @ rest_joints[..., None])[..., 0]
     transforms = make_transform(rot_world, transl_lbs)
-    return Kinematics(joints=joints, transforms=transforms, bone_frames=bone_frames, rotmats=rotmats)
+    return Kinematics(
+        joints=joints, transforms=transforms, bone_frames=bone_frames, rotmats=rotmats
+    )
 
 
 def linear_blend_skinning(
@@ -116,15 +122,17 @@ def linear_blend_skinning(
     batch = transforms.shape[0]
     if points_rest.dim() == 2:
         points_rest = points_rest.expand(batch, *points_rest.shape)
-    if weights.dim() == 2:
-        weights = weights.expand(batch, *weights.shape)
-    if weights.shape[-1] != transforms.shape[1] or weights.shape[1] != points_rest.shape[1]:
+    if weights.shape[-1] != transforms.shape[1] or weights.shape[-2] != points_rest.shape[1]:
         raise ValueError(
             f"weights {tuple(weights.shape)} do not match points {tuple(points_rest.shape)} and "
             f"transforms {tuple(transforms.shape)}"
         )
+    if weights.dim() == 2:
+        weights = weights.expand(batch, *weights.shape)
     blended = torch.einsum("bvj,bjrc->bvrc", weights.to(transforms.dtype), transforms[..., :3, :])
-    return (blended[..., :3] @ points_rest.to(transforms.dtype)[..., None])[..., 0] + blended[..., 3]
+    return (blended[..., :3] @ points_rest.to(transforms.dtype)[..., None])[..., 0] + blended[
+        ..., 3
+    ]
 
 
 _SIDES = ("right", "left")

@@ -69,7 +69,7 @@ _REQUIRED_KEYS = (
 class _ChumpyStub:
     """Inert stand-in for a pickled chumpy object: keeps the pickled state, runs no chumpy code."""
 
-    chumpy_name = "chumpy"
+    pickled_name = "chumpy"  # the stubbed global, e.g. "chumpy.ch.Ch" (set per stub class)
     stub_state: dict = {}  # replaced (never mutated) by __setstate__
 
     def __new__(cls, *args, **kwargs):
@@ -150,7 +150,7 @@ class _ManoUnpickler(pickle.Unpickler):
     @classmethod
     def _stub(cls, full_name: str, base: type) -> type:
         if full_name not in cls._stub_classes:
-            stub = type(base.__name__, (base,), {"chumpy_name": full_name})
+            stub = type(base.__name__, (base,), {"pickled_name": full_name})
             cls._stub_classes[full_name] = stub
         return cls._stub_classes[full_name]
 
@@ -183,7 +183,7 @@ def _evaluate_chumpy(obj: _ChumpyStub, path: Path, key: str, depth: int = 0) -> 
     """Recover the array a pickled chumpy object holds (plain ``Ch`` and simple reorderings)."""
     if depth > 32:
         raise ValueError(f"{path}: key {key!r} is a chumpy expression nested too deeply")
-    name = obj.chumpy_name
+    name = obj.pickled_name
     kind = name.rsplit(".", 1)[-1]
     state = obj.stub_state
 
@@ -214,7 +214,7 @@ def _sparse_to_dense(obj: _SparseStub, path: Path, key: str) -> np.ndarray:
         rows, cols = (int(size) for size in shape)
         data = np.asarray(state["data"], dtype=np.float64).ravel()
         dense = np.zeros((rows, cols), dtype=np.float64)
-        fmt = str(state.get("format", obj.chumpy_name.rsplit(".", 1)[-1][:3]))
+        fmt = str(state.get("format", obj.pickled_name.rsplit(".", 1)[-1][:3]))
         if fmt in ("csc", "csr"):
             indices = np.asarray(state["indices"], dtype=np.int64)
             indptr = np.asarray(state["indptr"], dtype=np.int64)
@@ -228,7 +228,7 @@ def _sparse_to_dense(obj: _SparseStub, path: Path, key: str) -> np.ndarray:
         np.add.at(dense, (row_idx, col_idx), data)
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise ValueError(
-            f"{path}: key {key!r} is a scipy.sparse matrix ({obj.chumpy_name}) that cannot be "
+            f"{path}: key {key!r} is a scipy.sparse matrix ({obj.pickled_name}) that cannot be "
             f"read ({type(exc).__name__}: {exc})"
         ) from None
     return dense
@@ -355,6 +355,14 @@ def load_mano_pkl(
     missing = [key for key in _REQUIRED_KEYS if key not in raw]
     if missing:
         raise ValueError(f"{path}: not a MANO model, missing key(s) {', '.join(missing)}")
+
+    for key, expected in (("bs_style", "lbs"), ("bs_type", "lrotmin")):  # informational keys
+        value = raw.get(key, expected)
+        value = value.decode("latin1") if isinstance(value, bytes) else value
+        if isinstance(value, str) and value != expected:
+            raise ValueError(
+                f"{path}: {key}={value!r} is not supported (MANO uses {key}={expected!r})"
+            )
 
     num_v = NUM_MANO_VERTICES
     template = _float_array(raw, "v_template", (num_v, 3), path, f"[{num_v}, 3]")
@@ -566,7 +574,6 @@ class ManoLayer(nn.Module):
         self.hand_pose_dim = self.num_pca_comps if self.use_pca else NUM_HAND_POSE
         self.flat_hand_mean = bool(flat_hand_mean)
         self.num_betas = data.num_betas
-        self.dtype = dtype
 
         def buffer(name: str, array: np.ndarray, as_dtype: torch.dtype = dtype) -> None:
             self.register_buffer(name, torch.as_tensor(array).to(as_dtype), persistent=False)
@@ -587,6 +594,16 @@ class ManoLayer(nn.Module):
         else:
             self.register_buffer("hand_components", None, persistent=False)
 
+    @property
+    def dtype(self) -> torch.dtype:
+        """The dtype of the buffers and of the computation (follows ``.to(dtype)``)."""
+        return self.template_vertices.dtype
+
+    @property
+    def device(self) -> torch.device:
+        """The device of the buffers; inputs must be on it."""
+        return self.template_vertices.device
+
     def extra_repr(self) -> str:
         pca = (
             f"use_pca=True, num_pca_comps={self.num_pca_comps}" if self.use_pca else "use_pca=False"
@@ -606,12 +623,11 @@ class ManoLayer(nn.Module):
         if value.dtype != self.dtype:
             raise TypeError(
                 f"{name} has dtype {value.dtype} but the layer computes in {self.dtype} "
-                "(cast the input or build the layer with that dtype)"
+                "(cast the input or convert the layer with .to(dtype))"
             )
-        if value.device != self.template_vertices.device:
+        if value.device != self.device:
             raise ValueError(
-                f"{name} is on {value.device} but the layer is on "
-                f"{self.template_vertices.device} (move one of them)"
+                f"{name} is on {value.device} but the layer is on {self.device} (move one of them)"
             )
         if not torch.isfinite(value).all():
             raise ValueError(f"{name} contains NaN or inf values")
@@ -647,7 +663,7 @@ class ManoLayer(nn.Module):
             elif value.shape[0] != batch:
                 raise ValueError(f"{name} has batch size {value.shape[0]}, other inputs {batch}")
         batch = 1 if batch is None else batch
-        device = self.template_vertices.device
+        device = self.device
 
         def zeros(width: int) -> torch.Tensor:
             return torch.zeros(batch, width, dtype=self.dtype, device=device)

@@ -19,7 +19,17 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["Py2Pickler", "synthetic_mano_arrays", "write_synthetic_mano", "mirror_pose_np"]
+__all__ = [
+    "FakeCh",
+    "FakeCscMatrix",
+    "Py2Pickler",
+    "mirror_arrays",
+    "mirror_pose_np",
+    "official_layout",
+    "synthetic_mano_arrays",
+    "write_pickle_py2",
+    "write_synthetic_mano",
+]
 
 _ROOT_PARENT = 4294967295  # the official files store the root's parent as an unsigned -1
 _PARENTS = (-1, 0, 1, 2, 0, 4, 5, 0, 7, 8, 0, 10, 11, 0, 13, 14)
@@ -64,6 +74,12 @@ class Py2Pickler(pickle._Pickler):
 
     dispatch = pickle._Pickler.dispatch.copy()
 
+    def __init__(self, file, protocol: int = 2, aliases: dict[type, tuple[str, str]] | None = None):
+        """aliases: extra classes to write under another (module, name), e.g. more chumpy ops."""
+        super().__init__(file, protocol=protocol)
+        self._aliases = dict(_ALIASES)
+        self._aliases.update({id(cls): name for cls, name in (aliases or {}).items()})
+
     def _save_py2_str(self, data: bytes, obj) -> None:
         if len(data) < 256:
             self.write(pickle.SHORT_BINSTRING + bytes([len(data)]) + data)
@@ -81,7 +97,7 @@ class Py2Pickler(pickle._Pickler):
             super().save_str(obj)
 
     def save_global(self, obj, name=None) -> None:
-        alias = _ALIASES.get(id(obj))
+        alias = self._aliases.get(id(obj))
         if alias is None:
             super().save_global(obj, name)
             return
@@ -177,10 +193,12 @@ def official_layout(arrays: dict[str, np.ndarray]) -> dict[str, object]:
     return content
 
 
-def write_pickle_py2(path: Path, content: object) -> Path:
+def write_pickle_py2(
+    path: Path, content: object, aliases: dict[type, tuple[str, str]] | None = None
+) -> Path:
     """Pickle ``content`` with :class:`Py2Pickler` (protocol 2)."""
     with Path(path).open("wb") as handle:
-        Py2Pickler(handle, protocol=2).dump(content)
+        Py2Pickler(handle, protocol=2, aliases=aliases).dump(content)
     return Path(path)
 
 
