@@ -10,10 +10,13 @@ at their centres with the Lipschitz bound of the field,
 and a block whose centre value is far from the level set (further than ``L`` times its half
 diagonal plus one cell diagonal) cannot contain the surface, nor touch a grid cell that does. Such
 blocks get a value of the right sign without being evaluated; the others are split in eight until
-blocks of two cells, whose grid points are evaluated. Every grid cell that marching cubes turns
-into triangles then has all eight corners evaluated exactly as the dense grid would have them, so
-the mesh equals the dense one (same vertices and faces) whenever ``lipschitz`` bounds the field's
-gradient norm.
+blocks of two cells. Their grid points are evaluated unless the block centres around them (one
+cell away at most) prove them further than one cell diagonal from the level set. Every grid cell
+that marching cubes turns into triangles has all its corners within one cell diagonal of the
+surface, so it has all eight corners evaluated as the dense grid would have them, and the mesh
+equals the dense one (same faces, same vertices up to the callback's float rounding) whenever
+``lipschitz`` bounds the field's gradient norm. Marching cubes itself (skimage, Lewiner) runs on
+the dense array, masked to the evaluated points.
 """
 
 from __future__ import annotations
@@ -144,8 +147,8 @@ def extract_mesh(
 
     sdf_fn: callback ``points [N, 3] metres (dtype, device) -> sdf [N] or [N, 1] metres``,
         negative inside. Called under ``torch.no_grad()`` on chunks of at most ``chunk_size``
-        points. With the hierarchy on, it is also called at block centres up to a few cells
-        outside the box (on the high side).
+        points. With the hierarchy on, it is also called at block centres up to one coarse
+        block outside the box (on the high side).
     bbox_min, bbox_max: [3] metres, the box corners; the grid's first and last samples lie on them.
     resolution: grid samples per axis (>= 2); voxel size ``(bbox_max - bbox_min) / (resolution-1)``.
     coarse_resolution: blocks per axis of the coarsest level of the hierarchy, rounded so that a
@@ -153,9 +156,10 @@ def extract_mesh(
         value that rounds to blocks of one cell) turns the hierarchy off: every grid point is
         evaluated, the dense reference.
     level: the iso-value, metres.
-    lipschitz: an upper bound of ``|grad sdf|`` (1 for an exact SDF, and for min/max unions of
-        exact SDFs). The result equals dense evaluation when it holds; raise it for fields that
-        are not exact SDFs (neural fields: 1.5-2 is a safe choice).
+    lipschitz: an upper bound of ``|grad sdf|`` in the box: 1 for an exact SDF and for min/max
+        or smooth-min unions of exact SDFs. The result equals dense evaluation when it holds; an
+        underestimate can lose thin parts. For a neural field, measure the gradient norm in the
+        box and add a margin; a larger value only costs evaluations.
     device, dtype: where and in what precision the query points are built (default CPU float32).
     progress: show a tqdm bar per level.
 

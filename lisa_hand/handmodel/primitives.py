@@ -19,45 +19,40 @@ def _safe_sqrt(values: torch.Tensor) -> torch.Tensor:
 
 
 def round_cone_sdf(
-    points: torch.Tensor,
-    start: torch.Tensor,
-    end: torch.Tensor,
+    along: torch.Tensor,
+    radial_sq: torch.Tensor,
+    length: torch.Tensor,
     start_radius: torch.Tensor,
     end_radius: torch.Tensor,
 ) -> torch.Tensor:
     """Exact signed distance to round cones (the convex hull of two spheres), batched over parts.
 
-    Closed form of the distance to the hull of the spheres ``(a, r1)`` and ``(b, r2)``: with
-    ``l2 = |b - a|^2``, ``y = (p - a).(b - a)`` and ``q2 = |p - a|^2``, the point is nearest to
-    sphere ``a`` if ``y`` is below the tangent cone's start, to sphere ``b`` if beyond its end,
-    and otherwise to the cone's side at ``(sqrt((l2 q2 - y^2)(l2 - (r1 - r2)^2)) + y (r1 - r2)) /
-    l2 - r1``. Requires ``|r1 - r2| < |b - a|``.
+    In each cone's frame the axis runs from the origin to ``(length, 0, 0)``; a point is given by
+    its coordinate along the axis ``u`` and its squared distance from the axis ``rho^2``. With
+    ``sin a = (r1 - r2) / length`` the side's outward normal in the (u, rho) half plane is
+    ``(sin a, cos a)``: the distance to the side is ``u sin a + rho cos a - r1`` where the
+    tangential coordinate ``t = u cos a - rho sin a`` lies in ``[0, length cos a]``; before it
+    the start sphere is nearest, after it the end sphere. Requires ``|r1 - r2| < length``.
 
-    points: [N, P, 3] metres, point n in part p's frame.
-    start, end: [P, 3] sphere centres, metres.
-    start_radius, end_radius: [P] radii, metres.
+    along: [N, P] u, metres; radial_sq: [N, P] rho^2, m^2.
+    length, start_radius, end_radius: [P] metres.
     -> [N, P] signed distances, metres.
     """
-    axis = end - start  # [P, 3]
-    length_sq = (axis * axis).sum(-1)  # [P]
-    radius_diff = start_radius - end_radius
-    cone_sq = length_sq - radius_diff * radius_diff  # > 0 by construction
-    rel = points - start
-    along = (rel * axis).sum(-1)  # y: [N, P]
-    rel_sq = (rel * rel).sum(-1)  # q2
-    perp = (length_sq * rel_sq - along * along).clamp_min(0.0)  # l2^2 * |p - a|_perp^2 / l2
-    beyond = along - length_sq
-    limit = torch.sign(radius_diff) * radius_diff * radius_diff * perp
-    near_end = torch.sign(beyond) * cone_sq * beyond * beyond > limit
-    near_start = torch.sign(along) * cone_sq * along * along < limit
-    to_end = _safe_sqrt(rel_sq - 2.0 * along + length_sq) - end_radius
-    to_start = _safe_sqrt(rel_sq) - start_radius
-    to_side = (_safe_sqrt(perp * cone_sq) + along * radius_diff) / length_sq - start_radius
-    return torch.where(near_end, to_end, torch.where(near_start, to_start, to_side))
+    sin_a = (start_radius - end_radius) / length
+    cos_a = (1.0 - sin_a * sin_a).sqrt()
+    radial = _safe_sqrt(radial_sq)
+    tangential = along * cos_a - radial * sin_a
+    to_side = along * sin_a + radial * cos_a - start_radius
+    past_end = tangential > length * cos_a
+    cap_along = torch.where(past_end, along - length, along)
+    cap_radius = torch.where(past_end, end_radius, start_radius)
+    to_cap = _safe_sqrt(cap_along * cap_along + radial_sq) - cap_radius
+    on_side = (tangential >= 0.0) & ~past_end
+    return torch.where(on_side, to_side, to_cap)
 
 
 def rounded_polygon_sdf(
-    points_plane: torch.Tensor, vertices: torch.Tensor, radius: torch.Tensor
+    points_plane: torch.Tensor, vertices: torch.Tensor, radius: float | torch.Tensor
 ) -> torch.Tensor:
     """Exact signed distance to flat convex polygons thickened by a ball (rounded slabs).
 
@@ -65,19 +60,18 @@ def rounded_polygon_sdf(
     the polygon (zero inside) and ``h`` the height over its plane; the slab is that minus
     ``radius``: thickness ``2 radius`` with rounded rims.
 
-    points_plane: [N, Q, 3] points in each polygon's plane frame: (a, b) in-plane, third = height.
-    vertices: [Q, V, 2] counter-clockwise convex polygons (repeat the last vertex to pad).
-    radius: [Q] rounding radius (half thickness), metres.
-    -> [N, Q] signed distances, metres.
+    points_plane: [N, 3] points in the polygon's plane frame: (a, b) in-plane, third = height.
+    vertices: [V, 2] counter-clockwise convex polygon, metres.
+    radius: rounding radius (half thickness), metres.
+    -> [N] signed distances, metres.
     """
-    planar = points_plane[..., None, :2]  # [N, Q, 1, 2]
-    edge_start = vertices
-    edge_vec = torch.roll(vertices, shifts=-1, dims=1) - vertices  # [Q, V, 2]
-    rel = planar - edge_start  # [N, Q, V, 2]
+    planar = points_plane[:, None, :2]  # [N, 1, 2]
+    edge_vec = torch.roll(vertices, shifts=-1, dims=0) - vertices  # [V, 2]
+    rel = planar - vertices  # [N, V, 2]
     edge_sq = (edge_vec * edge_vec).sum(-1).clamp_min(_SQRT_FLOOR)
     t = ((rel * edge_vec).sum(-1) / edge_sq).clamp(0.0, 1.0)
     diff = rel - t[..., None] * edge_vec
-    seg_sq = (diff * diff).sum(-1).amin(-1)  # [N, Q]
+    seg_sq = (diff * diff).sum(-1).amin(-1)  # [N]
     cross = edge_vec[..., 0] * rel[..., 1] - edge_vec[..., 1] * rel[..., 0]
     inside = (cross >= 0.0).all(-1)
     planar_sq = torch.where(inside, torch.zeros_like(seg_sq), seg_sq)
@@ -95,10 +89,11 @@ def smooth_union(distances: torch.Tensor, blend: float) -> tuple[torch.Tensor, t
     distances: [N, P] metres; blend: k, metres.
     -> (smooth minimum [N] metres, weights [N, P])
     """
-    scaled = -distances / blend
-    value = -blend * torch.logsumexp(scaled, dim=-1)
-    weights = torch.softmax(scaled, dim=-1)
-    return value, weights
+    nearest = distances.amin(dim=-1, keepdim=True).detach()
+    terms = torch.exp((nearest - distances) / blend)
+    total = terms.sum(-1, keepdim=True)
+    value = nearest[..., 0] - blend * torch.log(total[..., 0])
+    return value, terms / total
 
 
 def smoothstep(low: float | torch.Tensor, high: float | torch.Tensor, x: torch.Tensor) -> torch.Tensor:

@@ -177,14 +177,35 @@ def opacity_error_bound(
     """
     if d_star is None:
         d_star = distance_lower_bound(t_vals, sdf)
-    deltas = t_vals[:, 1:] - t_vals[:, :-1]
-    sigma = volsdf_density(sdf[:, :-1], beta)
-    riemann = torch.cumsum(sigma[:, :-1] * deltas[:, :-1], dim=-1)
-    riemann = torch.cat([torch.zeros_like(riemann[:, :1]), riemann], dim=-1)
-    error = torch.cumsum(deltas * deltas * torch.exp(-d_star / beta), dim=-1) / (4.0 * beta * beta)
-    # exp(60) is finite in float32; past that the bound is meaningless anyway.
-    per_section = torch.expm1(torch.clamp(error, max=60.0)) * torch.exp(-riemann)
-    return per_section.max(dim=-1).values, per_section
+    return _ErrorBoundTerms(t_vals, sdf, d_star)(beta)
+
+
+class _ErrorBoundTerms:
+    """The beta-independent parts of :func:`opacity_error_bound`, for bisection on beta.
+
+    Per call only three exponentials of ``[R, M-1]`` tensors are evaluated: the density as
+    ``Psi_beta(-s) = 0.5 exp(-|s|/beta)`` outside, ``1 - 0.5 exp(-|s|/beta)`` inside.
+    """
+
+    def __init__(self, t_vals: torch.Tensor, sdf: torch.Tensor, d_star: torch.Tensor) -> None:
+        self.deltas = t_vals[:, 1:] - t_vals[:, :-1]
+        self.deltas_sq = self.deltas * self.deltas
+        self.neg_abs_sdf = -sdf[:, :-1].abs()
+        self.inside = sdf[:, :-1] < 0
+        self.neg_d_star = -d_star
+
+    def __call__(self, beta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        half_tail = 0.5 * torch.exp(self.neg_abs_sdf / beta)
+        sigma = torch.where(self.inside, 1.0 - half_tail, half_tail) / beta
+        section_depth = sigma * self.deltas
+        # Exclusive cumulative sum (R_hat at the start of each section); the rounding of the
+        # subtraction only matters where exp(-R_hat) is already negligible.
+        riemann = torch.cumsum(section_depth, dim=-1) - section_depth
+        error = torch.cumsum(self.deltas_sq * torch.exp(self.neg_d_star / beta), dim=-1)
+        error = error / (4.0 * beta * beta)
+        # exp(60) is finite in float32; past that the bound is meaningless anyway.
+        per_section = torch.expm1(torch.clamp(error, max=60.0)) * torch.exp(-riemann)
+        return per_section.max(dim=-1).values, per_section
 
 
 def _section_weights(t_vals, sdf, beta) -> torch.Tensor:
@@ -293,16 +314,17 @@ def error_bounded_sampling(
             break
         t_rows, sdf_rows, beta_rows = t_bound[rows], sdf_bound[rows], beta_t[rows]
         d_star = distance_lower_bound(t_rows, sdf_rows)
-        rows_converged = opacity_error_bound(t_rows, sdf_rows, beta_rows, d_star)[0] <= eps
+        bound_of = _ErrorBoundTerms(t_rows, sdf_rows, d_star)
+        rows_converged = bound_of(beta_rows)[0] <= eps
         # After upsampling the previous beta+ may no longer satisfy the bound; Lemma 2 on the
         # new T always does.
         high = beta_plus[rows]
-        high_fails = opacity_error_bound(t_rows, sdf_rows, high, d_star)[0] > eps
+        high_fails = bound_of(high)[0] > eps
         high = torch.where(high_fails[:, None], lemma2_beta(t_rows), high)
         low = beta_rows.clone()
         for _ in range(num_bisection):
             mid = 0.5 * (low + high)
-            ok = (opacity_error_bound(t_rows, sdf_rows, mid, d_star)[0] <= eps)[:, None]
+            ok = (bound_of(mid)[0] <= eps)[:, None]
             high = torch.where(ok, mid, high)
             low = torch.where(ok, low, mid)
         beta_rows_plus = torch.where(rows_converged[:, None], beta_rows, high)
@@ -314,7 +336,8 @@ def error_bounded_sampling(
         # Upsample the unconverged rays where the error bound is largest (VolSDF Algorithm 1).
         keep = ~rows_converged
         rows, t_rows, sdf_rows = rows[keep], t_rows[keep], sdf_rows[keep]
-        _, per_section = opacity_error_bound(t_rows, sdf_rows, beta_rows_plus[keep], d_star[keep])
+        _, per_section = bound_of(beta_rows_plus)
+        per_section = per_section[keep]
         unit_new = _unit_positions(rows.shape[0], num_samples_eval, False, None, t_rows)
         t_new = _sample_inverse_cdf(t_rows, per_section + 1e-6, unit_new)
         sdf_new = _eval_sdf(sdf_fn, origins[rows], directions[rows], t_new)

@@ -177,17 +177,17 @@ def test_distance_lower_bound_is_a_valid_and_tight_bound_for_a_sphere():
 
 
 def test_opacity_error_bound_hand_computed():
-    t_vals = torch.tensor([[0.0, 1.0, 3.0]], dtype=torch.float64)
-    sdf = torch.tensor([[2.0, 0.5, 0.5]], dtype=torch.float64)  # d* = (0.5, 0.5): obtuse, h
+    # Section 0: length 1, radii (2, 1): obtuse at the second end, d* = 1.
+    # Section 1: length 1.2, radii (1, 1): triangle height sqrt(1 - 0.6^2) = 0.8.
+    t_vals = torch.tensor([[0.0, 1.0, 2.2]], dtype=torch.float64)
+    sdf = torch.tensor([[2.0, 1.0, 1.0]], dtype=torch.float64)
     beta = torch.tensor(0.5, dtype=torch.float64)
-    d_star = distance_lower_bound(t_vals, sdf)[0]
-    h = math.sqrt(0.25 - 1.0) if False else math.sqrt(0.25 - (4.0 + 0.25 - 0.25 - 4.0) ** 2 / 16)
-    assert d_star.tolist() == pytest.approx([0.5, h], abs=1e-12)
+    assert distance_lower_bound(t_vals, sdf)[0].tolist() == pytest.approx([1.0, 0.8], abs=1e-12)
     bound, per_section = opacity_error_bound(t_vals, sdf, beta)
-    sigma = [2.0 * 0.5 * math.exp(-2.0 / 0.5), 2.0 * 0.5 * math.exp(-0.5 / 0.5)]
-    e1 = 1.0 * math.exp(-0.5 / 0.5) / (4 * 0.25)
-    e2 = e1 + 4.0 * math.exp(-h / 0.5) / (4 * 0.25)
-    expected = [math.expm1(e1), math.expm1(e2) * math.exp(-sigma[0] * 1.0)]
+    sigma0 = (1 / 0.5) * 0.5 * math.exp(-2.0 / 0.5)  # alpha Psi(-s) with alpha = 1 / beta
+    e1 = 1.0**2 * math.exp(-1.0 / 0.5) / (4 * 0.5**2)
+    e2 = e1 + 1.2**2 * math.exp(-0.8 / 0.5) / (4 * 0.5**2)
+    expected = [math.expm1(e1), math.expm1(e2) * math.exp(-sigma0 * 1.0)]
     assert per_section[0].tolist() == pytest.approx(expected, rel=1e-12)
     assert bound.item() == pytest.approx(max(expected), rel=1e-12)
 
@@ -210,3 +210,22 @@ def test_opacity_error_bound_holds_for_uniform_sets(num_bound):
     riemann_dense = riemann.gather(-1, k) + (t_dense - t_bound.gather(-1, k)) * sigma.gather(-1, k)
     error = (torch.exp(-riemann_dense) - torch.exp(-depth_ref)).abs().amax(-1)
     assert (error <= bound + 1e-9).all()
+
+
+@pytest.mark.parametrize("sampler", [error_bounded_sampling, sphere_traced_samples])
+def test_stratified_samples_are_reproducible_and_jittered(sampler):
+    origins, directions, near, far = _fan_of_rays(8, torch.float32)
+
+    def run(stratified, seed):
+        gen = torch.Generator().manual_seed(seed)
+        out = sampler(
+            sphere_sdf, origins, directions, near, far, 1e-3, stratified=stratified, generator=gen
+        )
+        return out.t_vals if hasattr(out, "t_vals") else out
+
+    first, again, other = run(True, 0), run(True, 0), run(True, 1)
+    plain = run(False, 0)
+    assert torch.equal(first, again) and not torch.equal(first, other)
+    assert not torch.equal(first, plain) and first.shape == plain.shape
+    assert (first[:, 1:] >= first[:, :-1]).all()
+    assert (first >= near[:, None]).all() and (first <= far[:, None]).all()

@@ -1,0 +1,256 @@
+"""Training checkpoints: atomic, finite-checked, and complete enough to resume exactly.
+
+A checkpoint holds the model, optimizer and LR-scheduler states, the number of completed steps,
+the run's resolved config, and the random state of every rank (torch CPU, CUDA, numpy, python
+``random`` and the named ``torch.Generator`` objects the training draws its data from), so that
+a resumed run continues bit for bit where the interrupted one stopped (on CPU; CUDA kernels may
+be non-deterministic, so there "within tolerance").
+
+Files are written through a temporary file, flushed to disk and renamed (``atomic_path``): a
+crash or ``kill -9`` at any moment leaves the previous checkpoint or the new one, never half of
+one. A model state with a NaN or inf is refused before anything is written.
+
+Files are read with ``torch.load(weights_only=True)``: a checkpoint cannot run code on load.
+Anything put in ``extra`` must therefore be tensors, numbers, strings, lists, tuples or dicts.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import shutil
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ..io_utils import atomic_path
+
+__all__ = [
+    "CHECKPOINT_FORMAT",
+    "CHECKPOINT_VERSION",
+    "LAST_CHECKPOINT",
+    "NonFiniteError",
+    "Checkpoint",
+    "capture_rng_state",
+    "restore_rng_state",
+    "check_finite_state",
+    "save_checkpoint",
+    "copy_checkpoint",
+    "load_checkpoint",
+    "remove_stale_temporaries",
+]
+
+CHECKPOINT_FORMAT = "lisa_hand.checkpoint"
+CHECKPOINT_VERSION = 1
+LAST_CHECKPOINT = "last.pt"
+"""File name of the most recent checkpoint inside a run folder."""
+
+
+class NonFiniteError(ValueError):
+    """A loss, a gradient or a parameter became NaN or inf (training diverged).
+
+    A ``ValueError`` so that the command line prints it as one line: it is most often caused by
+    the configuration (learning rate too high, a loss weight, bad data).
+    """
+
+
+@dataclass
+class Checkpoint:
+    """Everything needed to resume a run (or to rebuild its model)."""
+
+    step: int
+    """Number of completed optimizer steps (= the 0-based index of the next step)."""
+    model: dict[str, torch.Tensor]
+    """``state_dict()`` of the (unwrapped) model."""
+    optimizer: dict[str, Any] | None = None
+    """``state_dict()`` of the optimizer."""
+    scheduler: dict[str, Any] | None = None
+    """``state_dict()`` of the LR scheduler."""
+    rng: list[dict[str, Any]] = field(default_factory=list)
+    """Random state of every rank, in rank order (``capture_rng_state``)."""
+    config: dict[str, Any] | None = None
+    """The run's resolved config (``config_to_dict``): rebuild the model from it."""
+    trainer: dict[str, Any] | None = None
+    """The training engine's config (``config_to_dict(TrainerConfig)``)."""
+    extra: dict[str, Any] = field(default_factory=dict)
+    """Anything else the caller wants kept (plain data and tensors only)."""
+    path: Path | None = None
+    """File it was loaded from (None for one built in memory)."""
+
+
+# ------------------------------------------------------------------------------------------------
+# random state
+
+
+def capture_rng_state(generators: Mapping[str, torch.Generator] | None = None) -> dict[str, Any]:
+    """Snapshot of this process's random state, as plain data ``torch.load`` reads safely.
+
+    Covers torch's CPU generator, every CUDA device's generator (when CUDA is available), numpy's
+    legacy global generator, python's ``random`` and the named ``generators``.
+    """
+    np_state = np.random.get_state(legacy=True)
+    state: dict[str, Any] = {
+        "torch": torch.get_rng_state(),
+        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None,
+        "numpy": {
+            "keys": torch.from_numpy(np_state[1].astype(np.int64)),
+            "pos": int(np_state[2]),
+            "has_gauss": int(np_state[3]),
+            "cached_gaussian": float(np_state[4]),
+        },
+        "python": random.getstate(),
+        "generators": {name: gen.get_state() for name, gen in (generators or {}).items()},
+    }
+    return state
+
+
+def restore_rng_state(
+    state: Mapping[str, Any], generators: Mapping[str, torch.Generator] | None = None
+) -> None:
+    """Restore a snapshot from ``capture_rng_state`` (and the named ``generators`` in place).
+
+    A named generator missing from the snapshot raises ``ValueError``. CUDA states are restored
+    when this process sees the same number of CUDA devices; otherwise they are skipped.
+    """
+    torch.set_rng_state(state["torch"])
+    cuda_states = state.get("cuda")
+    if cuda_states and torch.cuda.is_available() and len(cuda_states) == torch.cuda.device_count():
+        torch.cuda.set_rng_state_all(cuda_states)
+    np_state = state["numpy"]
+    np.random.set_state((
+        "MT19937", np_state["keys"].numpy().astype(np.uint32), np_state["pos"],
+        np_state["has_gauss"], np_state["cached_gaussian"],
+    ))
+    random.setstate(_as_python_random_state(state["python"]))
+    saved = state.get("generators", {})
+    for name, gen in (generators or {}).items():
+        if name not in saved:
+            raise ValueError(f"the checkpoint has no state for generator {name!r} "
+                             f"(it has: {sorted(saved)})")
+        gen.set_state(saved[name])
+
+
+def _as_python_random_state(value: Any) -> tuple:
+    # random.setstate wants (version, tuple_of_625_ints, gauss_next) with an inner tuple.
+    version, internal, gauss_next = value
+    return (version, tuple(internal), gauss_next)
+
+
+# ------------------------------------------------------------------------------------------------
+# save / load
+
+
+def check_finite_state(state: Mapping[str, Any], what: str) -> None:
+    """Raise ``NonFiniteError`` naming the first floating tensor of ``state`` with a NaN/inf.
+
+    state: a ``state_dict`` (name -> tensor). One device sync in total, not one per tensor.
+    """
+    names = [k for k, v in state.items() if torch.is_tensor(v) and v.is_floating_point()]
+    if not names:
+        return
+    flags = torch.stack([torch.isfinite(state[k]).all().to("cpu", non_blocking=False)
+                         for k in names])
+    if bool(flags.all()):
+        return
+    bad = names[int((~flags).nonzero()[0, 0])]
+    tensor = state[bad]
+    num_bad = int((~torch.isfinite(tensor)).sum())
+    raise NonFiniteError(f"{what}: parameter {bad!r} has {num_bad} non-finite value(s) "
+                         f"(nan/inf) out of {tensor.numel()}")
+
+
+def save_checkpoint(path: str | os.PathLike, checkpoint: Checkpoint) -> Path:
+    """Write ``checkpoint`` to ``path`` atomically (temp file, fsync, rename); return the path.
+
+    Raises ``NonFiniteError`` (writing nothing, the previous file intact) when a model tensor is
+    NaN or inf.
+    """
+    path = Path(path)
+    if not isinstance(checkpoint.step, int) or checkpoint.step < 0:
+        raise ValueError(f"checkpoint step must be a non-negative int, got {checkpoint.step!r}")
+    check_finite_state(checkpoint.model,
+                       f"refusing to write checkpoint {path} (the previous one is left intact)")
+    payload = {
+        "format": CHECKPOINT_FORMAT,
+        "version": CHECKPOINT_VERSION,
+        "step": checkpoint.step,
+        "model": checkpoint.model,
+        "optimizer": checkpoint.optimizer,
+        "scheduler": checkpoint.scheduler,
+        "rng": checkpoint.rng,
+        "config": checkpoint.config,
+        "trainer": checkpoint.trainer,
+        "extra": checkpoint.extra,
+    }
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as handle:
+            torch.save(payload, handle)
+            handle.flush()
+            os.fsync(handle.fileno())
+    return path
+
+
+def copy_checkpoint(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
+    """Copy a checkpoint file atomically (used to keep every N-th checkpoint)."""
+    dst = Path(dst)
+    with atomic_path(dst) as tmp:
+        shutil.copyfile(src, tmp)
+    return dst
+
+
+def load_checkpoint(path: str | os.PathLike, map_location: Any = "cpu") -> Checkpoint:
+    """Read a checkpoint written by ``save_checkpoint``.
+
+    A missing file raises ``FileNotFoundError``; a truncated, corrupt or foreign file (not
+    written by this module) raises ``ValueError``; both name the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such checkpoint file")
+    try:
+        payload = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as exc:  # torch raises RuntimeError, UnpicklingError, EOFError, ...
+        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ValueError(f"{path}: not a readable checkpoint (truncated, corrupt or not a "
+                         f"torch file): {reason}") from None
+    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{path}: not a lisa_hand training checkpoint (no "
+                         f"format={CHECKPOINT_FORMAT!r} marker)")
+    version = payload.get("version")
+    if not isinstance(version, int) or version > CHECKPOINT_VERSION:
+        raise ValueError(f"{path}: checkpoint version {version!r} is newer than this code "
+                         f"understands ({CHECKPOINT_VERSION}); update lisa_hand")
+    for key, kind in (("step", int), ("model", dict)):
+        if not isinstance(payload.get(key), kind):
+            raise ValueError(f"{path}: checkpoint is missing or has a bad {key!r} entry")
+    return Checkpoint(
+        step=payload["step"],
+        model=payload["model"],
+        optimizer=payload.get("optimizer"),
+        scheduler=payload.get("scheduler"),
+        rng=list(payload.get("rng") or []),
+        config=payload.get("config"),
+        trainer=payload.get("trainer"),
+        extra=dict(payload.get("extra") or {}),
+        path=path,
+    )
+
+
+def remove_stale_temporaries(path: str | os.PathLike) -> list[Path]:
+    """Delete temporary files a killed writer of ``path`` left behind; return them.
+
+    ``atomic_path`` writes ``.<name>.<random><suffix>`` beside ``path``; a ``kill -9`` during the
+    write leaves it there (the real file is intact). Call only when no writer is running.
+    """
+    path = Path(path)
+    removed = []
+    if path.parent.is_dir():
+        for stale in path.parent.glob(f".{path.name}.*"):
+            if stale.is_file():
+                stale.unlink(missing_ok=True)
+                removed.append(stale)
+    return removed
