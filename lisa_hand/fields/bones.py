@@ -36,7 +36,7 @@ NUM_SEGMENTS = len(SEGMENT_BONES)  # 20
 
 
 def unpose_points(transforms: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """Unpose world points into every bone's rest frame: ``x_j = R_j^-1 (x - t_j)`` (paper Sec. 4.1).
+    """Unpose world points into every bone's rest frame, ``x_j = R_j^-1 (x - t_j)`` (Sec. 4.1).
 
     transforms: [B, J, 4, 4] rest-to-posed bone transforms ``A_j = [R_j | t_j]``
         (:attr:`lisa_hand.skeleton.Kinematics.transforms`).

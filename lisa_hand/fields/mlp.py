@@ -132,7 +132,8 @@ class StackedMLP(nn.Module):
         if cond is None or cond.shape != (batch_size, self.num_groups, self.cond_dim):
             shape = None if cond is None else tuple(cond.shape)
             raise ValueError(
-                f"cond must have shape [{batch_size}, {self.num_groups}, {self.cond_dim}], got {shape}"
+                f"cond must have shape [{batch_size}, {self.num_groups}, {self.cond_dim}], "
+                f"got {shape}"
             )
         return bias + torch.einsum("bgc,gch->bgh", cond, self.cond_weight)
 
@@ -183,7 +184,9 @@ class StackedMLP(nn.Module):
             )
         expected = (points.shape[0] if bias_per_row else self.num_groups, self.hidden)
         if first_bias.shape != expected:
-            raise ValueError(f"first_bias must have shape {list(expected)}, got {list(first_bias.shape)}")
+            raise ValueError(
+                f"first_bias must have shape {list(expected)}, got {list(first_bias.shape)}"
+            )
         layers = self.layers()
         if low_precision:
             layers = [(w.to(torch.bfloat16), b.to(torch.bfloat16)) for w, b in layers[:-1]] + [

@@ -1,7 +1,7 @@
 """The open hand's signed distance field: rigid parts per bone, a smooth union, and fine detail.
 
 Every part is defined in the rest pose and attached to one bone ``j``; a query point ``x`` is
-taken into each bone's rest frame with ``x_j = A_j^-1 x`` (``A_j`` = rest-to-posed transform of
+taken into the bone's rest frame with ``x_j = A_j^-1 x`` (``A_j`` = rest-to-posed transform of
 :func:`lisa_hand.skeleton.forward_kinematics`), so parts move rigidly with their bones:
 
 - round cones (hulls of two spheres) along each phalanx, their axes a little palmar of the bone
@@ -9,7 +9,7 @@ taken into each bone's rest frame with ``x_j = A_j^-1 x`` (``A_j`` = rest-to-pos
   the PIP/DIP/IP joints and the metacarpal heads (the knuckles of a fist);
 - a palm body (a rounded convex slab spanning the wrist and the four MCP joints), a short forearm
   stub, the hypothenar pad and the thumb's metacarpal with the thenar eminence, blended with a wide
-  radius (``blend_palm``) into one soft body;
+  radius (``blend_palm``, about 4 mm) into one soft body;
 - everything joined by a smooth minimum ``s = -k log sum_i exp(-d_i / k)`` (``k = blend``, about
   1.5 mm). Because the parts of two bones move rigidly and blend, a flexed joint bulges on the
   outside and creases on the inside: pose-dependent deformation that linear blend skinning of a
@@ -19,8 +19,14 @@ Fine detail is added as small displacements (slopes kept below about 0.3 so that
 stays within a few percent of 1): flexion creases across the palmar side of each finger joint,
 dorsal knuckle wrinkles, palm lines, raised fingernails, and per-subject smooth bumps of about
 0.1-0.3 mm. Skinning weights are the union's blend factors ``softmax(-d / k)`` summed per bone
-(the derivative of ``s`` with respect to each part), so they sum to 1 and say which bones own a
-point.
+(the derivatives of ``s`` with respect to each part's distance), so they sum to 1 and say which
+bones own a point.
+
+Speed: each part, crease and nail has a rest-pose local frame; posing composes it with
+``A_j^-1`` into one affine map, so local coordinates of all parts come from one small matrix
+product, and :class:`PosedField` groups query points into cells of a few centimetres and drops the
+parts, creases and nails that cannot reach a cell (their blend weight there is below
+``exp(-10)``).
 """
 
 from __future__ import annotations
@@ -31,69 +37,94 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
+from ..geometry.transforms import invert_rigid
 from ..skeleton.tree import FINGER_JOINTS, FINGER_NAMES, NUM_JOINTS, PARENTS
 from .primitives import round_cone_sdf, rounded_polygon_sdf, smooth_union, smoothstep
 from .shape import HandShape, RestSkeleton, rest_skeleton
 
-__all__ = ["HandTemplate", "HandFieldOutput", "build_template", "evaluate_hand_field"]
+__all__ = ["HandTemplate", "HandFieldOutput", "PosedField", "build_template"]
 
 _DISTAL_BONES = tuple(FINGER_JOINTS[name][2] for name in FINGER_NAMES)
 _NUM_NOISE_WAVES = 24
+# A part whose distance exceeds the nearest part's by this many blend radii is dropped (its
+# weight exp(-10) ~ 5e-5 changes the distance by < 1e-7 m).
+_CULL_BLENDS = 10.0
+# Crease profiles are Gaussians: beyond this many widths they are treated as zero.
+_CREASE_SUPPORT = 5.0
 
 
 @dataclass
 class HandTemplate:
     """Rest-pose parts and detail of one subject (float64 CPU tensors; :meth:`to` converts).
 
+    A *frame* is a rest-pose rotation ``rot`` [3, 3] (rows: the local axes) and origin [3] on a
+    bone: local coordinates are ``rot (A_j^-1 x - origin)``.
+
     skeleton: the :class:`RestSkeleton` the parts hang on.
-    cone_start, cone_end: [P, 3] round cone sphere centres in the rest pose, metres.
-    cone_radii: [P, 2] their radii, metres. cone_bone: [P] owning bone.
-    num_palm_cones: how many leading cones belong to the palm group (blended with ``blend_palm``).
-    slab_origin: [Q, 3], slab_axes: [Q, 3, 3] rows (a, b, normal) of each slab's plane frame,
-    slab_vertices: [Q, V, 2] counter-clockwise outline, slab_radius: [Q], slab_bone: [Q]; slabs
-        always belong to the palm group.
-    blend, blend_palm: smooth-union radii k (metres) of the whole hand and of the palm group.
-    crease_*: [C] line grooves across bones: bone, centre along the bone (metres from the bone's
-        start joint), Gaussian width, depth (metres), flesh radius there, side (+1 palmar, -1
-        dorsal), and the parent bone whose ownership also counts.
-    line_*: palm lines (circular arcs on the palm, bone 0): centre [L, 2] (x, z), radius [L],
-        mid-arc direction [L, 2], cosine of the half extent [L], width [L], depth [L].
-    nail_*: [5] fingernails on the distal bones: start and end along the bone (metres), radius at
-        the nail, raise (metres).
+    cone_rot, cone_origin, cone_bone: [P, 3, 3], [P, 3], [P] round cone frames (first row = axis
+        from the start sphere's centre). cone_length: [P], cone_radii: [P, 2] metres.
+    cone_palm: [P] bool, True for the palm group (blended with ``blend_palm``).
+    slab_rot, slab_origin, slab_bone: [Q, 3, 3], [Q, 3], [Q] plane frames of the rounded slabs
+        (rows a, b, normal); slab_vertices: Q tensors [V, 2] (counter-clockwise outlines);
+        slab_radius: [Q] half thicknesses. Slabs belong to the palm group.
+    blend, blend_palm: smooth-union radii k of the whole hand and of the palm group, metres.
+    crease_rot, crease_origin, crease_bone: [C, ...] frames (rows: along, dorsal, lateral;
+        origin at the crease's centre on the bone axis). crease_parent: [C] the other bone whose
+        ownership counts; crease_width, crease_depth, crease_radius: [C] Gaussian width, depth,
+        flesh radius (metres); crease_side: [C] +1 palmar, -1 dorsal.
+    line_*: palm lines, circular arcs on the palm (bone 0): centre [L, 2] (x, z), radius [L],
+        mid-arc direction [L, 2], cosine of the half extent [L], width [L], depth [L] (metres).
+    nail_rot, nail_origin, nail_bone: [5, ...] distal bone frames (origin at the DIP/IP joint);
+        nail_start, nail_end, nail_radius: [5] metres; nail_height: the nail's raise, metres.
     noise_freqs: [K, 3] rad/m, noise_phases: [K], noise_amps: [K] metres: surface bumps.
-    palm_center_y, palm_half_thickness: the palm slab's mid plane and half thickness (metres).
+    *_center, *_bound: rest-pose bounding spheres (centre [.., 3], radius [..]) used to cull.
+    palm_center_y, palm_half_thickness: the palm slab's mid plane and half thickness, metres.
     """
 
     skeleton: RestSkeleton
-    cone_start: torch.Tensor
-    cone_end: torch.Tensor
-    cone_radii: torch.Tensor
+    cone_rot: torch.Tensor
+    cone_origin: torch.Tensor
     cone_bone: torch.Tensor
-    num_palm_cones: int
+    cone_length: torch.Tensor
+    cone_radii: torch.Tensor
+    cone_palm: torch.Tensor
+    cone_center: torch.Tensor
+    cone_bound: torch.Tensor
+    slab_rot: torch.Tensor
     slab_origin: torch.Tensor
-    slab_axes: torch.Tensor
-    slab_vertices: torch.Tensor
-    slab_radius: torch.Tensor
     slab_bone: torch.Tensor
+    slab_vertices: list[torch.Tensor]
+    slab_radius: torch.Tensor
+    slab_center: torch.Tensor
+    slab_bound: torch.Tensor
     blend: float
     blend_palm: float
+    crease_rot: torch.Tensor
+    crease_origin: torch.Tensor
     crease_bone: torch.Tensor
     crease_parent: torch.Tensor
-    crease_center: torch.Tensor
     crease_width: torch.Tensor
     crease_depth: torch.Tensor
     crease_radius: torch.Tensor
     crease_side: torch.Tensor
+    crease_bound: torch.Tensor
     line_center: torch.Tensor
     line_radius: torch.Tensor
     line_mid: torch.Tensor
     line_cos_half: torch.Tensor
     line_width: torch.Tensor
     line_depth: torch.Tensor
+    line_bound_center: torch.Tensor
+    line_bound: torch.Tensor
+    nail_rot: torch.Tensor
+    nail_origin: torch.Tensor
+    nail_bone: torch.Tensor
     nail_start: torch.Tensor
     nail_end: torch.Tensor
     nail_radius: torch.Tensor
     nail_height: float
+    nail_center: torch.Tensor
+    nail_bound: torch.Tensor
     noise_freqs: torch.Tensor
     noise_phases: torch.Tensor
     noise_amps: torch.Tensor
@@ -102,23 +133,19 @@ class HandTemplate:
 
     def to(self, device: torch.device | str, dtype: torch.dtype) -> HandTemplate:
         """A copy with every floating tensor on ``device`` in ``dtype`` (indices stay long)."""
-        values = {}
-        for name, value in self.__dict__.items():
+
+        def convert(value):
             if isinstance(value, torch.Tensor):
                 if value.is_floating_point():
-                    value = value.to(device=device, dtype=dtype)
-                else:
-                    value = value.to(device=device)
-            elif isinstance(value, RestSkeleton):
-                value = RestSkeleton(
-                    **{k: v.to(device=device, dtype=dtype) for k, v in value.__dict__.items()}
-                )
-            values[name] = value
-        return HandTemplate(**values)
+                    return value.to(device=device, dtype=dtype)
+                return value.to(device=device)
+            if isinstance(value, list):
+                return [convert(v) for v in value]
+            if isinstance(value, RestSkeleton):
+                return RestSkeleton(**{k: convert(v) for k, v in value.__dict__.items()})
+            return value
 
-    @property
-    def num_parts(self) -> int:
-        return self.cone_start.shape[0] + self.slab_origin.shape[0]
+        return HandTemplate(**{name: convert(value) for name, value in self.__dict__.items()})
 
 
 @dataclass
@@ -144,6 +171,10 @@ class HandFieldOutput:
     crease: torch.Tensor | None = None
     palmar: torch.Tensor | None = None
     knuckle: torch.Tensor | None = None
+
+
+# ----------------------------------------------------------------------------------------------
+# Building the rest-pose template
 
 
 def _convex_hull_ccw(points: np.ndarray) -> np.ndarray:
@@ -174,9 +205,19 @@ def _circle_through(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> tuple[np.nda
     return center, float(np.linalg.norm(a - center))
 
 
+def _axis_frame(axis: np.ndarray, hint: np.ndarray) -> np.ndarray:
+    """Rows (axis, e2, e3): an orthonormal frame whose first row is ``axis``."""
+    axis = axis / np.linalg.norm(axis)
+    second = hint - axis * (hint @ axis)
+    if np.linalg.norm(second) < 1e-6:
+        second = np.array([0.0, 0.0, 1.0]) - axis * axis[2]
+    second /= np.linalg.norm(second)
+    return np.stack([axis, second, np.cross(axis, second)])
+
+
 # Palm lines (x, z) for the average 18.5 cm hand, metres, z to be scaled by palm_width: start,
 # middle and end of the distal transverse ("heart"), proximal transverse ("head") and thenar
-# ("life") creases, with their depth (m) and width (m).
+# ("life") creases, with their depth and width (metres).
 _PALM_LINES = (
     (((-0.064, -0.046), (-0.076, -0.013), (-0.083, 0.012)), 0.00055, 0.0013),
     (((-0.066, 0.030), (-0.057, 0.002), (-0.048, -0.027)), 0.00055, 0.0013),
@@ -212,24 +253,23 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
         """A palm-frame point of the average hand, scaled to this hand."""
         return np.array([x * scale, y * scale * thick, z * scale * width])
 
-    palm_cones: list[tuple] = []  # (start, end, r0, r1, bone)
+    # Cones: (start, end, start radius, end radius, bone, palm group?)
     cones: list[tuple] = []
     # Hypothenar pad along the ulnar border of the palm.
-    palm_cones.append(
+    cones.append(
         (xyz(-0.014, -0.0055, -0.018), xyz(-0.060, -0.0055, -0.031), 0.0108 * scale * thick,
-         0.0098 * scale * thick, 0)
+         0.0098 * scale * thick, 0, True)
     )  # fmt: skip
     # Thumb metacarpal and thenar eminence (bone 13, the thumb's CMC joint).
     cmc, thumb_mcp = joints[13], ends[13]
-    palm_cones.append((cmc, thumb_mcp, radii[13, 0], radii[13, 1], 13))
+    cones.append((cmc, thumb_mcp, radii[13, 0], radii[13, 1], 13, True))
     thumb_len = np.linalg.norm(thumb_mcp - cmc)
     toward_palm = -dorsal[13] * 0.0065 * scale * thick
-    palm_cones.append(
+    cones.append(
         (cmc + dirs[13] * 0.05 * thumb_len + toward_palm,
          cmc + dirs[13] * 0.72 * thumb_len + toward_palm * 0.6,
-         0.0135 * scale * thick, 0.0098 * scale * thick, 13)
+         0.0135 * scale * thick, 0.0098 * scale * thick, 13, True)
     )  # fmt: skip
-
     # Fingers: phalanx cones (axes a little palmar of the bones) and joint condyles.
     for finger in FINGER_NAMES:
         chain = FINGER_JOINTS[finger]
@@ -241,8 +281,8 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
             offset0, offset1 = -dorsal[bone] * 0.12 * r0, -dorsal[bone] * 0.12 * r1
             if k == 2:
                 end = end - dirs[bone] * r1  # the tip sphere's surface reaches the fingertip
-            cones.append((start + offset0, end + offset1, r0, r1, bone))
-        # Condyles: at the distal end of the first two bones of each chain (PIP, DIP; the
+            cones.append((start + offset0, end + offset1, r0, r1, bone, False))
+        # Condyles at the distal end of the first two bones of each chain (PIP, DIP; the
         # thumb's MCP and IP), attached to the proximal bone.
         for bone in chain[:2]:
             r_joint = radii[bone, 1]
@@ -250,8 +290,9 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
             radius = r_joint * (0.7 + 0.12 * knuckle)
             center = ends[bone] + dorsal[bone] * 0.04 * r_joint - dirs[bone] * 0.1 * r_joint
             cones.append(
-                (center - lateral[bone] * half, center + lateral[bone] * half, radius, radius, bone)
-            )
+                (center - lateral[bone] * half, center + lateral[bone] * half, radius, radius,
+                 bone, False)
+            )  # fmt: skip
     # Metacarpal heads of the four fingers (the knuckles of a fist), on the palm bone.
     for finger in ("index", "middle", "ring", "pinky"):
         mcp_bone = FINGER_JOINTS[finger][0]
@@ -260,15 +301,18 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
         radius = r_mcp * (0.66 + 0.14 * knuckle)
         center = joints[mcp_bone] + np.array([0.0015 * scale, 0.0024 * scale * thick, 0.0])
         side = np.array([0.0, 0.0, 1.0])
-        cones.append((center - side * half, center + side * half, radius, radius, 0))
+        cones.append((center - side * half, center + side * half, radius, radius, 0, False))
 
-    all_cones = palm_cones + cones
-    cone_start = np.array([c[0] for c in all_cones])
-    cone_end = np.array([c[1] for c in all_cones])
-    cone_radii = np.array([[c[2], c[3]] for c in all_cones])
-    cone_bone = np.array([c[4] for c in all_cones])
-    lengths = np.linalg.norm(cone_end - cone_start, axis=1)
-    assert np.all(np.abs(cone_radii[:, 0] - cone_radii[:, 1]) < 0.95 * lengths)
+    cone_start = np.array([c[0] for c in cones])
+    cone_end = np.array([c[1] for c in cones])
+    cone_radii = np.array([[c[2], c[3]] for c in cones])
+    cone_length = np.linalg.norm(cone_end - cone_start, axis=1)
+    assert np.all(np.abs(cone_radii[:, 0] - cone_radii[:, 1]) < 0.95 * cone_length)
+    cone_rot = np.stack(
+        [_axis_frame(e - s, np.array([0.0, 1.0, 0.0])) for s, e in zip(cone_start, cone_end, strict=True)]
+    )
+    cone_center = 0.5 * (cone_start + cone_end)
+    cone_bound = 0.5 * cone_length + cone_radii.max(1)
 
     # Palm slab and forearm stub: rounded convex polygons in horizontal planes on bone 0.
     mcp = {f: joints[FINGER_JOINTS[f][0]] for f in ("index", "middle", "ring", "pinky")}
@@ -285,27 +329,19 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
     forearm = [xyz(0.004, 0, -0.013), xyz(0.050, 0, -0.013), xyz(0.050, 0, 0.009),
                xyz(0.004, 0, 0.009)]  # fmt: skip
     # Plane frame rows (a, b, normal) = (x, -z, y): right-handed, normal = back of the hand.
-    axes = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
-    polygons = []
-    for points in (outline, forearm):
-        planar = np.array([[p[0], -p[2]] for p in points])
-        polygons.append(_convex_hull_ccw(planar))
-    num_vertices = max(len(p) for p in polygons)
-    slab_vertices = np.stack(
-        [np.concatenate([p, np.repeat(p[-1:], num_vertices - len(p), 0)]) for p in polygons]
-    )
+    plane_rot = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
     slab_origin = np.array([[0.0, palm_y, 0.0], [0.0, -0.001 * scale * thick, 0.0]])
     slab_radius = np.array([palm_radius, 0.0165 * scale * thick])
+    slab_vertices, slab_center, slab_bound = [], [], []
+    for points, origin, radius in zip((outline, forearm), slab_origin, slab_radius, strict=True):
+        planar = _convex_hull_ccw(np.array([[p[0], -p[2]] for p in points]))
+        slab_vertices.append(planar)
+        centroid = planar.mean(0)
+        slab_center.append(origin + np.array([centroid[0], 0.0, -centroid[1]]))
+        slab_bound.append(np.linalg.norm(planar - centroid, axis=1).max() + radius)
 
     # Creases: (bone, parent, centre along bone, width, depth, radius, side).
     creases: list[tuple] = []
-
-    def jitter_depth() -> float:
-        return float(rng.uniform(0.7, 1.3))
-
-    def jitter_pos() -> float:
-        return float(rng.normal(0.0, 0.0003))
-
     for finger in FINGER_NAMES:
         b1, b2, b3 = FINGER_JOINTS[finger]
         length1 = np.linalg.norm(ends[b1] - joints[b1])
@@ -314,99 +350,126 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
                       (b3, -0.0003, 0.0006, 0.00045)]  # fmt: skip
             dorsal_rows = [(b3, off, 0.0005, 0.00018) for off in (-0.002, 0.0004, 0.0028)]
         else:
-            palmar = [(b1, 0.36 * length1, 0.0008, 0.0005), (b2, -0.0009, 0.0006, 0.00045),
+            palmar = [(b1, 0.36 * length1 / scale, 0.0008, 0.0005), (b2, -0.0009, 0.0006, 0.00045),
                       (b2, 0.0014, 0.0006, 0.0004), (b3, -0.0006, 0.0006, 0.0004)]  # fmt: skip
             dorsal_rows = [(b2, off, 0.0005, 0.00018) for off in (-0.0024, 0.0, 0.0024)]
             dorsal_rows += [(b3, off, 0.0005, 0.00014) for off in (-0.0012, 0.0012)]
         for rows, side in ((palmar, 1.0), (dorsal_rows, -1.0)):
             for bone, center, crease_width, depth in rows:
-                center = center * scale + jitter_pos()
-                along = np.clip(center / max(np.linalg.norm(ends[bone] - joints[bone]), 1e-9), 0, 1)
+                center = center * scale + float(rng.normal(0.0, 0.0003))
+                bone_len = np.linalg.norm(ends[bone] - joints[bone])
+                along = np.clip(center / bone_len, 0.0, 1.0)
                 radius = radii[bone, 0] + (radii[bone, 1] - radii[bone, 0]) * along
                 creases.append(
-                    (bone, PARENTS[bone], center, crease_width * scale, depth * jitter_depth(),
-                     radius, side)
+                    (bone, PARENTS[bone], center, crease_width * scale,
+                     depth * scale * float(rng.uniform(0.7, 1.3)), radius, side)
                 )  # fmt: skip
     # Two wrist creases on the palmar side of the forearm stub (bone 0 runs toward -x, so a
     # negative centre is proximal of the wrist joint).
     for center in (-0.006, -0.013):
-        creases.append((0, 0, center * scale + jitter_pos(), 0.0007 * scale,
-                        0.00035 * jitter_depth(), 0.0165 * scale * thick, 1.0))  # fmt: skip
+        creases.append(
+            (0, 0, center * scale + float(rng.normal(0.0, 0.0003)), 0.0007 * scale,
+             0.00035 * scale * float(rng.uniform(0.7, 1.3)), 0.0165 * scale * thick, 1.0)
+        )  # fmt: skip
+    crease_bone = np.array([c[0] for c in creases])
+    crease_center_along = np.array([c[2] for c in creases])
+    crease_rot = np.stack([dirs[crease_bone], dorsal[crease_bone], lateral[crease_bone]], axis=1)
+    crease_origin = joints[crease_bone] + dirs[crease_bone] * crease_center_along[:, None]
+    crease_width = np.array([c[3] for c in creases])
+    crease_radius = np.array([c[5] for c in creases])
+    crease_bound = np.hypot(_CREASE_SUPPORT * crease_width, crease_radius + 0.006)
 
     # Palm lines: circular arcs through three jittered points.
-    line_center, line_radius, line_mid, line_cos_half, line_width, line_depth = ([] for _ in range(6))
-    for (start, middle, end), depth, line_w in _PALM_LINES:
+    lines: dict[str, list] = {k: [] for k in ("center", "radius", "mid", "cos", "width", "depth")}
+    line_bound_center, line_bound = [], []
+    for (start, middle, end), depth, line_width in _PALM_LINES:
         pts = [
             np.array([p[0] * scale, p[1] * scale * width]) + rng.normal(0.0, 0.0015, 2) * scale
             for p in (start, middle, end)
         ]
         center, radius = _circle_through(*pts)
-        mid_dir = pts[1] - center
-        mid_dir /= np.linalg.norm(mid_dir)
+        mid_dir = (pts[1] - center) / np.linalg.norm(pts[1] - center)
         cos_half = min(
             float(((p - center) / np.linalg.norm(p - center)) @ mid_dir) for p in (pts[0], pts[2])
         )
-        line_center.append(center)
-        line_radius.append(radius)
-        line_mid.append(mid_dir)
-        line_cos_half.append(cos_half)
-        line_width.append(line_w * scale)
-        line_depth.append(depth * jitter_depth())
+        lines["center"].append(center)
+        lines["radius"].append(radius)
+        lines["mid"].append(mid_dir)
+        lines["cos"].append(cos_half)
+        lines["width"].append(line_width * scale)
+        lines["depth"].append(depth * scale * float(rng.uniform(0.7, 1.3)))
+        mean = np.mean(pts, axis=0)
+        line_bound_center.append(np.array([mean[0], palm_y - palm_radius, mean[1]]))
+        line_bound.append(max(np.linalg.norm(p - mean) for p in pts) + 0.012 * scale)
 
     # Fingernails on the distal bones.
-    nail_start, nail_end, nail_radius = [], [], []
-    for finger in FINGER_NAMES:
-        bone = FINGER_JOINTS[finger][2]
-        length3 = np.linalg.norm(ends[bone] - joints[bone])
-        r_tip = radii[bone, 1]
-        nail_start.append((0.36 if finger == "thumb" else 0.42) * length3)
-        nail_end.append(length3 - 0.5 * r_tip)
-        nail_radius.append(0.5 * (radii[bone, 0] + r_tip))
+    nail_bone = np.array(_DISTAL_BONES)
+    nail_length = np.linalg.norm(ends[nail_bone] - joints[nail_bone], axis=1)
+    nail_tip_radius = radii[nail_bone, 1]
+    nail_start = np.where(nail_bone == 15, 0.36, 0.42) * nail_length
+    nail_end = nail_length - 0.5 * nail_tip_radius
+    nail_radius = 0.5 * (radii[nail_bone, 0] + nail_tip_radius)
+    nail_rot = np.stack([dirs[nail_bone], dorsal[nail_bone], lateral[nail_bone]], axis=1)
+    nail_center = joints[nail_bone] + dirs[nail_bone] * (0.5 * (nail_start + nail_end))[:, None]
+    nail_bound = 0.5 * (nail_end - nail_start) + nail_radius + 0.006
 
-    # Bumps: a sum of random plane waves, wavelengths 4-16 mm, RMS about 0.08 mm.
+    # Bumps: random plane waves, wavelengths 4-16 mm, amplitude proportional to wavelength
+    # (constant slope), RMS height about 0.08 mm.
     directions = rng.normal(size=(_NUM_NOISE_WAVES, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
     wavelengths = np.exp(rng.uniform(math.log(0.004), math.log(0.016), _NUM_NOISE_WAVES))
     freqs = directions * (2.0 * math.pi / wavelengths)[:, None]
     phases = rng.uniform(0.0, 2.0 * math.pi, _NUM_NOISE_WAVES)
-    # Amplitude proportional to wavelength (constant slope), total RMS ~ 0.08 mm.
     amps = wavelengths / np.sqrt(np.sum(wavelengths**2) / 2.0) * 0.00008
 
     def t(array, dtype=torch.float64) -> torch.Tensor:
         return torch.as_tensor(np.asarray(array), dtype=dtype)
 
-    crease_cols = list(zip(*creases, strict=True))
     return HandTemplate(
         skeleton=skel,
-        cone_start=t(cone_start),
-        cone_end=t(cone_end),
+        cone_rot=t(cone_rot),
+        cone_origin=t(cone_start),
+        cone_bone=t([c[4] for c in cones], torch.long),
+        cone_length=t(cone_length),
         cone_radii=t(cone_radii),
-        cone_bone=t(cone_bone, torch.long),
-        num_palm_cones=len(palm_cones),
+        cone_palm=t([c[5] for c in cones], torch.bool),
+        cone_center=t(cone_center),
+        cone_bound=t(cone_bound),
+        slab_rot=t(np.stack([plane_rot, plane_rot])),
         slab_origin=t(slab_origin),
-        slab_axes=t(np.stack([axes, axes])),
-        slab_vertices=t(slab_vertices),
-        slab_radius=t(slab_radius),
         slab_bone=t([0, 0], torch.long),
+        slab_vertices=[t(v) for v in slab_vertices],
+        slab_radius=t(slab_radius),
+        slab_center=t(slab_center),
+        slab_bound=t(slab_bound),
         blend=0.0015 * shape.flesh * scale,
         blend_palm=0.004 * shape.flesh * scale,
-        crease_bone=t(crease_cols[0], torch.long),
-        crease_parent=t(crease_cols[1], torch.long),
-        crease_center=t(crease_cols[2]),
-        crease_width=t(crease_cols[3]),
-        crease_depth=t(np.array(crease_cols[4]) * scale),
-        crease_radius=t(crease_cols[5]),
-        crease_side=t(crease_cols[6]),
-        line_center=t(line_center),
-        line_radius=t(line_radius),
-        line_mid=t(line_mid),
-        line_cos_half=t(line_cos_half),
-        line_width=t(line_width),
-        line_depth=t(np.array(line_depth) * scale),
+        crease_rot=t(crease_rot),
+        crease_origin=t(crease_origin),
+        crease_bone=t(crease_bone, torch.long),
+        crease_parent=t([c[1] for c in creases], torch.long),
+        crease_width=t(crease_width),
+        crease_depth=t([c[4] for c in creases]),
+        crease_radius=t(crease_radius),
+        crease_side=t([c[6] for c in creases]),
+        crease_bound=t(crease_bound),
+        line_center=t(lines["center"]),
+        line_radius=t(lines["radius"]),
+        line_mid=t(lines["mid"]),
+        line_cos_half=t(lines["cos"]),
+        line_width=t(lines["width"]),
+        line_depth=t(lines["depth"]),
+        line_bound_center=t(line_bound_center),
+        line_bound=t(line_bound),
+        nail_rot=t(nail_rot),
+        nail_origin=t(joints[nail_bone]),
+        nail_bone=t(nail_bone, torch.long),
         nail_start=t(nail_start),
         nail_end=t(nail_end),
         nail_radius=t(nail_radius),
         nail_height=0.00035 * scale,
+        nail_center=t(nail_center),
+        nail_bound=t(nail_bound),
         noise_freqs=t(freqs),
         noise_phases=t(phases),
         noise_amps=t(amps),
@@ -415,148 +478,312 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
     )
 
 
-def _bone_local(points: torch.Tensor, inv_transforms: torch.Tensor) -> torch.Tensor:
-    """Points in every bone's rest frame: ``x_j = A_j^-1 x``.
+# ----------------------------------------------------------------------------------------------
+# The posed field
 
-    points: [N, 3]; inv_transforms: [16, 4, 4] -> [N, 16, 3]
+
+def _posed_maps(
+    rot: torch.Tensor, origin: torch.Tensor, bone: torch.Tensor, inv_transforms: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """Affine maps world -> local for frames on bones: ``local = rot (A_b^-1 x - origin)``.
+
+    rot: [K, 3, 3], origin: [K, 3], bone: [K], inv_transforms: [16, 4, 4]
+    -> (matrix [K, 3, 3], offset [K, 3]) with ``local = matrix x + offset``.
     """
-    rot = inv_transforms[:, :3, :3]  # [J, 3, 3]
-    return torch.einsum("jab,nb->nja", rot, points) + inv_transforms[:, :3, 3]
+    inv = inv_transforms[bone]  # [K, 4, 4]
+    matrix = rot @ inv[:, :3, :3]
+    offset = (rot @ (inv[:, :3, 3] - origin)[..., None])[..., 0]
+    return matrix, offset
 
 
-def evaluate_hand_field(
-    template: HandTemplate,
-    inv_transforms: torch.Tensor,
-    points: torch.Tensor,
-    with_features: bool = False,
-) -> HandFieldOutput:
-    """Evaluate the posed hand at world points.
+def _apply(points: torch.Tensor, matrix: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
+    """points [N, 3], matrix [K, 3, 3], offset [K, 3] -> [N, K, 3] local coordinates."""
+    num = matrix.shape[0]
+    flat = points @ matrix.reshape(num * 3, 3).T + offset.reshape(num * 3)
+    return flat.reshape(points.shape[0], num, 3)
 
-    template: the subject's :class:`HandTemplate` on the points' device and dtype.
-    inv_transforms: [16, 4, 4] ``A_j^-1``, posed-to-rest transforms of the bones.
-    points: [N, 3] world points, metres.
-    with_features: also compute rest points and appearance features (nails, creases, ...).
+
+@dataclass
+class _Selection:
+    """Indices of the parts, creases, nails and palm lines evaluated for a group of points."""
+
+    cones: torch.Tensor
+    slabs: list[int]
+    creases: torch.Tensor
+    nails: torch.Tensor
+    lines: bool
+
+
+class PosedField:
+    """The signed distance field (and features) of one subject in one pose.
+
+    template: the subject's :class:`HandTemplate` (any device/dtype: converted to ``dtype`` on
+        the transforms' device).
+    transforms: [16, 4, 4] rest-to-posed bone transforms ``A_j`` (world frame, metres).
+    cell_size: edge of the cells that group query points for culling, metres.
     """
-    skel = template.skeleton
-    x_bone = _bone_local(points, inv_transforms)  # [N, J, 3]
 
-    # Part distances: palm group first (cones, then slabs), then the other cones.
-    cone_points = x_bone[:, template.cone_bone]  # [N, P, 3]
-    cone_d = round_cone_sdf(
-        cone_points,
-        template.cone_start,
-        template.cone_end,
-        template.cone_radii[:, 0],
-        template.cone_radii[:, 1],
-    )
-    slab_points = x_bone[:, template.slab_bone] - template.slab_origin
-    slab_points = torch.einsum("qab,nqb->nqa", template.slab_axes, slab_points)
-    slab_d = rounded_polygon_sdf(slab_points, template.slab_vertices, template.slab_radius)
-    num_palm = template.num_palm_cones
-    palm_d = torch.cat([cone_d[:, :num_palm], slab_d], dim=1)
-    palm_s, palm_w = smooth_union(palm_d, template.blend_palm)
-    top_d = torch.cat([palm_s[:, None], cone_d[:, num_palm:]], dim=1)
-    sdf, top_w = smooth_union(top_d, template.blend)
+    def __init__(
+        self, template: HandTemplate, transforms: torch.Tensor, cell_size: float = 0.025
+    ) -> None:
+        if transforms.shape != (NUM_JOINTS, 4, 4):
+            raise ValueError(f"transforms must be [16, 4, 4], got {tuple(transforms.shape)}")
+        self.dtype = transforms.dtype
+        self.device = transforms.device
+        tpl = template.to(self.device, self.dtype)
+        self.template = tpl
+        self.cell_size = cell_size
+        self.transforms = transforms
+        inv = invert_rigid(transforms)
+        self.inv_transforms = inv
+        skel = tpl.skeleton
+        identity = torch.eye(3, dtype=self.dtype, device=self.device)
+        bones = torch.arange(NUM_JOINTS, device=self.device)
+        # world -> each bone's rest frame (for rest points), and bone-anatomical frames.
+        self.rest_matrix, self.rest_offset = inv[:, :3, :3], inv[:, :3, 3]
+        bone_rot = torch.stack([skel.bone_dirs, skel.dorsal, skel.lateral], dim=1)
+        self.bone_matrix, self.bone_offset = _posed_maps(bone_rot, skel.joints, bones, inv)
+        self.cone_matrix, self.cone_offset = _posed_maps(
+            tpl.cone_rot, tpl.cone_origin, tpl.cone_bone, inv
+        )
+        self.slab_matrix, self.slab_offset = _posed_maps(
+            tpl.slab_rot, tpl.slab_origin, tpl.slab_bone, inv
+        )
+        self.crease_matrix, self.crease_offset = _posed_maps(
+            tpl.crease_rot, tpl.crease_origin, tpl.crease_bone, inv
+        )
+        self.nail_matrix, self.nail_offset = _posed_maps(
+            tpl.nail_rot, tpl.nail_origin, tpl.nail_bone, inv
+        )
+        self.palm_matrix, self.palm_offset = _posed_maps(
+            identity[None], torch.zeros_like(identity[:1]), bones[:1], inv
+        )
+        # One-hot part -> bone maps for ownership.
+        self.cone_onehot = torch.nn.functional.one_hot(tpl.cone_bone, NUM_JOINTS).to(self.dtype)
+        self.slab_onehot = torch.nn.functional.one_hot(tpl.slab_bone, NUM_JOINTS).to(self.dtype)
 
-    # Ownership: blend factors summed per bone.
-    part_weights = torch.cat([top_w[:, :1] * palm_w, top_w[:, 1:]], dim=1)
-    part_bones = torch.cat(
-        [template.cone_bone[:num_palm], template.slab_bone, template.cone_bone[num_palm:]]
-    )
-    weights = points.new_zeros(points.shape[0], NUM_JOINTS)
-    weights = weights.index_add(1, part_bones, part_weights)
+        # Posed bounding spheres.
+        def posed(center: torch.Tensor, bone: torch.Tensor) -> torch.Tensor:
+            a = transforms[bone]
+            return (a[:, :3, :3] @ center[..., None])[..., 0] + a[:, :3, 3]
 
-    # Bone-local anatomical coordinates: along, dorsal and lateral (relative to the bone start).
-    rel = x_bone - skel.joints
-    along = (rel * skel.bone_dirs).sum(-1)  # [N, J]
-    up = (rel * skel.dorsal).sum(-1)
-    side = (rel * skel.lateral).sum(-1)
-    radial = torch.sqrt(up * up + side * side + 1e-14)
+        self.cone_center = posed(tpl.cone_center, tpl.cone_bone)
+        self.slab_center = posed(tpl.slab_center, tpl.slab_bone)
+        self.crease_center = posed(tpl.crease_origin, tpl.crease_bone)
+        self.nail_center = posed(tpl.nail_center, tpl.nail_bone)
+        self.line_center = posed(tpl.line_bound_center, bones[:1].expand(len(tpl.line_bound)))
+        self.all_cones = torch.arange(tpl.cone_bone.shape[0], device=self.device)
+        self.all_creases = torch.arange(tpl.crease_bone.shape[0], device=self.device)
+        self.all_nails = torch.arange(5, device=self.device)
+        self._everything = _Selection(
+            self.all_cones, list(range(len(tpl.slab_vertices))), self.all_creases,
+            self.all_nails, True,
+        )  # fmt: skip
 
-    # Joint creases and knuckle wrinkles.
-    cb = template.crease_bone
-    c_along = along[:, cb] - template.crease_center
-    profile = torch.exp(-0.5 * (c_along / template.crease_width) ** 2)
-    facing = -template.crease_side * up[:, cb] / template.crease_radius
-    palmar_side = template.crease_side > 0
-    face_mask = torch.where(
-        palmar_side, smoothstep(-0.05, 0.5, facing), smoothstep(0.35, 0.8, facing)
-    )
-    near = smoothstep(
-        template.crease_radius + 0.006, template.crease_radius + 0.0025, radial[:, cb]
-    )
-    owner = weights[:, cb] + torch.where(
-        template.crease_parent == cb, torch.zeros_like(profile), weights[:, template.crease_parent]
-    )
-    crease_shape = profile * face_mask * near * owner.clamp(max=1.0)
-    displacement = (crease_shape * template.crease_depth).sum(-1)
+    # ------------------------------------------------------------------------------------------
+    def evaluate(
+        self, points: torch.Tensor, with_features: bool = False, cull: bool = True
+    ) -> HandFieldOutput:
+        """The field at world points.
 
-    # Palm lines: arcs on the palmar side of the palm, where the palm owns the surface.
-    x_palm = x_bone[:, 0]
-    planar = torch.stack([x_palm[:, 0], x_palm[:, 2]], dim=-1)[:, None] - template.line_center
-    dist_center = torch.sqrt((planar * planar).sum(-1) + 1e-14)  # [N, L]
-    off_arc = dist_center - template.line_radius
-    cos_mid = (planar * template.line_mid).sum(-1) / dist_center
-    arc_mask = smoothstep(template.line_cos_half - 0.06, template.line_cos_half + 0.06, cos_mid)
-    palm_y = template.palm_center_y
-    half = template.palm_half_thickness
-    palm_face = smoothstep(palm_y - 0.3 * half, palm_y - 0.75 * half, x_palm[:, 1])
-    palm_owner = weights[:, 0] + weights[:, 13]
-    line_shape = (
-        torch.exp(-0.5 * (off_arc / template.line_width) ** 2)
-        * arc_mask
-        * (palm_face * palm_owner)[:, None]
-    )
-    displacement = displacement + (line_shape * template.line_depth).sum(-1)
+        points: [N, 3] world points, metres, on this field's device (any float dtype; computed
+            in the field's dtype).
+        with_features: also compute rest points and appearance features.
+        cull: group points in cells and skip far parts (same values to ~1e-7 m).
+        """
+        points = points.to(self.dtype)
+        num = points.shape[0]
+        if not cull or num <= 512:
+            return self._evaluate(points, self._everything, with_features)
+        cells = torch.floor((points - points.detach().amin(0)) / self.cell_size).long()
+        dims = cells.amax(0) + 1
+        keys = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
+        keys, order = torch.sort(keys)
+        _, counts = torch.unique_consecutive(keys, return_counts=True)
+        pieces: list[HandFieldOutput] = []
+        for index in torch.split(order, counts.tolist()):
+            group = points[index]
+            low, high = group.detach().amin(0), group.detach().amax(0)
+            selection = self._select(0.5 * (low + high), 0.5 * float((high - low).norm()))
+            pieces.append(self._evaluate(group, selection, with_features))
+        inverse = torch.empty_like(order)
+        inverse[order] = torch.arange(num, device=order.device)
+        merged = {}
+        for name in HandFieldOutput.__dataclass_fields__:
+            values = [getattr(piece, name) for piece in pieces]
+            merged[name] = None if values[0] is None else torch.cat(values)[inverse]
+        return HandFieldOutput(**merged)
 
-    # Fingernails: a raised plate on the back of each distal bone, cuticle curved proximally.
-    distal = torch.as_tensor(_DISTAL_BONES, device=points.device)
-    n_along, n_up, n_side = along[:, distal], up[:, distal], side[:, distal]
-    n_radius = template.nail_radius
-    cuticle = n_along - 0.45 * n_side * n_side / n_radius
-    nail_mask = (
-        smoothstep(template.nail_start, template.nail_start + 0.0012, cuticle)
-        * smoothstep(template.nail_end + 0.0008, template.nail_end - 0.0004, n_along)
-        * smoothstep(0.3, 0.6, n_up / n_radius)
-        * smoothstep(n_radius + 0.004, n_radius + 0.0015, radial[:, distal])
-        * weights[:, distal]
-    )
-    displacement = displacement - template.nail_height * nail_mask.sum(-1)
+    def _select(self, center: torch.Tensor, half_diagonal: float) -> _Selection:
+        """Parts and details that can matter for points within ``half_diagonal`` of ``center``."""
+        tpl = self.template
+        cone_dist = (self.cone_center - center).norm(dim=-1)
+        slab_dist = (self.slab_center - center).norm(dim=-1)
+        # Upper bound of the union at any point of the group: each centre is inside its part.
+        upper = float(torch.minimum(cone_dist.min(), slab_dist.min())) + half_diagonal
+        cone_low = cone_dist - tpl.cone_bound - half_diagonal
+        cone_margin = torch.where(tpl.cone_palm, tpl.blend_palm, tpl.blend) * _CULL_BLENDS
+        cones = torch.nonzero(cone_low <= upper + cone_margin)[:, 0]
+        slab_low = slab_dist - tpl.slab_bound - half_diagonal
+        slab_keep = slab_low <= upper + tpl.blend_palm * _CULL_BLENDS
+        slabs = [int(i) for i in torch.nonzero(slab_keep)[:, 0]]
+        crease_dist = (self.crease_center - center).norm(dim=-1)
+        creases = torch.nonzero(crease_dist <= tpl.crease_bound + half_diagonal)[:, 0]
+        nail_dist = (self.nail_center - center).norm(dim=-1)
+        nails = torch.nonzero(nail_dist <= tpl.nail_bound + half_diagonal)[:, 0]
+        line_dist = (self.line_center - center).norm(dim=-1)
+        lines = bool((line_dist <= tpl.line_bound + half_diagonal).any())
+        return _Selection(cones, slabs, creases, nails, lines)
 
-    # Bumps: plane waves in the rest pose, carried by the owning bones.
-    rest_points = torch.einsum("nj,nja->na", weights, x_bone)
-    waves = torch.sin(rest_points @ template.noise_freqs.T + template.noise_phases)
-    displacement = displacement + (waves * template.noise_amps).sum(-1)
+    def _evaluate(
+        self, points: torch.Tensor, sel: _Selection, with_features: bool
+    ) -> HandFieldOutput:
+        tpl = self.template
+        num = points.shape[0]
+        # Part distances: the palm group (cones, then slabs) and the other cones.
+        cone_local = _apply(points, self.cone_matrix[sel.cones], self.cone_offset[sel.cones])
+        radii = tpl.cone_radii[sel.cones]
+        cone_d = round_cone_sdf(
+            cone_local[..., 0],
+            cone_local[..., 1] ** 2 + cone_local[..., 2] ** 2,
+            tpl.cone_length[sel.cones],
+            radii[:, 0],
+            radii[:, 1],
+        )
+        in_palm = tpl.cone_palm[sel.cones]
+        palm_parts = [cone_d[:, in_palm]]
+        palm_onehot = [self.cone_onehot[sel.cones][in_palm]]
+        for q in sel.slabs:
+            local = _apply(points, self.slab_matrix[q : q + 1], self.slab_offset[q : q + 1])[:, 0]
+            palm_parts.append(
+                rounded_polygon_sdf(local, tpl.slab_vertices[q], tpl.slab_radius[q])[:, None]
+            )
+            palm_onehot.append(self.slab_onehot[q : q + 1])
+        palm_d = torch.cat(palm_parts, dim=1)
+        top_d = cone_d[:, ~in_palm]
+        top_onehot = self.cone_onehot[sel.cones][~in_palm]
+        if palm_d.shape[1]:
+            palm_s, palm_w = smooth_union(palm_d, tpl.blend_palm)
+            top_d = torch.cat([palm_s[:, None], top_d], dim=1)
+        sdf, top_w = smooth_union(top_d, tpl.blend)
+        if palm_d.shape[1]:
+            weights = (top_w[:, :1] * palm_w) @ torch.cat(palm_onehot) + top_w[:, 1:] @ top_onehot
+        else:
+            weights = top_w @ top_onehot
 
-    sdf = sdf + displacement
-    if not with_features:
-        return HandFieldOutput(sdf=sdf, weights=weights)
+        # Joint creases and knuckle wrinkles (Gaussian grooves across a bone).
+        displacement = points.new_zeros(num)
+        crease_shape = None
+        if sel.creases.numel():
+            c = sel.creases
+            local = _apply(points, self.crease_matrix[c], self.crease_offset[c])
+            along, up, side = local.unbind(-1)
+            radius = tpl.crease_radius[c]
+            profile = torch.exp(-0.5 * (along / tpl.crease_width[c]) ** 2)
+            facing = -tpl.crease_side[c] * up / radius
+            face_mask = torch.where(
+                tpl.crease_side[c] > 0,
+                smoothstep(-0.05, 0.5, facing),
+                smoothstep(0.35, 0.8, facing),
+            )
+            near = smoothstep(radius + 0.006, radius + 0.0025, (up * up + side * side).sqrt())
+            bone, parent = tpl.crease_bone[c], tpl.crease_parent[c]
+            owner = weights[:, bone] + torch.where(bone == parent, 0.0, weights[:, parent])
+            crease_shape = profile * face_mask * near * owner.clamp(max=1.0)
+            displacement = displacement + crease_shape @ tpl.crease_depth[c]
 
-    nail = nail_mask.sum(-1).clamp(max=1.0)
-    span = (template.nail_end - template.nail_start).clamp_min(1e-6)
-    nail_along = ((n_along - template.nail_start) / span).clamp(0.0, 1.0)
-    nail_along = (nail_along * nail_mask).sum(-1) / nail_mask.sum(-1).clamp_min(1e-6)
-    crease = (crease_shape.amax(-1) if crease_shape.shape[1] else sdf * 0).clamp(max=1.0)
-    crease = torch.maximum(crease, line_shape.amax(-1))
-    # Palmar side: for fingers from the bone-local dorsal coordinate, for the palm from height.
-    bone_radius = skel.radii.mean(-1)
-    finger_palmar = smoothstep(0.15 * bone_radius, -0.45 * bone_radius, up)  # [N, J]
-    palm_palmar = smoothstep(palm_y + 0.1 * half, palm_y - 0.6 * half, x_palm[:, 1])
-    finger_palmar = torch.cat([palm_palmar[:, None], finger_palmar[:, 1:]], dim=1)
-    palmar = (weights * finger_palmar).sum(-1)
-    # Knuckles: the back of each joint (start of bones 1-15, in the parent-or-child region).
-    joint_near = torch.exp(-0.5 * (along / (0.6 * bone_radius)) ** 2)
-    back = smoothstep(0.2 * bone_radius, 0.8 * bone_radius, up)
-    parents = torch.as_tensor(PARENTS[1:], device=points.device)
-    joint_owner = weights[:, 1:] + weights[:, parents]
-    knuckle = (joint_near[:, 1:] * back[:, 1:] * joint_owner.clamp(max=1.0)).amax(-1)
-    return HandFieldOutput(
-        sdf=sdf,
-        weights=weights,
-        rest_points=rest_points,
-        nail=nail,
-        nail_along=nail_along,
-        crease=crease,
-        palmar=palmar,
-        knuckle=knuckle,
-    )
+        # Palm lines: arcs on the palmar side of the palm, where the palm owns the surface.
+        x_palm = _apply(points, self.palm_matrix, self.palm_offset)[:, 0]
+        line_shape = None
+        if sel.lines:
+            planar = x_palm[:, None, 0::2] - tpl.line_center  # [N, L, 2]
+            dist_center = ((planar * planar).sum(-1) + 1e-14).sqrt()
+            cos_mid = (planar * tpl.line_mid).sum(-1) / dist_center
+            arc_mask = smoothstep(tpl.line_cos_half - 0.06, tpl.line_cos_half + 0.06, cos_mid)
+            palm_y, half = tpl.palm_center_y, tpl.palm_half_thickness
+            palm_face = smoothstep(palm_y - 0.3 * half, palm_y - 0.75 * half, x_palm[:, 1])
+            across = (dist_center - tpl.line_radius) / tpl.line_width
+            line_shape = (
+                torch.exp(-0.5 * across * across)
+                * arc_mask
+                * (palm_face * (weights[:, 0] + weights[:, 13]))[:, None]
+            )
+            displacement = displacement + line_shape @ tpl.line_depth
+
+        # Fingernails: a raised plate on the back of each distal bone, cuticle curved proximally.
+        nail_mask = None
+        if sel.nails.numel():
+            n = sel.nails
+            local = _apply(points, self.nail_matrix[n], self.nail_offset[n])
+            along, up, side = local.unbind(-1)
+            radius = tpl.nail_radius[n]
+            start, end = tpl.nail_start[n], tpl.nail_end[n]
+            cuticle = along - 0.45 * side * side / radius
+            nail_mask = (
+                smoothstep(start, start + 0.0012, cuticle)
+                * smoothstep(end + 0.0008, end - 0.0004, along)
+                * smoothstep(0.3, 0.6, up / radius)
+                * smoothstep(radius + 0.004, radius + 0.0015, (up * up + side * side).sqrt())
+                * weights[:, tpl.nail_bone[n]]
+            )
+            displacement = displacement - tpl.nail_height * nail_mask.sum(-1)
+
+        # Bumps: plane waves at the rest-pose point, carried by the owning bones.
+        x_rest = _apply(points, self.rest_matrix, self.rest_offset)  # [N, 16, 3]
+        rest_points = (weights[..., None] * x_rest).sum(1)
+        waves = torch.sin(rest_points @ tpl.noise_freqs.T + tpl.noise_phases)
+        displacement = displacement + waves @ tpl.noise_amps
+
+        sdf = sdf + displacement
+        if not with_features:
+            return HandFieldOutput(sdf=sdf, weights=weights)
+        return self._features(points, sdf, weights, rest_points, x_palm, crease_shape,
+                              line_shape, nail_mask, sel)  # fmt: skip
+
+    def _features(
+        self, points, sdf, weights, rest_points, x_palm, crease_shape, line_shape, nail_mask, sel
+    ) -> HandFieldOutput:
+        tpl = self.template
+        skel = tpl.skeleton
+        zeros = sdf.new_zeros(sdf.shape)
+        if nail_mask is not None:
+            n = sel.nails
+            local = _apply(points, self.nail_matrix[n], self.nail_offset[n])
+            span = (tpl.nail_end[n] - tpl.nail_start[n]).clamp_min(1e-6)
+            along = ((local[..., 0] - tpl.nail_start[n]) / span).clamp(0.0, 1.0)
+            total = nail_mask.sum(-1)
+            nail = total.clamp(max=1.0)
+            nail_along = (along * nail_mask).sum(-1) / total.clamp_min(1e-6)
+        else:
+            nail, nail_along = zeros, zeros
+        crease = zeros
+        if crease_shape is not None:
+            crease = torch.maximum(crease, crease_shape.amax(-1))
+        if line_shape is not None:
+            crease = torch.maximum(crease, line_shape.amax(-1))
+        crease = crease.clamp(max=1.0)
+        # Palmar side: for fingers from the bone-local dorsal coordinate, for the palm from height.
+        bone_local = _apply(points, self.bone_matrix, self.bone_offset)  # [N, 16, 3]
+        along, up = bone_local[..., 0], bone_local[..., 1]
+        bone_radius = skel.radii.mean(-1)
+        finger_palmar = smoothstep(0.15 * bone_radius, -0.45 * bone_radius, up)
+        palm_y, half = tpl.palm_center_y, tpl.palm_half_thickness
+        palm_palmar = smoothstep(palm_y + 0.1 * half, palm_y - 0.6 * half, x_palm[:, 1])
+        finger_palmar = torch.cat([palm_palmar[:, None], finger_palmar[:, 1:]], dim=1)
+        palmar = (weights * finger_palmar).sum(-1)
+        # Knuckles: the back of each joint, where the joint's two bones own the surface.
+        joint_near = torch.exp(-0.5 * (along / (0.6 * bone_radius)) ** 2)
+        back = smoothstep(0.2 * bone_radius, 0.8 * bone_radius, up)
+        parents = torch.as_tensor(PARENTS[1:], device=points.device)
+        joint_owner = (weights[:, 1:] + weights[:, parents]).clamp(max=1.0)
+        knuckle = (joint_near[:, 1:] * back[:, 1:] * joint_owner).amax(-1)
+        return HandFieldOutput(
+            sdf=sdf,
+            weights=weights,
+            rest_points=rest_points,
+            nail=nail,
+            nail_along=nail_along,
+            crease=crease,
+            palmar=palmar,
+            knuckle=knuckle,
+        )

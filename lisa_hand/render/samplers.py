@@ -54,16 +54,21 @@ def _check_near_far(near, far) -> None:
         )
 
 
+def _call_sdf(sdf_fn: SdfFn, points: torch.Tensor) -> torch.Tensor:
+    """sdf_fn on points [N, 3] -> [N] in the points' dtype, with its output shape checked."""
+    sdf = sdf_fn(points)
+    if not isinstance(sdf, torch.Tensor) or sdf.shape != points.shape[:1]:
+        raise ValueError(
+            f"sdf_fn must return a tensor of shape [N]=({points.shape[0]},) for points [N, 3], "
+            f"got {getattr(sdf, 'shape', type(sdf).__name__)}"
+        )
+    return sdf.to(points.dtype)
+
+
 def _eval_sdf(sdf_fn: SdfFn, origins, directions, t_vals) -> torch.Tensor:
     """sdf at ``o + t d`` for t_vals [R, M] -> [R, M] (same dtype as t_vals)."""
     points = origins[:, None, :] + t_vals[..., None] * directions[:, None, :]
-    sdf = sdf_fn(points.reshape(-1, 3))
-    if sdf.shape != (points.shape[0] * points.shape[1],):
-        raise ValueError(
-            f"sdf_fn must return shape [N]=({points.shape[0] * points.shape[1]},) for points "
-            f"[N, 3], got {tuple(sdf.shape)}"
-        )
-    return sdf.reshape(t_vals.shape).to(t_vals.dtype)
+    return _call_sdf(sdf_fn, points.reshape(-1, 3)).reshape(t_vals.shape)
 
 
 def uniform_samples(
@@ -425,7 +430,8 @@ def sphere_traced_samples(
     gets the band up to its last exit from the shell (``far`` when it ran out of steps inside).
     ``num_samples`` evenly spaced samples (stratified: one random sample per bin) go in the band
     and ``num_uniform`` uniform samples in ``[near, far]``; rays that never enter the shell get all
-    ``num_samples + num_uniform`` samples uniformly (their opacity is negligible).
+    ``num_samples + num_uniform`` samples uniformly (their opacity is negligible; a ray that runs
+    out of ``num_steps`` before entering the shell is treated the same way).
 
     Assumes an SDF that does not overestimate distances (sphere tracing never steps past the
     surface by more than the minimum step). Not differentiable (runs under ``torch.no_grad``).
@@ -458,7 +464,7 @@ def sphere_traced_samples(
             break
         t_act = t_cur[active]
         points = origins[active] + t_act[:, None] * directions[active]
-        sdf = sdf_fn(points).to(dtype)
+        sdf = _call_sdf(sdf_fn, points)
         in_shell = sdf <= shell
         t_enter[active] = torch.where(
             in_shell, torch.minimum(t_enter[active], t_act), t_enter[active]

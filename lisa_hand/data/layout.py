@@ -1,0 +1,235 @@
+"""On-disk layout of a LISA-open dataset (written by ``lisa synth``) and of image-fitting input.
+
+::
+
+    DATA/
+      dataset.json              generator settings, counts, format version
+      split.json                {"train": [subject ids], "val": [...], "test": [...]}
+      s000/                     one folder per subject
+        subject.json            side, shape and appearance parameters, rest joints, template betas
+        f000/                   one folder per frame (a pose of that subject)
+          params.json           pose [48] axis-angle rad, translation [3] m, joints [16,3] m,
+                                keypoints [21,3] m, pose name, per-camera gain and bias
+          mesh.ply              ground-truth mesh, metres, vertex colours (albedo), skinning weights
+          scan.npz              points [N,3], normals [N,3], weights [N,16] (ground-truth owners),
+                                template_weights [N,16] (pseudo ground truth, nearest template
+                                vertex), sdf_points [M,3], sdf [M] (metres)
+          cameras.json          list of {name, K, R, t, width, height} (OpenCV, world to camera)
+          keypoints.json        {"names": [21], "views": {name: {"keypoints": [21,2] px,
+                                "visible": [21]}}}
+          images/NAME.png       RGB, 8 bit
+          masks/NAME.png        foreground mask, 8 bit (0 or 255)
+          depth/NAME.png        depth along the camera z axis, uint16, units of 0.1 mm, 0 = none
+
+A frame folder is also the input format of ``lisa fit-images``: ``cameras.json`` and ``images/``
+are required; ``masks/`` and ``keypoints.json`` are optional. Every writer here is atomic.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..io_utils import atomic_path, read_json
+
+__all__ = [
+    "FORMAT_NAME",
+    "FORMAT_VERSION",
+    "DEPTH_UNIT_M",
+    "FramePaths",
+    "subject_id",
+    "frame_id",
+    "write_image",
+    "read_image",
+    "write_mask",
+    "read_mask",
+    "write_depth",
+    "read_depth",
+    "write_npz",
+    "read_npz",
+    "read_split",
+    "list_frames",
+]
+
+FORMAT_NAME = "lisa-synth"
+FORMAT_VERSION = 1
+DEPTH_UNIT_M = 1e-4  # depth PNGs store units of 0.1 mm: up to 6.5 m in uint16
+
+
+def subject_id(index: int) -> str:
+    """Folder name of subject ``index``: ``s000``."""
+    return f"s{index:03d}"
+
+
+def frame_id(index: int) -> str:
+    """Folder name of frame ``index`` of a subject: ``f000``."""
+    return f"f{index:03d}"
+
+
+@dataclass(frozen=True)
+class FramePaths:
+    """The files of one frame folder (see the module docstring)."""
+
+    root: Path
+
+    @property
+    def params(self) -> Path:
+        return self.root / "params.json"
+
+    @property
+    def mesh(self) -> Path:
+        return self.root / "mesh.ply"
+
+    @property
+    def scan(self) -> Path:
+        return self.root / "scan.npz"
+
+    @property
+    def cameras(self) -> Path:
+        return self.root / "cameras.json"
+
+    @property
+    def keypoints(self) -> Path:
+        return self.root / "keypoints.json"
+
+    def image(self, view: str) -> Path:
+        return self.root / "images" / f"{view}.png"
+
+    def mask(self, view: str) -> Path:
+        return self.root / "masks" / f"{view}.png"
+
+    def depth(self, view: str) -> Path:
+        return self.root / "depth" / f"{view}.png"
+
+
+def write_image(path: str | os.PathLike, rgb: np.ndarray) -> Path:
+    """Write an RGB image ``[H, W, 3]`` (float in [0, 1] or uint8) as an 8-bit PNG."""
+    import imageio.v3 as iio
+
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[-1] != 3:
+        raise ValueError(f"{path}: an RGB image must be [H, W, 3], got {rgb.shape}")
+    if rgb.dtype != np.uint8:
+        rgb = (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, rgb, extension=".png")
+    return Path(path)
+
+
+def read_image(path: str | os.PathLike) -> np.ndarray:
+    """Read an image as float32 ``[H, W, 3]`` in [0, 1] (grey or RGBA are converted)."""
+    image = _read_png(path)
+    if image.ndim == 2:
+        image = np.repeat(image[..., None], 3, axis=-1)
+    if image.shape[-1] == 4:
+        image = image[..., :3]
+    if image.shape[-1] != 3:
+        raise ValueError(f"{path}: expected an RGB image, got shape {image.shape}")
+    scale = 65535.0 if image.dtype == np.uint16 else 255.0
+    return image.astype(np.float32) / scale
+
+
+def write_mask(path: str | os.PathLike, mask: np.ndarray) -> Path:
+    """Write a boolean mask ``[H, W]`` as an 8-bit PNG (0 or 255)."""
+    import imageio.v3 as iio
+
+    mask = np.asarray(mask)
+    if mask.ndim != 2:
+        raise ValueError(f"{path}: a mask must be [H, W], got {mask.shape}")
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, (mask > 0).astype(np.uint8) * 255, extension=".png")
+    return Path(path)
+
+
+def read_mask(path: str | os.PathLike) -> np.ndarray:
+    """Read a mask PNG as bool ``[H, W]`` (any channel layout; nonzero = foreground)."""
+    mask = _read_png(path)
+    if mask.ndim == 3:
+        mask = mask[..., :3].max(axis=-1) if mask.shape[-1] >= 3 else mask[..., 0]
+    return mask > (mask.max() / 2 if mask.max() > 0 else 0)
+
+
+def write_depth(path: str | os.PathLike, depth_m: np.ndarray) -> Path:
+    """Write depth ``[H, W]`` metres (0 = no surface) as a uint16 PNG in units of 0.1 mm."""
+    import imageio.v3 as iio
+
+    depth = np.asarray(depth_m, dtype=np.float64)
+    if depth.ndim != 2:
+        raise ValueError(f"{path}: a depth map must be [H, W], got {depth.shape}")
+    units = np.round(depth / DEPTH_UNIT_M)
+    if units.max(initial=0) > np.iinfo(np.uint16).max:
+        raise ValueError(f"{path}: depth beyond {np.iinfo(np.uint16).max * DEPTH_UNIT_M:.2f} m")
+    with atomic_path(path) as tmp:
+        iio.imwrite(tmp, units.astype(np.uint16), extension=".png")
+    return Path(path)
+
+
+def read_depth(path: str | os.PathLike) -> np.ndarray:
+    """Read a depth PNG written by :func:`write_depth` as float32 metres ``[H, W]``."""
+    depth = _read_png(path)
+    if depth.dtype != np.uint16 or depth.ndim != 2:
+        raise ValueError(f"{path}: expected a 16-bit single-channel depth PNG")
+    return depth.astype(np.float32) * DEPTH_UNIT_M
+
+
+def _read_png(path: str | os.PathLike) -> np.ndarray:
+    import imageio.v3 as iio
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        return np.asarray(iio.imread(path))
+    except Exception as exc:  # imageio raises many types for corrupt files
+        raise ValueError(f"{path}: cannot read image ({exc})") from None
+
+
+def write_npz(path: str | os.PathLike, **arrays: np.ndarray) -> Path:
+    """Write arrays to a compressed NPZ atomically."""
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as handle:
+            np.savez_compressed(handle, **arrays)
+    return Path(path)
+
+
+def read_npz(path: str | os.PathLike, required: Sequence[str] = ()) -> dict[str, np.ndarray]:
+    """Read an NPZ into a dict; missing file or keys raise errors naming the file."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {key: data[key] for key in data.files}
+    except Exception as exc:
+        raise ValueError(f"{path}: cannot read NPZ ({exc})") from None
+    missing = [key for key in required if key not in arrays]
+    if missing:
+        raise ValueError(f"{path}: missing array(s) {', '.join(missing)}")
+    return arrays
+
+
+def read_split(root: str | os.PathLike) -> dict[str, list[str]]:
+    """Read ``split.json`` of a dataset: subject ids per split (train, val, test)."""
+    path = Path(root) / "split.json"
+    split = read_json(path)
+    if not isinstance(split, Mapping) or not all(
+        isinstance(split.get(key), list) for key in ("train", "val", "test")
+    ):
+        raise ValueError(f"{path}: expected an object with lists 'train', 'val' and 'test'")
+    return {key: [str(s) for s in split[key]] for key in ("train", "val", "test")}
+
+
+def list_frames(root: str | os.PathLike, subjects: Sequence[str]) -> list[FramePaths]:
+    """All frame folders of the given subjects, sorted (subject, frame)."""
+    root = Path(root)
+    frames = []
+    for subject in subjects:
+        folder = root / subject
+        if not folder.is_dir():
+            raise FileNotFoundError(f"{folder}: subject folder listed in split.json is missing")
+        frames.extend(FramePaths(p) for p in sorted(folder.glob("f*")) if p.is_dir())
+    return frames

@@ -1,0 +1,649 @@
+"""The LISA hand field ``G(x, pose, shape, color) -> (sdf, rgb)`` (paper Section 4.1, Eq. 5-8).
+
+The one place that combines bone frames, per-bone predictions and skinning weights:
+
+1. A world point is unposed into every bone's rest frame, ``x_j = R_j^-1 (x - t_j)`` with the
+   rest-to-posed transforms ``A_j = [R_j | t_j]`` of forward kinematics, then centred at the
+   bone and scaled to network units (``(x_j - centre_j) / coordinate_scale``).
+2. Per-bone SDF MLPs ``G^s_j(PE(x_j), pose_j, beta+) -> s_j`` and colour MLPs
+   ``G^c_j(PE(x_j), pose_j, beta+, gamma) -> c_j`` (the SDF never sees the colour code, so shape
+   and colour stay disentangled). All 16 bones are one stacked module.
+3. Skinning weights ``w`` from an MLP on ``concat(x_1..x_16, s_1..s_16)`` and a softmax; then
+   ``s = sum_j w_j s_j`` and ``c = sum_j w_j c_j`` (Eq. 8). NASA, NARF and a single MLP (the
+   VolSDF baseline) are other compositions of the same parts (:class:`FieldConfig`).
+
+Bone regions are part of the definition, so that culled evaluation is exact: bone ``j`` owns a
+capsule region around its segments in its rest frame (:mod:`lisa_hand.fields.bones`). Outside
+it, ``w_j = 0`` (its skinning logit is ``-inf``), and ``s_j`` and ``c_j`` are analytic stand-ins
+that never enter the blend — ``s_j = dist(x_j, region_j) + outside_margin`` and ``c_j = 0.5`` —
+but keep ``bone_sdf`` defined. A point in no region takes its nearest region's bone with weight
+one, so its SDF is that stand-in: positive, with a unit gradient. Hence each bone's MLPs only
+have to run on the points inside its region, and the skinning MLP only on the points in two or
+more regions (a single active bone gives an exact one-hot).
+
+Usage::
+
+    model = LisaModel(FieldConfig())
+    state = model.prepare(pose, translation, rest_joints, shape_code, color_code)  # per frame
+    out = model.field(state, points_world, with_gradient=True)  # per batch of points
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from .fields.bones import (
+    PALM_CHILDREN,
+    SEGMENT_BONES,
+    bone_axes,
+    bone_centres,
+    bone_segments,
+    capsule_distance,
+)
+from .fields.composition import blend, masked_softmax, nasa_selection, one_hot_weights
+from .fields.config import FieldConfig
+from .fields.encoding import encoding_dim, positional_encoding
+from .fields.mlp import StackedMLP, geometric_init_
+from .fields.pose import local_pose_mask, pose_feature_dim, pose_features
+from .skeleton import NUM_JOINTS, POSE_DIM, Kinematics, check_pose, forward_kinematics
+
+__all__ = ["FrameState", "FieldOutput", "LisaModel", "build_model"]
+
+_STAND_IN_COLOR = 0.5
+_NUM_PALM_SEGMENTS = len(PALM_CHILDREN)
+
+
+@dataclass
+class FrameState:
+    """What the field needs that is the same for every point of a frame (:meth:`LisaModel.prepare`).
+
+    Differentiable with respect to the per-frame inputs (pose, translation, rest joints, codes).
+
+    kinematics: forward kinematics of the frame (joints, transforms ``A_j``, ...).
+    rest_joints: [B, 16, 3] metres.
+    world_to_local: [B, 16, 3, 3] ``R_j^T / coordinate_scale``; with ``local_offset`` [B, 16, 3]
+        it maps a world point to bone ``j``'s centred local coordinates in network units.
+    segment_start, segment_dir: [B, 20, 3] region segments in their bone's local units (start,
+        unit direction); segment_length: [B, 20] units. Owners: :data:`SEGMENT_BONES`.
+    sdf_bias: [B, G, sdf_hidden] the SDF MLPs' first-layer bias, conditioning folded in.
+    color_bias: [B, G, color_hidden] the same for the colour MLPs, or None without colour.
+    hand_to_local: [B, 3, 3] and hand_offset [B, 3]: the single MLP's input frame (the root
+        bone's rest frame, centred at the mean rest joint), or None for per-bone compositions.
+    """
+
+    kinematics: Kinematics
+    rest_joints: torch.Tensor
+    world_to_local: torch.Tensor
+    local_offset: torch.Tensor
+    segment_start: torch.Tensor
+    segment_dir: torch.Tensor
+    segment_length: torch.Tensor
+    sdf_bias: torch.Tensor
+    color_bias: torch.Tensor | None
+    hand_to_local: torch.Tensor | None
+    hand_offset: torch.Tensor | None
+
+    @property
+    def batch_size(self) -> int:
+        return self.rest_joints.shape[0]
+
+
+@dataclass
+class FieldOutput:
+    """Result of :meth:`LisaModel.field` for points ``[B, N, 3]``.
+
+    sdf: [B, N] metres, negative inside the hand.
+    rgb: [B, N, 3] in [0, 1], or None (geometry only).
+    weights: [B, N, 16] skinning weights (>= 0, rows sum to 1), None for 'single'.
+    bone_sdf: [B, N, 16] per-bone SDFs ``s_j`` in metres (MLP inside the bone's region, analytic
+        stand-in outside), None for 'single'.
+    region_mask: [B, N, 16] bool, point inside bone ``j``'s region.
+    sdf_grad: [B, N, 3] spatial gradient of ``sdf`` (1/1), or None when not requested.
+    """
+
+    sdf: torch.Tensor
+    rgb: torch.Tensor | None
+    weights: torch.Tensor | None
+    bone_sdf: torch.Tensor | None
+    region_mask: torch.Tensor
+    sdf_grad: torch.Tensor | None = None
+
+
+class LisaModel(nn.Module):
+    """The LISA field and its baseline compositions, built from a :class:`FieldConfig`.
+
+    Parameters (per-bone compositions): ``sdf_mlp`` (16 stacked SDF MLPs), ``color_mlp`` (16
+    stacked colour MLPs, if ``use_color``) and ``skinning_mlp`` ('lisa' and 'narf'). The 'single'
+    composition holds one SDF MLP and one colour MLP and nothing per bone. Latent codes live
+    outside the model (:class:`lisa_hand.fields.LatentTable`).
+    """
+
+    def __init__(
+        self, config: FieldConfig | None = None, *, init_rest_joints: torch.Tensor | None = None
+    ) -> None:
+        """
+        config: the architecture (defaults to ``FieldConfig()``).
+        init_rest_joints: [16, 3] metres, a typical rest skeleton: the geometric initialisation
+            then stretches each bone's blob along its bone (see :meth:`geometric_init_`).
+        """
+        super().__init__()
+        config = FieldConfig() if config is None else config
+        if not isinstance(config, FieldConfig):
+            raise TypeError(f"config must be a FieldConfig, got {type(config).__name__}")
+        self.config = config
+        groups = NUM_JOINTS if config.per_bone else 1
+        self.num_groups = groups
+        pose_dim = pose_feature_dim(config.pose_conditioning)
+        point_dim = encoding_dim(config.pe_frequencies)
+        self.sdf_mlp = StackedMLP(
+            groups,
+            point_dim,
+            pose_dim + config.shape_dim,
+            config.sdf_hidden,
+            config.sdf_depth,
+            1,
+            activation="softplus",
+            beta=config.softplus_beta,
+        )
+        self.color_mlp: StackedMLP | None = None
+        if config.use_color:
+            self.color_mlp = StackedMLP(
+                groups,
+                point_dim,
+                pose_dim + config.shape_dim + config.color_dim,
+                config.color_hidden,
+                config.color_depth,
+                3,
+                activation="relu",
+            )
+        self.skinning_mlp: StackedMLP | None = None
+        if config.composition in ("lisa", "narf"):
+            skin_in = 3 * NUM_JOINTS + (NUM_JOINTS if config.composition == "lisa" else 0)
+            self.skinning_mlp = StackedMLP(
+                1,
+                skin_in,
+                0,
+                config.skinning_hidden,
+                config.skinning_depth,
+                NUM_JOINTS,
+                activation="softplus",
+                beta=config.softplus_beta,
+            )
+            with torch.no_grad():  # start from near-uniform weights over the active bones
+                self.skinning_mlp.out_weight.mul_(0.01)
+                self.skinning_mlp.out_bias.zero_()
+        self.register_buffer("pose_mask", local_pose_mask(config.per_bone), persistent=False)
+        radii = [config.palm_region_radius] + [config.finger_region_radius] * (NUM_JOINTS - 1)
+        self.register_buffer("region_radius", torch.tensor(radii), persistent=False)
+        self.geometric_init_(init_rest_joints)
+
+    # ------------------------------------------------------------------------------------------
+    # Construction helpers
+
+    @torch.no_grad()
+    def geometric_init_(self, rest_joints: torch.Tensor | None = None) -> None:
+        """Re-initialise the SDF MLP(s) so that a fresh model is a blobby hand (IGR/SAL init).
+
+        Each bone starts as a blob of radius ``init_finger_radius`` (``init_palm_radius`` for the
+        wrist bone) around its centre; with ``rest_joints`` [16, 3] metres each blob is stretched
+        along its bone into a capsule-like spheroid. The single MLP starts as one blob around the
+        hand's centre.
+        """
+        config = self.config
+        scale = config.coordinate_scale
+        axes = half_lengths = None
+        if rest_joints is not None:
+            if rest_joints.shape != (NUM_JOINTS, 3):
+                raise ValueError(
+                    f"init_rest_joints must have shape [16, 3], got {tuple(rest_joints.shape)}"
+                )
+            axes, lengths = bone_axes(rest_joints[None].double(), config.tip_extension)
+            axes, lengths = axes[0], lengths[0]
+        if config.per_bone:
+            radii = [config.init_palm_radius] + [config.init_finger_radius] * (NUM_JOINTS - 1)
+            radii = torch.tensor(radii, dtype=torch.float64) / scale
+            if axes is not None:
+                half_lengths = 0.5 * lengths / scale
+        else:
+            radii = torch.tensor([config.init_palm_radius], dtype=torch.float64) / scale
+            if axes is not None:
+                centre = rest_joints.double().mean(dim=0)
+                reach = (rest_joints.double() - centre).norm(dim=-1).max()
+                axes, half_lengths = axes[:1], (reach / scale).reshape(1)
+        geometric_init_(self.sdf_mlp, radii, axes=axes, half_lengths=half_lengths)
+
+    def extra_repr(self) -> str:
+        return f"composition={self.config.composition!r}"
+
+    @property
+    def dtype(self) -> torch.dtype:
+        return self.sdf_mlp.point_weight.dtype
+
+    @property
+    def device(self) -> torch.device:
+        return self.sdf_mlp.point_weight.device
+
+    # ------------------------------------------------------------------------------------------
+    # Per frame
+
+    def _check_tensor(self, value, name: str, shape: tuple) -> torch.Tensor:
+        if not isinstance(value, torch.Tensor):
+            raise TypeError(f"{name} must be a torch.Tensor, got {type(value).__name__}")
+        mismatch = value.dim() != len(shape) or any(
+            s is not None and v != s for v, s in zip(value.shape, shape, strict=True)
+        )
+        if mismatch:
+            expected = "[" + ", ".join("*" if s is None else str(s) for s in shape) + "]"
+            raise ValueError(f"{name} must have shape {expected}, got {list(value.shape)}")
+        if value.dtype != self.dtype:
+            raise TypeError(
+                f"{name} has dtype {value.dtype} but the model is {self.dtype} (cast the input, "
+                "or the model with .to(dtype))"
+            )
+        if value.device != self.device:
+            raise ValueError(f"{name} is on {value.device} but the model is on {self.device}")
+        return value
+
+    def prepare(
+        self,
+        pose: torch.Tensor,
+        translation: torch.Tensor | None,
+        rest_joints: torch.Tensor,
+        shape_code: torch.Tensor,
+        color_code: torch.Tensor | None = None,
+    ) -> FrameState:
+        """Everything per frame, once: bone transforms, regions and conditioning biases.
+
+        pose: [B, 48] axis-angle radians (MANO order); translation: [B, 3] metres or None.
+        rest_joints: [B, 16, 3] (or [16, 3] shared) rest-pose joints, metres; subjects differ.
+        shape_code: [B, shape_dim] (beta+); color_code: [B, color_dim] (gamma), required when
+            the model has colour, ignored otherwise.
+        """
+        config = self.config
+        if not isinstance(pose, torch.Tensor):
+            raise TypeError(f"pose must be a torch.Tensor, got {type(pose).__name__}")
+        pose = check_pose(pose).reshape(-1, POSE_DIM)
+        batch = pose.shape[0]
+        self._check_tensor(pose, "pose", (batch, POSE_DIM))
+        if translation is not None:
+            self._check_tensor(translation, "translation", (batch, 3))
+        if isinstance(rest_joints, torch.Tensor) and rest_joints.dim() == 2:
+            self._check_tensor(rest_joints, "rest_joints", (NUM_JOINTS, 3))
+            rest_joints = rest_joints.expand(batch, NUM_JOINTS, 3)
+        self._check_tensor(rest_joints, "rest_joints", (batch, NUM_JOINTS, 3))
+        self._check_tensor(shape_code, "shape_code", (batch, config.shape_dim))
+        if self.color_mlp is not None:
+            if color_code is None:
+                raise ValueError("color_code [B, color_dim] is required: the model has colour")
+            self._check_tensor(color_code, "color_code", (batch, config.color_dim))
+
+        kinematics = forward_kinematics(pose, rest_joints, translation)
+        scale = config.coordinate_scale
+        rot_t = kinematics.transforms[..., :3, :3].transpose(-1, -2)  # R_j^T
+        trans = kinematics.transforms[..., :3, 3]
+        centres = bone_centres(rest_joints, config.tip_extension)  # [B, J, 3]
+        world_to_local = rot_t / scale
+        local_offset = -((rot_t @ trans[..., None])[..., 0] + centres) / scale
+
+        start, end = bone_segments(rest_joints, config.tip_extension)
+        owners = centres[:, list(SEGMENT_BONES)]
+        segment_start = (start - owners) / scale
+        segment_vec = (end - start) / scale
+        segment_length = segment_vec.norm(dim=-1)
+        segment_dir = segment_vec / segment_length.clamp_min(1e-12)[..., None]
+
+        groups = self.num_groups
+        features = pose_features(pose, kinematics.rotmats, config.pose_conditioning, self.pose_mask)
+        shape = shape_code[:, None].expand(batch, groups, -1)
+        sdf_bias = self.sdf_mlp.condition(torch.cat([features, shape], dim=-1), batch)
+        color_bias = None
+        if self.color_mlp is not None:
+            color = color_code[:, None].expand(batch, groups, -1)
+            cond = torch.cat([features, shape, color], dim=-1)
+            color_bias = self.color_mlp.condition(cond, batch)
+
+        hand_to_local = hand_offset = None
+        if not config.per_bone:
+            hand_centre = rest_joints.mean(dim=1)
+            hand_to_local = rot_t[:, 0] / scale
+            root_rest = (rot_t[:, 0] @ trans[:, 0, :, None])[..., 0]
+            hand_offset = -(root_rest + hand_centre) / scale
+        return FrameState(
+            kinematics=kinematics,
+            rest_joints=rest_joints,
+            world_to_local=world_to_local,
+            local_offset=local_offset,
+            segment_start=segment_start,
+            segment_dir=segment_dir,
+            segment_length=segment_length,
+            sdf_bias=sdf_bias,
+            color_bias=color_bias,
+            hand_to_local=hand_to_local,
+            hand_offset=hand_offset,
+        )
+
+    # ------------------------------------------------------------------------------------------
+    # Per point
+
+    def field(
+        self,
+        state: FrameState,
+        points: torch.Tensor,
+        *,
+        with_color: bool | None = None,
+        with_gradient: bool = False,
+        create_graph: bool | None = None,
+        cull: bool = True,
+    ) -> FieldOutput:
+        """Evaluate the field at world points.
+
+        state: from :meth:`prepare`, batch B.
+        points: [B, N, 3] world points, metres.
+        with_color: evaluate the colour MLPs (default: when the model has colour). False gives
+            geometry only (shape prior, meshing).
+        with_gradient: also return ``sdf_grad`` [B, N, 3] (Eikonal and normal losses).
+        create_graph: keep the graph of the gradient for a second backward pass; default: when
+            training (``self.training``) with autograd enabled.
+        cull: run each bone's MLPs only inside its region (exact; False runs every point through
+            every bone and is for checking).
+        """
+        if not isinstance(state, FrameState):
+            raise TypeError(f"state must be a FrameState (prepare()), got {type(state).__name__}")
+        self._check_tensor(points, "points", (state.batch_size, None, 3))
+        if with_color is None:
+            with_color = self.color_mlp is not None
+        elif with_color and self.color_mlp is None:
+            raise ValueError("with_color=True but the model was built with use_color=False")
+        if not with_gradient:
+            low_precision = (
+                self.config.inference_precision == "bfloat16"
+                and points.dtype == torch.float32
+                and not torch.is_grad_enabled()
+            )
+            return self._evaluate(state, points, with_color, cull, low_precision)
+
+        outer_grad = torch.is_grad_enabled()
+        if create_graph is None:
+            create_graph = self.training and outer_grad
+        with torch.enable_grad():
+            query = points if points.requires_grad else points.detach().requires_grad_(True)
+            out = self._evaluate(state, query, with_color, cull, False)
+            (grad,) = torch.autograd.grad(
+                out.sdf,
+                query,
+                torch.ones_like(out.sdf),
+                create_graph=create_graph,
+                retain_graph=create_graph or outer_grad,
+            )
+        out.sdf_grad = grad
+        if not outer_grad:
+            for name in ("sdf", "rgb", "weights", "bone_sdf", "sdf_grad"):
+                value = getattr(out, name)
+                if value is not None:
+                    setattr(out, name, value.detach())
+        return out
+
+    def forward(
+        self,
+        points: torch.Tensor,
+        pose: torch.Tensor,
+        translation: torch.Tensor | None,
+        rest_joints: torch.Tensor,
+        shape_code: torch.Tensor,
+        color_code: torch.Tensor | None = None,
+        **field_options,
+    ) -> FieldOutput:
+        """:meth:`prepare` then :meth:`field` (see both for shapes); for one-off evaluations."""
+        state = self.prepare(pose, translation, rest_joints, shape_code, color_code)
+        return self.field(state, points, **field_options)
+
+    def sdf_fn(self, state: FrameState) -> Callable[[torch.Tensor], torch.Tensor]:
+        """``points [N, 3] -> sdf [N]`` for a one-frame state (meshing, sphere tracing)."""
+        self._check_single_frame(state)
+
+        def sdf(points: torch.Tensor) -> torch.Tensor:
+            return self.field(state, points[None], with_color=False).sdf[0]
+
+        return sdf
+
+    def field_fn(
+        self, state: FrameState
+    ) -> Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]:
+        """``(points [N, 3], directions [N, 3]) -> (sdf [N], rgb [N, 3])`` for a one-frame state
+        (the renderer's callback; the field does not depend on the view direction)."""
+        self._check_single_frame(state)
+        if self.color_mlp is None:
+            raise ValueError("field_fn needs colour; the model was built with use_color=False")
+
+        def field(points: torch.Tensor, directions: torch.Tensor):
+            out = self.field(state, points[None], with_color=True)
+            return out.sdf[0], out.rgb[0]
+
+        return field
+
+    @staticmethod
+    def _check_single_frame(state: FrameState) -> None:
+        if state.batch_size != 1:
+            raise ValueError(f"expected a state of one frame, got batch size {state.batch_size}")
+
+    # ------------------------------------------------------------------------------------------
+    # Internals
+
+    def bone_local_points(self, state: FrameState, points: torch.Tensor) -> torch.Tensor:
+        """Points in every bone's centred local frame, network units.
+
+        points: [B, N, 3] world metres -> [B, N, 16, 3] ``(R_j^T (x - t_j) - centre_j) / scale``
+        """
+        batch, num = points.shape[:2]
+        # One [B, N, 3] @ [B, 3, 48] product instead of 16 small ones.
+        stacked = state.world_to_local.permute(0, 3, 1, 2).reshape(batch, 3, 3 * NUM_JOINTS)
+        local = torch.bmm(points, stacked).reshape(batch, num, NUM_JOINTS, 3)
+        return local + state.local_offset[:, None]
+
+    def region_excess(self, state: FrameState, local: torch.Tensor) -> torch.Tensor:
+        """Distance from each bone-local point to the bone's region, negative inside (units).
+
+        local: [B, N, 16, 3] from :meth:`bone_local_points` -> [B, N, 16] network units
+        """
+        start = state.segment_start[:, None]
+        direction = state.segment_dir[:, None]
+        length = state.segment_length[:, None]
+        cut = _NUM_PALM_SEGMENTS
+        palm = capsule_distance(
+            local[:, :, :1], start[:, :, :cut], direction[:, :, :cut], length[:, :, :cut]
+        ).amin(dim=-1, keepdim=True)
+        fingers = capsule_distance(
+            local[:, :, 1:], start[:, :, cut:], direction[:, :, cut:], length[:, :, cut:]
+        )
+        distance = torch.cat([palm, fingers], dim=-1)
+        radius = self.region_radius.to(local.dtype) / self.config.coordinate_scale
+        return distance - radius
+
+    def _pair_bias(
+        self,
+        bias: torch.Tensor,
+        num_points: int,
+        point_index: torch.Tensor,
+        group_index: torch.Tensor,
+    ) -> tuple[torch.Tensor, bool]:
+        """First-layer bias of culled rows: per group for one frame, else gathered per row."""
+        batch, groups, hidden = bias.shape
+        if batch == 1:
+            return bias[0], False
+        frame = torch.div(point_index, num_points, rounding_mode="floor")
+        return bias.reshape(batch * groups, hidden)[frame * groups + group_index], True
+
+    def _evaluate(
+        self,
+        state: FrameState,
+        points: torch.Tensor,
+        with_color: bool,
+        cull: bool,
+        low_precision: bool,
+    ) -> FieldOutput:
+        config = self.config
+        scale = config.coordinate_scale
+        batch, num = points.shape[:2]
+        local = self.bone_local_points(state, points)  # [B, N, J, 3]
+        excess = self.region_excess(state, local)  # [B, N, J], < 0 inside
+        active = excess < 0
+        fallback = excess.detach().argmin(dim=-1)  # nearest region, for points in none
+        stand_in = excess * scale + config.outside_margin  # metres
+        if not config.per_bone:
+            return self._evaluate_single(
+                state, points, active, stand_in, with_color, cull, low_precision
+            )
+
+        num_pairs_all = batch * num * NUM_JOINTS
+        flat_active = active.reshape(-1, NUM_JOINTS)
+        mlp_options = {"low_precision": low_precision}
+        if cull:
+            bone_index, point_index = flat_active.t().nonzero(as_tuple=True)  # bone-major
+            group_sizes = flat_active.sum(dim=0).tolist()
+            pair_flat = point_index * NUM_JOINTS + bone_index
+            encoded = positional_encoding(local.reshape(-1, 3)[pair_flat], config.pe_frequencies)
+            bias, per_row = self._pair_bias(state.sdf_bias, num, point_index, bone_index)
+            sdf_pairs = self.sdf_mlp.forward_grouped(
+                encoded, group_sizes, bias, bias_per_row=per_row, **mlp_options
+            )[:, 0]
+            bone_sdf = stand_in.reshape(num_pairs_all).index_put((pair_flat,), sdf_pairs * scale)
+            bone_sdf = bone_sdf.reshape(batch, num, NUM_JOINTS)
+        else:
+            encoded_all = positional_encoding(local, config.pe_frequencies)
+            sdf_all = self.sdf_mlp.forward_dense(encoded_all, state.sdf_bias[:, None])[..., 0]
+            bone_sdf = torch.where(active, sdf_all * scale, stand_in)
+
+        weights = self._weights(local, bone_sdf, active, fallback, cull, mlp_options)
+        sdf = blend(weights, bone_sdf)
+
+        rgb = None
+        if with_color:
+            color_mask = active & (weights > 0)
+            if cull:
+                if not torch.equal(color_mask, active):  # NASA: only the chosen bone
+                    flat_mask = color_mask.reshape(-1, NUM_JOINTS)
+                    bone_index, point_index = flat_mask.t().nonzero(as_tuple=True)
+                    group_sizes = flat_mask.sum(dim=0).tolist()
+                    pair_flat = point_index * NUM_JOINTS + bone_index
+                    encoded = positional_encoding(
+                        local.reshape(-1, 3)[pair_flat], config.pe_frequencies
+                    )
+                bias, per_row = self._pair_bias(state.color_bias, num, point_index, bone_index)
+                color_pairs = torch.sigmoid(
+                    self.color_mlp.forward_grouped(
+                        encoded, group_sizes, bias, bias_per_row=per_row, **mlp_options
+                    )
+                )
+                weight_pairs = weights.reshape(num_pairs_all)[pair_flat]
+                rgb = points.new_zeros(batch * num, 3).index_add(
+                    0, point_index, weight_pairs[:, None] * color_pairs
+                )
+                rgb = rgb.reshape(batch, num, 3)
+            else:
+                color_all = torch.sigmoid(
+                    self.color_mlp.forward_dense(encoded_all, state.color_bias[:, None])
+                )
+                color_all = torch.where(color_mask[..., None], color_all, 0.0)
+                rgb = blend(weights, color_all)
+            # Bones outside their region have the stand-in colour (only fallback points).
+            rgb = rgb + _STAND_IN_COLOR * (weights * ~active).sum(dim=-1, keepdim=True)
+        return FieldOutput(sdf=sdf, rgb=rgb, weights=weights, bone_sdf=bone_sdf, region_mask=active)
+
+    def _weights(
+        self,
+        local: torch.Tensor,
+        bone_sdf: torch.Tensor,
+        active: torch.Tensor,
+        fallback: torch.Tensor,
+        cull: bool,
+        mlp_options: dict,
+    ) -> torch.Tensor:
+        """Skinning weights [B, N, 16] of the per-bone compositions."""
+        config = self.config
+        dtype = bone_sdf.dtype
+        if config.composition == "nasa":
+            return one_hot_weights(nasa_selection(bone_sdf, active, fallback), NUM_JOINTS, dtype)
+        batch, num = active.shape[:2]
+        inputs = [local.reshape(batch, num, 3 * NUM_JOINTS)]
+        if config.composition == "lisa":
+            inputs.append(bone_sdf / config.coordinate_scale)
+        inputs = torch.cat(inputs, dim=-1)
+        mlp = self.skinning_mlp
+        if not cull:
+            logits = mlp.forward_dense(inputs[..., None, :], mlp.first_bias)[..., 0, :]
+            return masked_softmax(logits, active, fallback)
+        count = active.sum(dim=-1)
+        first_active = active.to(torch.uint8).argmax(dim=-1)
+        single = torch.where(count > 0, first_active, fallback)
+        weights = one_hot_weights(single, NUM_JOINTS, dtype).reshape(-1, NUM_JOINTS)
+        rows = (count.reshape(-1) >= 2).nonzero()[:, 0]
+        if rows.numel() == 0:
+            return weights.reshape(batch, num, NUM_JOINTS)
+        logits = mlp.forward_grouped(
+            inputs.reshape(batch * num, -1)[rows], [rows.numel()], mlp.first_bias, **mlp_options
+        )
+        blended = masked_softmax(
+            logits, active.reshape(-1, NUM_JOINTS)[rows], fallback.reshape(-1)[rows]
+        )
+        return weights.index_put((rows,), blended).reshape(batch, num, NUM_JOINTS)
+
+    def _evaluate_single(
+        self,
+        state: FrameState,
+        points: torch.Tensor,
+        active: torch.Tensor,
+        stand_in: torch.Tensor,
+        with_color: bool,
+        cull: bool,
+        low_precision: bool,
+    ) -> FieldOutput:
+        """The VolSDF baseline: one MLP on the hand-frame point, inside the union of regions."""
+        config = self.config
+        scale = config.coordinate_scale
+        batch, num = points.shape[:2]
+        local = points @ state.hand_to_local.transpose(-1, -2) + state.hand_offset[:, None]
+        inside = active.any(dim=-1)
+        outside_sdf = stand_in.amin(dim=-1)  # the nearest region's stand-in
+        rgb = None
+        if cull:
+            rows = inside.reshape(-1).nonzero()[:, 0]
+            encoded = positional_encoding(local.reshape(-1, 3)[rows], config.pe_frequencies)
+            zeros = torch.zeros_like(rows)
+            options = {"low_precision": low_precision}
+            bias, per_row = self._pair_bias(state.sdf_bias, num, rows, zeros)
+            sdf_rows = self.sdf_mlp.forward_grouped(
+                encoded, [rows.numel()], bias, bias_per_row=per_row, **options
+            )[:, 0]
+            sdf = outside_sdf.reshape(-1).index_put((rows,), sdf_rows * scale).reshape(batch, num)
+            if with_color:
+                bias, per_row = self._pair_bias(state.color_bias, num, rows, zeros)
+                color_rows = torch.sigmoid(
+                    self.color_mlp.forward_grouped(
+                        encoded, [rows.numel()], bias, bias_per_row=per_row, **options
+                    )
+                )
+                rgb = torch.full_like(points, _STAND_IN_COLOR).reshape(-1, 3)
+                rgb = rgb.index_put((rows,), color_rows).reshape(batch, num, 3)
+        else:
+            encoded = positional_encoding(local, config.pe_frequencies)[:, :, None]
+            sdf_all = self.sdf_mlp.forward_dense(encoded, state.sdf_bias[:, None])[..., 0, 0]
+            sdf = torch.where(inside, sdf_all * scale, outside_sdf)
+            if with_color:
+                color_all = torch.sigmoid(
+                    self.color_mlp.forward_dense(encoded, state.color_bias[:, None])[..., 0, :]
+                )
+                rgb = torch.where(inside[..., None], color_all, _STAND_IN_COLOR)
+        return FieldOutput(sdf=sdf, rgb=rgb, weights=None, bone_sdf=None, region_mask=active)
+
+
+def build_model(
+    config: FieldConfig | dict | None = None, *, init_rest_joints: torch.Tensor | None = None
+) -> LisaModel:
+    """Build a :class:`LisaModel` from a config or its :meth:`FieldConfig.to_dict` dict."""
+    if isinstance(config, dict):
+        config = FieldConfig.from_dict(config)
+    return LisaModel(config, init_rest_joints=init_rest_joints)

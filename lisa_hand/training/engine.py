@@ -1,0 +1,760 @@
+"""The generic training loop behind ``lisa train-prior`` and ``lisa train``.
+
+The engine knows nothing about hands: it runs a *step function* that samples its data and
+returns its losses, and takes care of everything around it::
+
+    def step_fn(ctx: StepContext) -> dict[str, torch.Tensor]:
+        idx = torch.randint(num_items, (global_batch,), generator=ctx.generator)  # same on all ranks
+        local = shard(dataset[idx], ctx.dist)                                   # this rank's part
+        pred = ctx.model(local.x.to(ctx.device))                                # through DDP
+        data = global_mean(((pred - local.y) ** 2).sum(-1), global_batch, ctx.dist)
+        return {"total": data + 1e-4 * prior, "data": data, "prior": prior}
+
+    result = train(model, step_fn, TrainerConfig(steps=1000), out_dir, run_config=full_config)
+
+Around each step: backward, gradient averaging over ranks, optional clipping, a NaN/inf guard
+on every loss term and the gradients, the optimizer and LR-schedule steps, a JSON-lines log and
+a tqdm bar (rank 0). Around the run: the resolved config saved into the run folder, atomic
+checkpoints every ``checkpoint_every`` steps and at the end, automatic resume from
+``out_dir/last.pt``, and a graceful stop on Ctrl-C / SIGTERM (finish the step, checkpoint, return).
+
+Exact resume: the data must be drawn only from ``ctx.generator`` (and torch/numpy/python global
+RNGs, which are checkpointed too) and may depend on ``ctx.step``, never on wall-clock time or on
+state outside the checkpoint. Then "run 100 steps" equals "run 60, kill -9, resume to 100" (bit
+for bit on CPU).
+
+Several processes: launch with ``torchrun``; every rank draws the same global batch from the
+generator and keeps its slice (``distributed.shard``); see ``distributed`` for the loss scaling.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import random
+import signal
+import sys
+import threading
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import torch
+from torch import nn
+
+from ..config import config_to_dict, save_config
+from ..io_utils import atomic_path, ensure_writable_dir
+from .checkpoint import (
+    LAST_CHECKPOINT,
+    Checkpoint,
+    NonFiniteError,
+    capture_rng_state,
+    check_finite_state,
+    copy_checkpoint,
+    load_checkpoint,
+    remove_stale_temporaries,
+    restore_rng_state,
+    save_checkpoint,
+)
+from .distributed import (
+    DistContext,
+    allreduce_gradients,
+    broadcast_module,
+    cleanup,
+    gather_objects,
+    init_distributed,
+    unwrap,
+    wrap_ddp,
+)
+
+__all__ = [
+    "TrainerConfig",
+    "StepContext",
+    "StepInfo",
+    "TrainResult",
+    "StepFn",
+    "Hook",
+    "NonFiniteError",
+    "Trainer",
+    "train",
+    "lr_factor",
+    "seed_everything",
+    "CONFIG_FILE",
+    "LOG_FILE",
+]
+
+CONFIG_FILE = "config.json"
+"""The run's resolved config, written into the run folder at start."""
+LOG_FILE = "log.jsonl"
+"""One JSON object per logged step: step, lr, grad_norm, seconds, losses."""
+
+LR_SCHEDULES = ("constant", "cosine", "exponential")
+OPTIMIZERS = ("adam", "adamw", "sgd")
+
+
+@dataclass(frozen=True)
+class TrainerConfig:
+    """Settings of the training loop (the model, data and losses have their own configs)."""
+
+    steps: int = 10_000
+    """Total number of optimizer steps of the run (a resumed run continues up to it)."""
+    lr: float = 5e-4
+    """Peak learning rate (of every parameter group the default optimizer builds)."""
+    lr_schedule: Literal["constant", "cosine", "exponential"] = "constant"
+    """Learning-rate decay over the run: 'constant', 'cosine' (to lr * lr_final_factor at the
+    last step) or 'exponential' (geometric, to lr * lr_final_factor at the last step)."""
+    lr_final_factor: float = 0.1
+    """Learning rate at the end of the run, as a fraction of ``lr`` (cosine, exponential)."""
+    warmup_steps: int = 0
+    """Linear warm-up from lr / warmup_steps to lr over the first steps (0: none)."""
+    optimizer: Literal["adam", "adamw", "sgd"] = "adam"
+    """Optimizer built when the caller gives no ``optimizer_fn``."""
+    betas: tuple[float, float] = (0.9, 0.999)
+    """Adam(W) moment decay rates (SGD: betas[0] is the momentum)."""
+    weight_decay: float = 0.0
+    """Weight decay of the default optimizer (decoupled for 'adamw')."""
+    grad_clip: float = 0.0
+    """Clip the global gradient norm to this value (0: no clipping)."""
+    checkpoint_every: int = 1000
+    """Write ``last.pt`` every this many steps (and always at the end); 0: only at the end."""
+    keep_every: int = 0
+    """Also keep a copy ``step_XXXXXXXX.pt`` every this many steps (0: keep only last.pt)."""
+    log_every: int = 1
+    """Append the losses to ``log.jsonl`` every this many steps (and at the last step)."""
+    print_every: int = 100
+    """When the progress bar is on but stderr is not a terminal, print a line of losses every
+    this many steps instead (0: never)."""
+    seed: int = 0
+    """Seed of the data generator and of the global RNGs at the start of a fresh run."""
+    device: str = "auto"
+    """'auto' (CUDA when available, else CPU), 'cpu', 'cuda' or 'cuda:N'. Under torchrun each
+    rank uses cuda:LOCAL_RANK."""
+    progress: bool = True
+    """Show a progress bar with the losses (rank 0, terminals only)."""
+    grad_sync: Literal["ddp", "allreduce"] = "ddp"
+    """Several processes: 'ddp' wraps the model in DistributedDataParallel (the step function
+    must call ``ctx.model(...)``, i.e. the wrapper's forward, once per step); 'allreduce'
+    averages the gradients after backward, whatever the step function called."""
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the first bad field."""
+        def positive_int(name: str, allow_zero: bool) -> None:
+            value = getattr(self, name)
+            low = 0 if allow_zero else 1
+            if not isinstance(value, int) or isinstance(value, bool) or value < low:
+                kind = "a non-negative" if allow_zero else "a positive"
+                raise ValueError(f"{name} must be {kind} int, got {value!r}")
+
+        positive_int("steps", allow_zero=False)
+        for name in ("warmup_steps", "checkpoint_every", "keep_every", "print_every"):
+            positive_int(name, allow_zero=True)
+        positive_int("log_every", allow_zero=False)
+        if not isinstance(self.seed, int) or isinstance(self.seed, bool):
+            raise ValueError(f"seed must be an int, got {self.seed!r}")
+        if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
+            raise ValueError(f"lr must be a positive finite number, got {self.lr!r}")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got "
+                             f"{self.lr_schedule!r}")
+        if not (isinstance(self.lr_final_factor, (int, float))
+                and 0 < self.lr_final_factor <= 1):
+            raise ValueError(f"lr_final_factor must be in (0, 1], got {self.lr_final_factor!r}")
+        if self.optimizer not in OPTIMIZERS:
+            raise ValueError(f"optimizer must be one of {OPTIMIZERS}, got {self.optimizer!r}")
+        if (len(self.betas) != 2
+                or not all(isinstance(b, (int, float)) and 0 <= b < 1 for b in self.betas)):
+            raise ValueError(f"betas must be two numbers in [0, 1), got {self.betas!r}")
+        if not (isinstance(self.weight_decay, (int, float)) and self.weight_decay >= 0):
+            raise ValueError(f"weight_decay must be >= 0, got {self.weight_decay!r}")
+        if not (isinstance(self.grad_clip, (int, float)) and self.grad_clip >= 0
+                and math.isfinite(self.grad_clip)):
+            raise ValueError(f"grad_clip must be >= 0 and finite (0: off), got "
+                             f"{self.grad_clip!r}")
+        if not isinstance(self.device, str) or not self.device:
+            raise ValueError(f"device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got "
+                             f"{self.device!r}")
+        if self.grad_sync not in ("ddp", "allreduce"):
+            raise ValueError(f"grad_sync must be 'ddp' or 'allreduce', got {self.grad_sync!r}")
+        if not isinstance(self.progress, bool):
+            raise ValueError(f"progress must be a bool, got {self.progress!r}")
+
+
+@dataclass
+class StepContext:
+    """What a step function gets."""
+
+    step: int
+    """0-based index of this step (the number of steps completed before it)."""
+    num_steps: int
+    """Total steps of the run."""
+    generator: torch.Generator
+    """The engine's data generator (CPU, checkpointed): draw every random batch from it. It is
+    in the same state on every rank, so every rank draws the same global batch."""
+    model: nn.Module
+    """The model to call: the DistributedDataParallel wrapper with several processes in 'ddp'
+    mode, else the model itself. ``distributed.unwrap(ctx.model)`` is always the bare model."""
+    device: torch.device
+    """Device of the model; move the batch there."""
+    dist: DistContext
+    """Rank and world size (for ``distributed.shard`` and ``distributed.global_mean``)."""
+
+
+StepFn = Callable[[StepContext], Mapping[str, "torch.Tensor | float"]]
+"""``step_fn(ctx) -> {"total": scalar tensor to minimise, other terms: scalars for the log}``."""
+
+
+@dataclass
+class StepInfo:
+    """What a hook gets after each completed step (on every rank)."""
+
+    step: int
+    """0-based index of the completed step (``step + 1`` steps are done)."""
+    losses: dict[str, float]
+    """Loss terms of the step, averaged over ranks (= over the global batch)."""
+    lr: float
+    """Learning rate of the step (first parameter group)."""
+    grad_norm: float
+    """Global gradient norm before clipping."""
+    checkpoint: Path | None
+    """Checkpoint written right after this step (rank 0's path on every rank), else None."""
+    trainer: Trainer
+    """The trainer (model, optimizer, out_dir, ``save()``)."""
+
+
+Hook = Callable[[StepInfo], None]
+
+
+@dataclass
+class TrainResult:
+    """How a run ended."""
+
+    status: Literal["completed", "interrupted"]
+    """'completed' (all steps done) or 'interrupted' (Ctrl-C / SIGTERM: checkpointed, stopped)."""
+    steps_done: int
+    """Number of completed steps (a resumed run counts the steps before the resume too)."""
+    start_step: int
+    """Steps already done when this call started (0 for a fresh run)."""
+    losses: dict[str, float]
+    """Loss terms of the last step run by this call (empty if none ran)."""
+    checkpoint: Path | None
+    """Last checkpoint written by this call, or None."""
+    resumed_from: Path | None
+    """Checkpoint the run resumed from, or None."""
+    seconds: float
+    """Wall-clock time of the steps of this call."""
+
+    @property
+    def steps_per_second(self) -> float:
+        """Training speed of this call."""
+        ran = self.steps_done - self.start_step
+        return ran / self.seconds if self.seconds > 0 else 0.0
+
+
+def lr_factor(step: int, config: TrainerConfig) -> float:
+    """Learning rate of step ``step`` (0-based) as a fraction of ``config.lr``.
+
+    warm-up: ``(step + 1) / warmup_steps`` for ``step < warmup_steps``, else 1; times the decay
+    at progress ``p = step / (steps - 1)``: constant 1, exponential ``f ** p``, cosine
+    ``f + (1 - f) (1 + cos(pi p)) / 2`` with ``f = lr_final_factor``.
+    """
+    warm = (step + 1) / config.warmup_steps if step < config.warmup_steps else 1.0
+    progress = min(max(step / max(config.steps - 1, 1), 0.0), 1.0)
+    final = config.lr_final_factor
+    if config.lr_schedule == "exponential":
+        decay = final ** progress
+    elif config.lr_schedule == "cosine":
+        decay = final + (1.0 - final) * 0.5 * (1.0 + math.cos(math.pi * progress))
+    else:
+        decay = 1.0
+    return warm * decay
+
+
+def seed_everything(seed: int) -> None:
+    """Seed torch (CPU and CUDA), numpy's global generator and python's ``random``."""
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def _default_optimizer(model: nn.Module, config: TrainerConfig) -> torch.optim.Optimizer:
+    params = [p for p in model.parameters() if p.requires_grad]
+    if not params:
+        raise ValueError("the model has no trainable parameters")
+    if config.optimizer == "adam":
+        return torch.optim.Adam(params, lr=config.lr, betas=config.betas,
+                                weight_decay=config.weight_decay)
+    if config.optimizer == "adamw":
+        return torch.optim.AdamW(params, lr=config.lr, betas=config.betas,
+                                 weight_decay=config.weight_decay)
+    return torch.optim.SGD(params, lr=config.lr, momentum=config.betas[0],
+                           weight_decay=config.weight_decay)
+
+
+def _flat_diff(a: Any, b: Any, prefix: str = "") -> list[str]:
+    """Dotted keys where two nested dicts differ (for the resume note)."""
+    if isinstance(a, dict) and isinstance(b, dict):
+        keys = list(dict.fromkeys([*a, *b]))
+        out = []
+        for key in keys:
+            out += _flat_diff(a.get(key), b.get(key), f"{prefix}.{key}" if prefix else key)
+        return out
+    return [] if a == b else [prefix or "<root>"]
+
+
+class Trainer:
+    """One training run: owns the device placement, optimizer, schedule, data generator, files.
+
+    Construct on every rank (under torchrun), then call ``run()``. Files (config, log,
+    checkpoints) are written by rank 0 only, into ``out_dir``:
+
+    - ``config.json``: ``run_config`` (or the ``TrainerConfig``) resolved, written at start;
+    - ``log.jsonl``: one line per logged step;
+    - ``last.pt``: the latest checkpoint; ``step_XXXXXXXX.pt`` copies with ``keep_every``.
+
+    Args:
+        model: the module to train (moved to the device; its parameters are what is checkpointed).
+        step_fn: ``step_fn(ctx: StepContext) -> {"total": tensor, ...}``.
+        config: the loop settings.
+        out_dir: the run folder.
+        run_config: the full resolved config (a dataclass) of the run, saved to ``config.json``
+            and into every checkpoint (to rebuild the model later); default ``config``.
+        optimizer_fn: ``optimizer_fn(model) -> Optimizer`` (per-group learning rates, ...),
+            called after the model is on its device; default: ``config.optimizer``.
+        scheduler_fn: ``scheduler_fn(optimizer) -> LRScheduler`` stepped once per step;
+            default: ``LambdaLR`` with ``lr_factor``.
+        resume: True: continue from ``out_dir/last.pt`` if it exists; False: start afresh
+            (overwriting the folder's checkpoints and log); a path: continue from that file.
+        hooks: ``hook(info: StepInfo)`` called after every step on every rank (validation,
+            previews; rank-0-only work should test ``info.trainer.dist.is_main``).
+        extra_state: a dict, or a function returning one, stored in every checkpoint
+            (``Checkpoint.extra``); after a resume ``trainer.resumed_extra`` holds the loaded one.
+        dist: a ready ``DistContext``; default: ``init_distributed(config.device)`` (torchrun's
+            environment, else one process).
+    """
+
+    def __init__(
+        self,
+        model: nn.Module,
+        step_fn: StepFn,
+        config: TrainerConfig,
+        out_dir: str | os.PathLike,
+        *,
+        run_config: Any = None,
+        optimizer_fn: Callable[[nn.Module], torch.optim.Optimizer] | None = None,
+        scheduler_fn: Callable[[torch.optim.Optimizer], Any] | None = None,
+        resume: bool | str | os.PathLike = True,
+        hooks: Sequence[Hook] = (),
+        extra_state: Mapping[str, Any] | Callable[[], Mapping[str, Any]] | None = None,
+        dist: DistContext | None = None,
+    ) -> None:
+        if not isinstance(model, nn.Module):
+            raise TypeError(f"model must be a torch.nn.Module, got {type(model).__name__}")
+        if not callable(step_fn):
+            raise TypeError("step_fn must be callable: step_fn(ctx: StepContext) -> dict")
+        if not isinstance(config, TrainerConfig):
+            raise TypeError(f"config must be a TrainerConfig, got {type(config).__name__}")
+        self.config = config
+        self.step_fn = step_fn
+        self.out_dir = Path(out_dir)
+        self.run_config = run_config if run_config is not None else config
+        self.hooks = list(hooks)
+        self.extra_state = extra_state
+        self.resumed_extra: dict[str, Any] = {}
+        self._owns_dist = dist is None
+        self.dist = dist if dist is not None else init_distributed(config.device)
+        self.device = self.dist.device
+        self.last_path = self.out_dir / LAST_CHECKPOINT
+        try:
+            if self.dist.is_main:
+                ensure_writable_dir(self.out_dir)
+                remove_stale_temporaries(self.last_path)
+
+            self.model = model.to(self.device)
+            self.optimizer = (optimizer_fn(self.model) if optimizer_fn is not None
+                              else _default_optimizer(self.model, config))
+            if scheduler_fn is not None:
+                self.scheduler = scheduler_fn(self.optimizer)
+            else:
+                self.scheduler = torch.optim.lr_scheduler.LambdaLR(
+                    self.optimizer, lambda step: lr_factor(step, config))
+            self.generator = torch.Generator().manual_seed(config.seed)
+            self.step = 0
+            self.resumed_from = self._resume(resume)
+            if self.resumed_from is None:
+                seed_everything(config.seed + self.dist.rank)
+            # Every rank starts from rank 0's weights (DDP also does this when wrapping).
+            broadcast_module(self.model, self.dist)
+            use_ddp = self.dist.is_distributed and config.grad_sync == "ddp"
+            self.wrapped = wrap_ddp(self.model, self.dist) if use_ddp else self.model
+        except BaseException:
+            if self._owns_dist:
+                cleanup(self.dist)
+            raise
+        self._stop_signal: int | None = None
+        self._last_checkpoint: Path | None = None
+
+    # --------------------------------------------------------------------------------------------
+    # resume
+
+    def _resume(self, resume: bool | str | os.PathLike) -> Path | None:
+        if resume is True:
+            path = self.last_path if self.last_path.is_file() else None
+        elif resume is False or resume is None:
+            path = None
+        else:
+            path = Path(resume)
+            if not path.is_file():
+                raise FileNotFoundError(f"{path}: no such checkpoint to resume from")
+        if path is None:
+            return None
+        ckpt = load_checkpoint(path)
+        try:
+            self.model.load_state_dict(ckpt.model)
+        except RuntimeError as exc:
+            first = str(exc).strip().splitlines()
+            raise ValueError(f"{path}: the checkpoint does not fit the model "
+                             f"({' '.join(line.strip() for line in first[:3])})") from None
+        try:
+            if ckpt.optimizer is not None:
+                self.optimizer.load_state_dict(ckpt.optimizer)
+            if ckpt.scheduler is not None and hasattr(self.scheduler, "load_state_dict"):
+                self.scheduler.load_state_dict(ckpt.scheduler)
+        except (ValueError, KeyError, RuntimeError) as exc:
+            raise ValueError(f"{path}: the optimizer/scheduler state does not fit "
+                             f"({exc})") from None
+        generators = {"data": self.generator}
+        if len(ckpt.rng) == self.dist.world_size:
+            restore_rng_state(ckpt.rng[self.dist.rank], generators)
+        elif ckpt.rng:
+            # Another number of processes: the data generator (identical on every rank)
+            # continues exactly; per-rank global RNGs cannot, so they are reseeded.
+            restore_rng_state(ckpt.rng[0], generators)
+            seed_everything(self.config.seed + self.dist.rank + 7919 * ckpt.step)
+            self._note(f"{path} was written by {len(ckpt.rng)} process(es), this run has "
+                       f"{self.dist.world_size}: the data stream continues exactly, the "
+                       "per-process random state is reseeded")
+        self.step = ckpt.step
+        self.resumed_extra = ckpt.extra
+        new_config = config_to_dict(self.run_config)
+        if ckpt.config is not None and ckpt.config != new_config:
+            keys = _flat_diff(ckpt.config, new_config)
+            self._note(f"resuming {path} with a changed config: {', '.join(keys[:10])}")
+        return path
+
+    def _note(self, message: str) -> None:
+        if self.dist.is_main:
+            print(f"lisa train: {message}", file=sys.stderr, flush=True)
+
+    # --------------------------------------------------------------------------------------------
+    # checkpoints
+
+    def save(self) -> Path | None:
+        """Checkpoint the current state to ``out_dir/last.pt`` (and a kept copy) now.
+
+        Collective: call it on every rank. Returns the path (on every rank), or None when the
+        run folder is not written (never: rank 0 always writes). Raises ``NonFiniteError``
+        (writing nothing) when a parameter is NaN/inf, and ``RuntimeError`` when the ranks'
+        weights disagree (a 'ddp' step function that bypassed ``ctx.model``).
+        """
+        model_state = self.model.state_dict()
+        # Every rank checks its own (identical) weights so that all ranks raise together.
+        check_finite_state(model_state, f"step {self.step}: refusing to write checkpoint "
+                                        f"{self.last_path} (the previous one is left intact)")
+        self._check_ranks_agree()
+        rng = gather_objects(capture_rng_state({"data": self.generator}), self.dist)
+        if self.dist.is_main:
+            extra = self.extra_state() if callable(self.extra_state) else self.extra_state
+            ckpt = Checkpoint(
+                step=self.step,
+                model=model_state,
+                optimizer=self.optimizer.state_dict(),
+                scheduler=(self.scheduler.state_dict()
+                           if hasattr(self.scheduler, "state_dict") else None),
+                rng=rng,
+                config=config_to_dict(self.run_config),
+                trainer=config_to_dict(self.config),
+                extra=dict(extra or {}),
+            )
+            save_checkpoint(self.last_path, ckpt)
+            if self.config.keep_every and self.step % self.config.keep_every == 0:
+                copy_checkpoint(self.last_path, self.out_dir / f"step_{self.step:08d}.pt")
+        self._last_checkpoint = self.last_path
+        return self.last_path
+
+    def _check_ranks_agree(self) -> None:
+        if not self.dist.is_distributed:
+            return
+        import torch.distributed as tdist
+
+        with torch.no_grad():
+            total = sum((p.detach().double().sum() for p in self.model.parameters()),
+                        torch.zeros((), dtype=torch.float64, device=self.device))
+            spread = torch.stack([total, -total])
+            tdist.all_reduce(spread, op=tdist.ReduceOp.MAX)
+        high, neg_low = spread.tolist()
+        if high + neg_low > 1e-9 * max(1.0, abs(high)):
+            raise RuntimeError(
+                f"step {self.step}: the ranks' weights disagree (sums {-neg_low} .. {high}); in "
+                "grad_sync='ddp' mode the step function must call ctx.model(...) (the "
+                "DistributedDataParallel wrapper), or use grad_sync='allreduce'")
+
+    # --------------------------------------------------------------------------------------------
+    # log
+
+    def _open_log(self) -> Any:
+        if not self.dist.is_main:
+            return None
+        path = self.out_dir / LOG_FILE
+        if self.step == 0:
+            return open(path, "w")
+        # Resumed: drop the lines of steps the checkpoint does not contain (written after it
+        # and before the kill), so that the log reads like one uninterrupted run.
+        kept = []
+        if path.is_file():
+            for line in path.read_text().splitlines():
+                try:
+                    entry = json.loads(line)
+                except json.JSONDecodeError:
+                    continue  # a line cut by the kill
+                if isinstance(entry, dict) and entry.get("step", math.inf) < self.step:
+                    kept.append(line)
+        with atomic_path(path) as tmp:
+            tmp.write_text("".join(line + "\n" for line in kept))
+        return open(path, "a")
+
+    # --------------------------------------------------------------------------------------------
+    # signals
+
+    def _install_signal_handlers(self) -> dict[int, Any]:
+        if threading.current_thread() is not threading.main_thread():
+            return {}
+        previous = {}
+
+        def handler(signum: int, frame: Any) -> None:
+            if self._stop_signal is not None and signum == signal.SIGINT:
+                raise KeyboardInterrupt  # second Ctrl-C: abort now, no checkpoint
+            self._stop_signal = signum
+            self._note(f"received {signal.Signals(signum).name}: stopping after this step "
+                       "and writing a checkpoint (Ctrl-C again to abort without one)")
+
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            try:
+                previous[signum] = signal.signal(signum, handler)
+            except (ValueError, OSError):
+                pass
+        return previous
+
+    @staticmethod
+    def _restore_signal_handlers(previous: dict[int, Any]) -> None:
+        for signum, old in previous.items():
+            signal.signal(signum, old)
+
+    # --------------------------------------------------------------------------------------------
+    # the loop
+
+    def run(self) -> TrainResult:
+        """Train from ``self.step`` to ``config.steps``; return how it ended.
+
+        Raises ``NonFiniteError`` (a ``ValueError``) naming the step and the loss term or the
+        parameter when a loss or a gradient is NaN/inf; nothing is written then, so the last
+        checkpoint is the last good state.
+        """
+        try:
+            return self._run()
+        finally:
+            if self._owns_dist:
+                cleanup(self.dist)
+
+    def _run(self) -> TrainResult:
+        config = self.config
+        start = self.step
+        if self.dist.is_main:
+            save_config(self.out_dir / CONFIG_FILE, self.run_config)
+        if start >= config.steps:
+            self._note(f"nothing to do: {start} steps done, the run has {config.steps}")
+            return TrainResult("completed", start, start, {}, None, self.resumed_from, 0.0)
+        if self.resumed_from is not None:
+            self._note(f"resuming from {self.resumed_from} at step {start}")
+
+        log = self._open_log()
+        show_bar = config.progress and self.dist.is_main and sys.stderr.isatty()
+        print_lines = config.progress and self.dist.is_main and not show_bar
+        bar = None
+        if show_bar:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=config.steps, initial=start, desc="train", dynamic_ncols=True,
+                       file=sys.stderr)
+        previous_handlers = self._install_signal_handlers()
+        params = [p for p in self.model.parameters() if p.requires_grad]
+        losses: dict[str, float] = {}
+        status: Literal["completed", "interrupted"] = "completed"
+        began = time.perf_counter()
+        try:
+            while self.step < config.steps:
+                step = self.step
+                losses, lr, grad_norm, stop = self._one_step(step, params)
+                self.step = step + 1
+                done = self.step
+                if log is not None and (done % config.log_every == 0 or done == config.steps):
+                    entry = {"step": step, "lr": lr, "grad_norm": grad_norm,
+                             "seconds": round(time.perf_counter() - began, 4), "losses": losses}
+                    log.write(json.dumps(entry) + "\n")
+                    log.flush()
+                if bar is not None:
+                    bar.set_postfix_str(_format_losses(losses, lr), refresh=False)
+                    bar.update(1)
+                elif print_lines and config.print_every and (
+                        done % config.print_every == 0 or done == config.steps):
+                    print(f"step {done}/{config.steps} {_format_losses(losses, lr)}",
+                          file=sys.stderr, flush=True)
+                written = None
+                if (done == config.steps or stop
+                        or (config.checkpoint_every and done % config.checkpoint_every == 0)):
+                    written = self.save()
+                info = StepInfo(step, losses, lr, grad_norm, written, self)
+                for hook in self.hooks:
+                    hook(info)
+                if stop:
+                    status = "interrupted"
+                    break
+        finally:
+            self._restore_signal_handlers(previous_handlers)
+            if bar is not None:
+                bar.close()
+            if log is not None:
+                log.close()
+        seconds = time.perf_counter() - began
+        if status == "interrupted":
+            self._note(f"stopped at step {self.step}; checkpoint {self._last_checkpoint} "
+                       "(run the same command again to resume)")
+        return TrainResult(status, self.step, start, losses, self._last_checkpoint,
+                           self.resumed_from, seconds)
+
+    def _one_step(
+        self, step: int, params: list[nn.Parameter]
+    ) -> tuple[dict[str, float], float, float, bool]:
+        self.model.train()
+        self.optimizer.zero_grad(set_to_none=True)
+        ctx = StepContext(step, self.config.steps, self.generator, self.wrapped, self.device,
+                          self.dist)
+        out = self.step_fn(ctx)
+        names, values, total = self._check_losses(out, step)
+        total.backward()
+        if self.dist.is_distributed and self.config.grad_sync == "allreduce":
+            allreduce_gradients(params, self.dist)
+        grads = [p.grad for p in params if p.grad is not None]
+        if grads:
+            grad_norm = torch.linalg.vector_norm(
+                torch.stack([torch.linalg.vector_norm(g.detach(), dtype=torch.float64)
+                             for g in grads]))
+        else:
+            grad_norm = torch.zeros((), dtype=torch.float64, device=self.device)
+        stop_flag = 1.0 if self._stop_signal is not None else 0.0
+        # One vector, one collective and one device->host copy per step: the losses (averaged
+        # over ranks), the gradient norm (identical on every rank) and the stop request.
+        vector = torch.cat([
+            torch.stack([v.detach().to(self.device, torch.float64) for v in values]),
+            grad_norm.to(self.device, torch.float64).reshape(1),
+            torch.tensor([stop_flag], dtype=torch.float64, device=self.device),
+        ])
+        if self.dist.is_distributed:
+            import torch.distributed as tdist
+
+            tdist.all_reduce(vector, op=tdist.ReduceOp.SUM)
+            vector /= self.dist.world_size
+        host = vector.tolist()
+        losses = dict(zip(names, host[:-2], strict=True))
+        norm, stop = host[-2], host[-1] > 0
+        self._guard(step, losses, norm, params)
+        if self.config.grad_clip > 0:
+            scale = min(1.0, self.config.grad_clip / (norm + 1e-6))
+            if scale < 1.0:
+                torch._foreach_mul_(grads, scale)
+        lr = float(self.optimizer.param_groups[0]["lr"])
+        self.optimizer.step()
+        self.scheduler.step()
+        return losses, lr, norm, stop
+
+    @staticmethod
+    def _check_losses(
+        out: Any, step: int
+    ) -> tuple[list[str], list[torch.Tensor], torch.Tensor]:
+        if not isinstance(out, Mapping) or "total" not in out:
+            raise ValueError(f"step {step}: step_fn must return a dict with a 'total' loss "
+                             f"tensor, got {type(out).__name__}"
+                             + (f" with keys {list(out)}" if isinstance(out, Mapping) else ""))
+        total = out["total"]
+        if not torch.is_tensor(total) or total.numel() != 1:
+            raise ValueError(f"step {step}: step_fn's 'total' must be a scalar tensor, got "
+                             f"{type(total).__name__}"
+                             + (f" of shape {list(total.shape)}" if torch.is_tensor(total)
+                                else ""))
+        if not total.requires_grad:
+            raise ValueError(f"step {step}: step_fn's 'total' does not require grad (computed "
+                             "under no_grad, or from no trainable parameter)")
+        names, values = [], []
+        for name, value in out.items():
+            if torch.is_tensor(value):
+                if value.numel() != 1:
+                    raise ValueError(f"step {step}: loss {name!r} must be a scalar, got shape "
+                                     f"{list(value.shape)}")
+                values.append(value.detach().reshape(()))
+            elif isinstance(value, (int, float)) and not isinstance(value, bool):
+                values.append(torch.tensor(float(value), dtype=torch.float64))
+            else:
+                raise ValueError(f"step {step}: loss {name!r} must be a scalar tensor or a "
+                                 f"number, got {type(value).__name__}")
+            names.append(str(name))
+        return names, values, total.reshape(())
+
+    def _guard(self, step: int, losses: dict[str, float], grad_norm: float,
+               params: list[nn.Parameter]) -> None:
+        """Stop with a clear message when a loss or a gradient is NaN/inf (before the update)."""
+        if all(math.isfinite(v) for v in losses.values()) and math.isfinite(grad_norm):
+            return
+        if self._last_checkpoint is not None or self.resumed_from is not None:
+            last = self._last_checkpoint or self.resumed_from
+            where = f"the last good checkpoint is {last}"
+        else:
+            where = "no checkpoint was written yet"
+        bad = [f"{k}={v}" for k, v in losses.items() if not math.isfinite(v)]
+        if bad:
+            what = f"loss {bad[0].split('=')[0]!r} is {bad[0].split('=')[1]}"
+            if len(bad) > 1:
+                what += f" (also non-finite: {', '.join(bad[1:])})"
+        else:
+            names = {id(p): n for n, p in self.model.named_parameters()}
+            bad_params = [names.get(id(p), "?") for p in params
+                          if p.grad is not None and not bool(torch.isfinite(p.grad).all())]
+            what = (f"the gradient is non-finite (norm {grad_norm}) in "
+                    f"{', '.join(repr(n) for n in bad_params[:5]) or 'another rank'}, "
+                    f"while the losses are finite")
+        raise NonFiniteError(
+            f"training diverged at step {step}: {what}. Stopped without updating the weights; "
+            f"{where}. Lower the learning rate (lr), set grad_clip, or check the data and the "
+            "loss weights.")
+
+
+def _format_losses(losses: Mapping[str, float], lr: float) -> str:
+    parts = [f"{k}={v:.4g}" for k, v in losses.items()]
+    parts.append(f"lr={lr:.3g}")
+    return " ".join(parts)
+
+
+def train(
+    model: nn.Module,
+    step_fn: StepFn,
+    config: TrainerConfig,
+    out_dir: str | os.PathLike,
+    **kwargs: Any,
+) -> TrainResult:
+    """Build a ``Trainer`` and run it; the keyword arguments are ``Trainer``'s."""
+    return Trainer(model, step_fn, config, out_dir, **kwargs).run()
