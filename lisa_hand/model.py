@@ -514,7 +514,7 @@ class LisaModel(nn.Module):
             bone_sdf = bone_sdf.reshape(batch, num, NUM_JOINTS)
         else:
             encoded_all = positional_encoding(local, config.pe_frequencies)
-            sdf_all = self.sdf_mlp.forward_dense(encoded_all, state.sdf_bias[:, None])[..., 0]
+            sdf_all = self.sdf_mlp.forward_dense(encoded_all, state.sdf_bias)[..., 0]
             bone_sdf = torch.where(active, sdf_all * scale, stand_in)
 
         weights = self._weights(local, bone_sdf, active, fallback, cull, mlp_options)
@@ -545,7 +545,7 @@ class LisaModel(nn.Module):
                 rgb = rgb.reshape(batch, num, 3)
             else:
                 color_all = torch.sigmoid(
-                    self.color_mlp.forward_dense(encoded_all, state.color_bias[:, None])
+                    self.color_mlp.forward_dense(encoded_all, state.color_bias)
                 )
                 color_all = torch.where(color_mask[..., None], color_all, 0.0)
                 rgb = blend(weights, color_all)
@@ -574,7 +574,8 @@ class LisaModel(nn.Module):
         inputs = torch.cat(inputs, dim=-1)
         mlp = self.skinning_mlp
         if not cull:
-            logits = mlp.forward_dense(inputs[..., None, :], mlp.first_bias)[..., 0, :]
+            bias = mlp.first_bias.expand(batch, 1, -1)
+            logits = mlp.forward_dense(inputs[..., None, :], bias)[..., 0, :]
             return masked_softmax(logits, active, fallback)
         count = active.sum(dim=-1)
         first_active = active.to(torch.uint8).argmax(dim=-1)
@@ -630,11 +631,11 @@ class LisaModel(nn.Module):
                 rgb = rgb.index_put((rows,), color_rows).reshape(batch, num, 3)
         else:
             encoded = positional_encoding(local, config.pe_frequencies)[:, :, None]
-            sdf_all = self.sdf_mlp.forward_dense(encoded, state.sdf_bias[:, None])[..., 0, 0]
+            sdf_all = self.sdf_mlp.forward_dense(encoded, state.sdf_bias)[..., 0, 0]
             sdf = torch.where(inside, sdf_all * scale, outside_sdf)
             if with_color:
                 color_all = torch.sigmoid(
-                    self.color_mlp.forward_dense(encoded, state.color_bias[:, None])[..., 0, :]
+                    self.color_mlp.forward_dense(encoded, state.color_bias)[..., 0, :]
                 )
                 rgb = torch.where(inside[..., None], color_all, _STAND_IN_COLOR)
         return FieldOutput(sdf=sdf, rgb=rgb, weights=None, bone_sdf=None, region_mask=active)

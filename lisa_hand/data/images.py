@@ -8,9 +8,12 @@ Two ways to find the first surface point along each camera ray, with the same ou
 * :func:`sphere_trace_views` sphere traces a signed distance callback on the rays that hit a
   bounding sphere, with normals from the SDF gradient (autograd).
 
-Measured on 2 CPU cores, 8 views at 512x334 of a hand-like scene (a smooth union of 20 round
-cones and its ~100k-vertex marching-cubes mesh): Embree takes ~0.3 s in all, sphere tracing
-(torch, float32) ~10 s, so the dataset writer uses :func:`render_views`.
+Measured on the 2-core CPU machine, 8 views at 512x334 of a hand-like scene (a log-sum-exp
+smooth union of 20 tapered capsules, and its 99k-vertex, 197k-face marching-cubes mesh): Embree
+takes 0.3 s in all (BVH build 0.04 s, casting, shading, a textured albedo), sphere tracing
+(torch float32, one thread, 0.05 mm tolerance) 4.4 s; the two agree to a mask IoU of 0.995 and a
+median depth difference of 0.07 mm (the mesh's marching-cubes error). The dataset writer uses
+:func:`render_views`.
 
 Shading is Lambertian plus ambient (:class:`ShadingConfig`), per pixel::
 
@@ -139,7 +142,7 @@ class GainBiasConfig:
         return GainBias(gain=gain, bias=bias)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class GainBias:
     """Explicit per-camera colour response.
 
@@ -171,7 +174,7 @@ class GainBias:
         return out[0], out[1]
 
 
-@dataclass
+@dataclass(eq=False)
 class ViewImage:
     """One rendered view (numpy arrays; pixel ``(u, v)`` is ``array[v, u]``)."""
 
@@ -192,7 +195,7 @@ class ViewImage:
     asked for."""
 
 
-@dataclass
+@dataclass(eq=False)
 class RayHits:
     """First hits of rays on a mesh. R rays."""
 
@@ -206,7 +209,7 @@ class RayHits:
     """[R] float32 ray parameter of the hit (metres for unit directions), inf on a miss."""
 
 
-@dataclass
+@dataclass(eq=False)
 class KeypointProjection:
     """Keypoints seen by one camera. K keypoints."""
 
@@ -249,17 +252,28 @@ def _check_mesh(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Area-weighted vertex normals (unit; zero for unused vertices).
+    """Angle-weighted vertex normals (unit; zero for unused vertices).
+
+    Each face adds its unit normal times its corner angle at the vertex (Thuermer and Wuethrich
+    1998): closer to the true normal of a smooth surface than area weighting when the faces
+    around a vertex differ in shape.
 
     vertices: [V, 3] metres; faces: [F, 3] counter-clockwise seen from outside.
     -> [V, 3] float32, pointing outwards.
     """
     vertices, faces = _check_mesh(vertices, faces)
-    corners = vertices.astype(np.float64)[faces]
-    # The cross product's length is twice the face area: summing it weights faces by area.
+    corners = vertices.astype(np.float64)[faces]  # [F, 3, 3]
     face_normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    face_normals /= np.maximum(np.linalg.norm(face_normals, axis=1, keepdims=True), 1e-300)
+    # Corner k's angle between the edges to the next and the previous corner.
+    to_next = np.roll(corners, -1, axis=1) - corners
+    to_prev = np.roll(corners, 1, axis=1) - corners
+    to_next /= np.maximum(np.linalg.norm(to_next, axis=2, keepdims=True), 1e-300)
+    to_prev /= np.maximum(np.linalg.norm(to_prev, axis=2, keepdims=True), 1e-300)
+    angles = np.arccos(np.clip((to_next * to_prev).sum(-1), -1.0, 1.0))  # [F, 3]
+    weighted = angles[:, :, None] * face_normals[:, None, :]  # [F, 3, 3]
     flat_ids = faces.reshape(-1)
-    normals = np.stack([np.bincount(flat_ids, weights=np.repeat(face_normals[:, axis], 3),
+    normals = np.stack([np.bincount(flat_ids, weights=weighted[:, :, axis].reshape(-1),
                                     minlength=vertices.shape[0]) for axis in range(3)], axis=1)
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     return (normals / np.where(length > 0, length, 1.0)).astype(np.float32)
@@ -285,7 +299,7 @@ class MeshRayCaster:
 
     @property
     def vertex_normals(self) -> np.ndarray:
-        """[V, 3] float32 unit area-weighted vertex normals (computed once)."""
+        """[V, 3] float32 unit angle-weighted vertex normals (computed once)."""
         if self._vertex_normals is None:
             self._vertex_normals = vertex_normals(self.vertices, self.faces)
         return self._vertex_normals
@@ -331,7 +345,7 @@ class MeshRayCaster:
 # Shared pipeline: rays -> hits (per backend) -> albedo (one call for all views) -> shading.
 
 
-@dataclass
+@dataclass(eq=False)
 class _ViewHits:
     """Hits of one view's (possibly supersampled) rays; Nh hits among P = H s * W s rays."""
 
@@ -397,14 +411,6 @@ def _sample_cone(axis: np.ndarray, half_angle_deg: float,
     return (cos_theta * axis + sin_theta * (math.cos(phi) * first + math.sin(phi) * second))
 
 
-def _camera_rays(camera: Camera) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """-> origins [P, 3], directions [P, 3] (float32 numpy, row-major) and the camera z axis [3]."""
-    origins, directions = pixel_rays(camera, device="cpu", dtype=torch.float32)
-    z_axis = camera.R[2].detach().cpu().to(torch.float32).numpy()
-    return (np.ascontiguousarray(origins.numpy()), np.ascontiguousarray(directions.numpy()),
-            z_axis)
-
-
 def _bounding_rectangle(camera: Camera, bbox_min: np.ndarray,
                         bbox_max: np.ndarray) -> tuple[int, int, int, int] | None:
     """Pixel columns ``[u0, u1)`` and rows ``[v0, v1)`` that can see the box, or None for all.
@@ -416,12 +422,15 @@ def _bounding_rectangle(camera: Camera, bbox_min: np.ndarray,
     box = np.stack([bbox_min, bbox_max]).astype(np.float64)  # [2, 3]
     choice = np.indices((2, 2, 2)).reshape(3, 8).T  # [8, 3]: min (0) or max (1) per axis
     corners = box[choice, np.arange(3)]
-    cam = camera.to(device="cpu", dtype=torch.float64)
-    pixels, depth = project_points(cam.K, cam.R, cam.t, torch.from_numpy(corners))
-    if not bool((depth > 1e-9).all()):
+    # The pinhole projection of project_points, on 8 points in numpy (no torch dispatch).
+    K, R, t = (x.detach().cpu().double().numpy() for x in (camera.K, camera.R, camera.t))
+    homogeneous = (corners @ R.T + t) @ K.T
+    depth = homogeneous[:, 2]
+    if not (depth > 1e-9).all():
         return None
-    low = np.floor(pixels.min(0).values.numpy()).astype(np.int64) - 1
-    high = np.ceil(pixels.max(0).values.numpy()).astype(np.int64) + 1
+    pixels = homogeneous[:, :2] / depth[:, None]
+    low = np.floor(pixels.min(0)).astype(np.int64) - 1
+    high = np.ceil(pixels.max(0)).astype(np.int64) + 1
     u0, v0 = max(int(low[0]), 0), max(int(low[1]), 0)
     u1, v1 = min(int(high[0]), camera.width), min(int(high[1]), camera.height)
     return u0, max(u1, u0), v0, max(v1, v0)
@@ -433,15 +442,17 @@ def _rectangle_rays(camera: Camera, rectangle) -> tuple[np.ndarray, np.ndarray, 
     -> origins [P, 3], directions [P, 3] (float32 numpy) and their row-major pixel indices [P].
     """
     if rectangle is None:
-        origins, directions, _ = _camera_rays(camera)
-        return origins, directions, np.arange(origins.shape[0])
-    u0, u1, v0, v1 = rectangle
-    columns, rows = np.meshgrid(np.arange(u0, u1), np.arange(v0, v1), indexing="xy")
-    columns, rows = columns.reshape(-1), rows.reshape(-1)
-    centres = torch.from_numpy(np.stack([columns, rows], 1).astype(np.float32) + 0.5)
-    origins, directions = pixel_rays(camera, centres, device="cpu", dtype=torch.float32)
+        origins, directions = pixel_rays(camera, device="cpu", dtype=torch.float32)
+        pixel_index = np.arange(origins.shape[0])
+    else:
+        u0, u1, v0, v1 = rectangle
+        columns, rows = np.meshgrid(np.arange(u0, u1), np.arange(v0, v1), indexing="xy")
+        columns, rows = columns.reshape(-1), rows.reshape(-1)
+        centres = torch.from_numpy(np.stack([columns, rows], 1).astype(np.float32) + 0.5)
+        origins, directions = pixel_rays(camera, centres, device="cpu", dtype=torch.float32)
+        pixel_index = rows * camera.width + columns
     return (np.ascontiguousarray(origins.numpy()), np.ascontiguousarray(directions.numpy()),
-            rows * camera.width + columns)
+            pixel_index)
 
 
 def _call_albedo(albedo_fn: AlbedoFn, points: np.ndarray | torch.Tensor) -> np.ndarray:
@@ -492,8 +503,8 @@ def _lights_per_view(cameras: list[Camera], shading: ShadingConfig,
                          for direction in directions])
 
     if shading.light_frame == "world":
-        world = jitter(lights)
-        return [world.astype(np.float32)] * len(cameras)
+        world = jitter(lights).astype(np.float32)
+        return [world.copy() for _ in cameras]
     out = []
     for camera in cameras:
         rotation = camera.R.detach().cpu().double().numpy()

@@ -138,19 +138,23 @@ class StackedMLP(nn.Module):
         return bias + torch.einsum("bgc,gch->bgh", cond, self.cond_weight)
 
     def forward_dense(self, points: torch.Tensor, first_bias: torch.Tensor) -> torch.Tensor:
-        """Every point through every group.
+        """Every point of a frame through every group (a batched product per layer).
 
-        points: [..., G, point_dim]; first_bias: [..., G, hidden] broadcastable against the
-        points' leading dims (e.g. [B, 1, G, hidden] for points [B, N, G, point_dim]).
-        -> [..., G, out_dim]
+        points: [B, N, G, point_dim]; first_bias: [B, G, hidden] (from :meth:`condition`).
+        -> [B, N, G, out_dim]
         """
-        hidden = self.act(torch.einsum("...gi,gih->...gh", points, self.point_weight) + first_bias)
+        batch, num, groups, _ = points.shape
+        # Group-major rows, so that each layer is one bmm over [G, B * N, in].
+        hidden = points.permute(2, 0, 1, 3).reshape(groups, batch * num, -1)
+        bias = first_bias.permute(1, 0, 2)[:, :, None]  # [G, B, 1, H]
+        hidden = hidden @ self.point_weight
+        hidden = self.act((hidden.reshape(groups, batch, num, -1) + bias).flatten(1, 2))
         layers = self.layers()
-        for index, (weight, bias) in enumerate(layers):
-            hidden = torch.einsum("...gi,gih->...gh", hidden, weight) + bias
+        for index, (weight, layer_bias) in enumerate(layers):
+            hidden = torch.baddbmm(layer_bias[:, None], hidden, weight)
             if index < len(layers) - 1:
                 hidden = self.act(hidden)
-        return hidden
+        return hidden.reshape(groups, batch, num, -1).permute(1, 2, 0, 3)
 
     def forward_grouped(
         self,

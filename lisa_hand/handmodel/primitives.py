@@ -6,12 +6,18 @@ signed distances (negative inside), so that a smooth union of them stays close t
 
 from __future__ import annotations
 
+import math
+
 import torch
 
-__all__ = ["round_cone_sdf", "rounded_polygon_sdf", "smooth_union", "smoothstep"]
+__all__ = ["round_cone_sdf", "rounded_polygon_sdf", "smooth_union", "smoothstep", "gaussian"]
 
 # Floor under square roots: keeps gradients finite where a distance is exactly zero.
 _SQRT_FLOOR = 1e-20
+_LOG2_E = 1.0 / math.log(2.0)
+_LN_2 = math.log(2.0)
+# Smallest exponent of two used: 2^-100 ~ 8e-31 stays a normal float32.
+_MIN_EXP2 = -100.0
 
 
 def _safe_sqrt(values: torch.Tensor) -> torch.Tensor:
@@ -28,27 +34,24 @@ def round_cone_sdf(
     """Exact signed distance to round cones (the convex hull of two spheres), batched over parts.
 
     In each cone's frame the axis runs from the origin to ``(length, 0, 0)``; a point is given by
-    its coordinate along the axis ``u`` and its squared distance from the axis ``rho^2``. With
-    ``sin a = (r1 - r2) / length`` the side's outward normal in the (u, rho) half plane is
-    ``(sin a, cos a)``: the distance to the side is ``u sin a + rho cos a - r1`` where the
-    tangential coordinate ``t = u cos a - rho sin a`` lies in ``[0, length cos a]``; before it
-    the start sphere is nearest, after it the end sphere. Requires ``|r1 - r2| < length``.
+    its coordinate along the axis ``u`` and its squared distance from the axis ``rho^2``. The cone
+    is the union of the spheres centred at ``(h, 0)`` with radius ``r(h) = r1 - h sin a``
+    (``sin a = (r1 - r2) / length``); the side's outward normal is ``(sin a, cos a)``, so the
+    sphere nearest to ``(u, rho)`` is the one at ``h = clamp(u - rho tan a, 0, length)`` and the
+    distance is ``sqrt((u - h)^2 + rho^2) - r(h)`` (branch-free; equal to ``u sin a + rho cos a -
+    r1`` on the side and to the end spheres' distances past them). Requires
+    ``|r1 - r2| < length``.
 
     along: [N, P] u, metres; radial_sq: [N, P] rho^2, m^2.
     length, start_radius, end_radius: [P] metres.
     -> [N, P] signed distances, metres.
     """
     sin_a = (start_radius - end_radius) / length
-    cos_a = (1.0 - sin_a * sin_a).sqrt()
+    tan_a = sin_a / (1.0 - sin_a * sin_a).sqrt()
     radial = _safe_sqrt(radial_sq)
-    tangential = along * cos_a - radial * sin_a
-    to_side = along * sin_a + radial * cos_a - start_radius
-    past_end = tangential > length * cos_a
-    cap_along = torch.where(past_end, along - length, along)
-    cap_radius = torch.where(past_end, end_radius, start_radius)
-    to_cap = _safe_sqrt(cap_along * cap_along + radial_sq) - cap_radius
-    on_side = (tangential >= 0.0) & ~past_end
-    return torch.where(on_side, to_side, to_cap)
+    center = torch.minimum((along - radial * tan_a).clamp_min(0.0), length)
+    offset = along - center
+    return _safe_sqrt(offset * offset + radial_sq) - (start_radius - center * sin_a)
 
 
 def rounded_polygon_sdf(
@@ -89,10 +92,13 @@ def smooth_union(distances: torch.Tensor, blend: float) -> tuple[torch.Tensor, t
     distances: [N, P] metres; blend: k, metres.
     -> (smooth minimum [N] metres, weights [N, P])
     """
+    # exp(x) = 2^(x log2 e); arguments are clamped above the float32 denormal range (denormal
+    # results are an order of magnitude slower on CPUs and weigh nothing).
     nearest = distances.amin(dim=-1, keepdim=True).detach()
-    terms = torch.exp((nearest - distances) / blend)
+    exponent = ((nearest - distances) * (_LOG2_E / blend)).clamp_min(_MIN_EXP2)
+    terms = torch.exp2(exponent)
     total = terms.sum(-1, keepdim=True)
-    value = nearest[..., 0] - blend * torch.log(total[..., 0])
+    value = nearest[..., 0] - (blend * _LN_2) * torch.log2(total[..., 0])
     return value, terms / total
 
 
@@ -100,3 +106,8 @@ def smoothstep(low: float | torch.Tensor, high: float | torch.Tensor, x: torch.T
     """Cubic Hermite step: 0 below ``low``, 1 above ``high`` (``low > high`` gives a falling step)."""
     t = ((x - low) / (high - low)).clamp(0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
+
+
+def gaussian(scaled: torch.Tensor) -> torch.Tensor:
+    """``exp(-scaled^2 / 2)``, computed as a power of two and flushed to 0 beyond ~11.7 widths."""
+    return torch.exp2((scaled * scaled).clamp(max=2.0 * -_MIN_EXP2 / _LOG2_E) * (-0.5 * _LOG2_E))

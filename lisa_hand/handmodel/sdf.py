@@ -39,7 +39,7 @@ import torch
 
 from ..geometry.transforms import invert_rigid
 from ..skeleton.tree import FINGER_JOINTS, FINGER_NAMES, NUM_JOINTS, PARENTS
-from .primitives import round_cone_sdf, rounded_polygon_sdf, smooth_union, smoothstep
+from .primitives import gaussian, round_cone_sdf, rounded_polygon_sdf, smooth_union, smoothstep
 from .shape import HandShape, RestSkeleton, rest_skeleton
 
 __all__ = ["HandTemplate", "HandFieldOutput", "PosedField", "build_template"]
@@ -49,6 +49,11 @@ _NUM_NOISE_WAVES = 24
 # A part whose distance exceeds the nearest part's by this many blend radii is dropped (its
 # weight exp(-10) ~ 5e-5 changes the distance by < 1e-7 m).
 _CULL_BLENDS = 10.0
+# Points evaluated together at most (keeps temporaries in cache), fewest points worth culling,
+# and the number of points per culling cell aimed at.
+_MAX_GROUP = 8192
+_MIN_CULL = 2048
+_TARGET_GROUP = 1500
 # Crease profiles are Gaussians: beyond this many widths they are treated as zero.
 _CREASE_SUPPORT = 5.0
 
@@ -496,11 +501,18 @@ def _posed_maps(
     return matrix, offset
 
 
-def _apply(points: torch.Tensor, matrix: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
-    """points [N, 3], matrix [K, 3, 3], offset [K, 3] -> [N, K, 3] local coordinates."""
+def _apply(
+    points: torch.Tensor, matrix: torch.Tensor, offset: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Local coordinates of points in K frames, one [N, K] tensor per local axis.
+
+    points [N, 3], matrix [K, 3, 3], offset [K, 3] -> three [N, K] (rows contiguous in K, so
+    that the element-wise math that follows runs vectorised).
+    """
     num = matrix.shape[0]
-    flat = points @ matrix.reshape(num * 3, 3).T + offset.reshape(num * 3)
-    return flat.reshape(points.shape[0], num, 3)
+    weight = matrix.transpose(0, 1).reshape(3 * num, 3)
+    flat = torch.addmm(offset.T.reshape(3 * num), points, weight.T)
+    return flat[:, :num], flat[:, num : 2 * num], flat[:, 2 * num :]
 
 
 @dataclass
@@ -524,7 +536,7 @@ class PosedField:
     """
 
     def __init__(
-        self, template: HandTemplate, transforms: torch.Tensor, cell_size: float = 0.025
+        self, template: HandTemplate, transforms: torch.Tensor, cell_size: float = 0.02
     ) -> None:
         if transforms.shape != (NUM_JOINTS, 4, 4):
             raise ValueError(f"transforms must be [16, 4, 4], got {tuple(transforms.shape)}")
@@ -558,9 +570,21 @@ class PosedField:
         self.palm_matrix, self.palm_offset = _posed_maps(
             identity[None], torch.zeros_like(identity[:1]), bones[:1], inv
         )
-        # One-hot part -> bone maps for ownership.
-        self.cone_onehot = torch.nn.functional.one_hot(tpl.cone_bone, NUM_JOINTS).to(self.dtype)
-        self.slab_onehot = torch.nn.functional.one_hot(tpl.slab_bone, NUM_JOINTS).to(self.dtype)
+        # One-hot part -> bone maps for ownership, and bone -> detail ownership selectors.
+        def onehot(index: torch.Tensor) -> torch.Tensor:
+            return torch.nn.functional.one_hot(index, NUM_JOINTS).to(self.dtype)
+
+        self.cone_onehot = onehot(tpl.cone_bone)
+        self.slab_onehot = onehot(tpl.slab_bone)
+        same = (tpl.crease_parent == tpl.crease_bone)[:, None]
+        self.crease_owner = (
+            onehot(tpl.crease_bone) + onehot(tpl.crease_parent).masked_fill(same, 0.0)
+        ).T.contiguous()  # [16, C]
+        self.nail_owner = onehot(tpl.nail_bone).T.contiguous()  # [16, 5]
+        palmar = tpl.crease_side > 0
+        self.crease_face_low = torch.where(palmar, -0.05, 0.35).to(self.dtype)
+        self.crease_face_high = torch.where(palmar, 0.5, 0.8).to(self.dtype)
+        self.rest_flat = inv[:, :3, :3].reshape(NUM_JOINTS, 9)
 
         # Posed bounding spheres.
         def posed(center: torch.Tensor, bone: torch.Tensor) -> torch.Tensor:
@@ -589,23 +613,43 @@ class PosedField:
         points: [N, 3] world points, metres, on this field's device (any float dtype; computed
             in the field's dtype).
         with_features: also compute rest points and appearance features.
-        cull: group points in cells and skip far parts (same values to ~1e-7 m).
+        cull: group points in cells and skip the parts that cannot reach a cell (same values to
+            about 1e-7 m); False evaluates every part at every point (the reference).
         """
         points = points.to(self.dtype)
         num = points.shape[0]
-        if not cull or num <= 512:
+        if not cull or num <= _MIN_CULL:
             return self._evaluate(points, self._everything, with_features)
-        cells = torch.floor((points - points.detach().amin(0)) / self.cell_size).long()
+        detached = points.detach()
+        low = detached.amin(0)
+        extent = (detached.amax(0) - low).clamp_min(self.cell_size)
+        # Cells of at least cell_size, larger where points are sparse (few points per cell cost
+        # more in per-call overhead than culling saves).
+        cell = max(self.cell_size, float((extent.prod() * _TARGET_GROUP / num) ** (1.0 / 3.0)))
+        cells = torch.floor((detached - low) / cell).long()
         dims = cells.amax(0) + 1
         keys = (cells[:, 0] * dims[1] + cells[:, 1]) * dims[2] + cells[:, 2]
         keys, order = torch.sort(keys)
-        _, counts = torch.unique_consecutive(keys, return_counts=True)
+        unique, counts = torch.unique_consecutive(keys, return_counts=True)
+        cell_index = torch.stack(
+            [unique // (dims[1] * dims[2]), (unique // dims[2]) % dims[1], unique % dims[2]], -1
+        )
+        centers = low + (cell_index.to(self.dtype) + 0.5) * cell
+        masks = self._select(centers, 0.5 * math.sqrt(3.0) * cell)
         pieces: list[HandFieldOutput] = []
-        for index in torch.split(order, counts.tolist()):
+        for m, index in enumerate(torch.split(order, counts.tolist())):
+            selection = _Selection(
+                torch.nonzero(masks[0][m])[:, 0],
+                [q for q in range(masks[1].shape[1]) if masks[1][m, q]],
+                torch.nonzero(masks[2][m])[:, 0],
+                torch.nonzero(masks[3][m])[:, 0],
+                bool(masks[4][m]),
+            )
             group = points[index]
-            low, high = group.detach().amin(0), group.detach().amax(0)
-            selection = self._select(0.5 * (low + high), 0.5 * float((high - low).norm()))
-            pieces.append(self._evaluate(group, selection, with_features))
+            for begin in range(0, group.shape[0], _MAX_GROUP):
+                pieces.append(
+                    self._evaluate(group[begin : begin + _MAX_GROUP], selection, with_features)
+                )
         inverse = torch.empty_like(order)
         inverse[order] = torch.arange(num, device=order.device)
         merged = {}
@@ -614,26 +658,54 @@ class PosedField:
             merged[name] = None if values[0] is None else torch.cat(values)[inverse]
         return HandFieldOutput(**merged)
 
-    def _select(self, center: torch.Tensor, half_diagonal: float) -> _Selection:
-        """Parts and details that can matter for points within ``half_diagonal`` of ``center``."""
+    def _select(self, centers: torch.Tensor, half_diagonal: float) -> tuple[torch.Tensor, ...]:
+        """Which parts and details can matter within ``half_diagonal`` of each centre.
+
+        centers: [M, 3] world points. Uses the exact part distances at the centres: within a
+        cell a part's distance lies in ``d(c) +- half_diagonal`` (distances are 1-Lipschitz), so a
+        part whose lowest possible distance exceeds the highest possible nearest distance by
+        ``_CULL_BLENDS`` blend radii weighs less than ``exp(-10)`` everywhere in the cell.
+        -> masks [M, P] cones, [M, Q] slabs, [M, C] creases, [M, 5] nails, [M] palm lines.
+        """
         tpl = self.template
-        cone_dist = (self.cone_center - center).norm(dim=-1)
-        slab_dist = (self.slab_center - center).norm(dim=-1)
-        # Upper bound of the union at any point of the group: each centre is inside its part.
-        upper = float(torch.minimum(cone_dist.min(), slab_dist.min())) + half_diagonal
-        cone_low = cone_dist - tpl.cone_bound - half_diagonal
-        cone_margin = torch.where(tpl.cone_palm, tpl.blend_palm, tpl.blend) * _CULL_BLENDS
-        cones = torch.nonzero(cone_low <= upper + cone_margin)[:, 0]
-        slab_low = slab_dist - tpl.slab_bound - half_diagonal
-        slab_keep = slab_low <= upper + tpl.blend_palm * _CULL_BLENDS
-        slabs = [int(i) for i in torch.nonzero(slab_keep)[:, 0]]
-        crease_dist = (self.crease_center - center).norm(dim=-1)
-        creases = torch.nonzero(crease_dist <= tpl.crease_bound + half_diagonal)[:, 0]
-        nail_dist = (self.nail_center - center).norm(dim=-1)
-        nails = torch.nonzero(nail_dist <= tpl.nail_bound + half_diagonal)[:, 0]
-        line_dist = (self.line_center - center).norm(dim=-1)
-        lines = bool((line_dist <= tpl.line_bound + half_diagonal).any())
-        return _Selection(cones, slabs, creases, nails, lines)
+        along, up, side = _apply(centers, self.cone_matrix, self.cone_offset)
+        cone_d = round_cone_sdf(
+            along, up * up + side * side, tpl.cone_length, tpl.cone_radii[:, 0],
+            tpl.cone_radii[:, 1],
+        )  # fmt: skip
+        slab_d = torch.stack(
+            [
+                rounded_polygon_sdf(
+                    torch.stack(_apply(centers, self.slab_matrix[q : q + 1],
+                                       self.slab_offset[q : q + 1]), -1)[:, 0],
+                    tpl.slab_vertices[q], tpl.slab_radius[q],
+                )
+                for q in range(len(tpl.slab_vertices))
+            ], dim=1,
+        )  # fmt: skip
+        spread = 2.0 * half_diagonal
+        palm_min = torch.minimum(cone_d[:, tpl.cone_palm].amin(1), slab_d.amin(1))
+        top_min = torch.minimum(cone_d[:, ~tpl.cone_palm].amin(1), palm_min)
+        top_limit = (top_min + spread + _CULL_BLENDS * tpl.blend)[:, None]
+        palm_limit = (palm_min + spread + _CULL_BLENDS * tpl.blend_palm)[:, None]
+        palm_on = palm_min[:, None] <= top_limit
+        cone_mask = torch.where(
+            tpl.cone_palm, (cone_d <= palm_limit) & palm_on, cone_d <= top_limit
+        )
+        slab_mask = (slab_d <= palm_limit) & palm_on
+        c_along, c_up, c_side = _apply(centers, self.crease_matrix, self.crease_offset)
+        crease_mask = (c_along.abs() <= _CREASE_SUPPORT * tpl.crease_width + half_diagonal) & (
+            (c_up * c_up + c_side * c_side).sqrt() <= tpl.crease_radius + 0.006 + half_diagonal
+        )
+        n_along, n_up, n_side = _apply(centers, self.nail_matrix, self.nail_offset)
+        nail_mask = (
+            (n_along >= tpl.nail_start - 0.004 - half_diagonal)
+            & (n_along <= tpl.nail_end + 0.002 + half_diagonal)
+            & ((n_up * n_up + n_side * n_side).sqrt() <= tpl.nail_radius + 0.004 + half_diagonal)
+        )
+        line_dist = (centers[:, None] - self.line_center).norm(dim=-1)
+        line_mask = palm_on[:, 0] & (line_dist <= tpl.line_bound + half_diagonal).any(1)
+        return cone_mask, slab_mask, crease_mask, nail_mask, line_mask
 
     def _evaluate(
         self, points: torch.Tensor, sel: _Selection, with_features: bool
@@ -641,11 +713,11 @@ class PosedField:
         tpl = self.template
         num = points.shape[0]
         # Part distances: the palm group (cones, then slabs) and the other cones.
-        cone_local = _apply(points, self.cone_matrix[sel.cones], self.cone_offset[sel.cones])
+        along, up, side = _apply(points, self.cone_matrix[sel.cones], self.cone_offset[sel.cones])
         radii = tpl.cone_radii[sel.cones]
         cone_d = round_cone_sdf(
-            cone_local[..., 0],
-            cone_local[..., 1] ** 2 + cone_local[..., 2] ** 2,
+            along,
+            up * up + side * side,
             tpl.cone_length[sel.cones],
             radii[:, 0],
             radii[:, 1],
@@ -654,7 +726,9 @@ class PosedField:
         palm_parts = [cone_d[:, in_palm]]
         palm_onehot = [self.cone_onehot[sel.cones][in_palm]]
         for q in sel.slabs:
-            local = _apply(points, self.slab_matrix[q : q + 1], self.slab_offset[q : q + 1])[:, 0]
+            local = torch.cat(
+                _apply(points, self.slab_matrix[q : q + 1], self.slab_offset[q : q + 1]), dim=1
+            )
             palm_parts.append(
                 rounded_polygon_sdf(local, tpl.slab_vertices[q], tpl.slab_radius[q])[:, None]
             )
@@ -676,24 +750,18 @@ class PosedField:
         crease_shape = None
         if sel.creases.numel():
             c = sel.creases
-            local = _apply(points, self.crease_matrix[c], self.crease_offset[c])
-            along, up, side = local.unbind(-1)
+            along, up, side = _apply(points, self.crease_matrix[c], self.crease_offset[c])
             radius = tpl.crease_radius[c]
-            profile = torch.exp(-0.5 * (along / tpl.crease_width[c]) ** 2)
-            facing = -tpl.crease_side[c] * up / radius
-            face_mask = torch.where(
-                tpl.crease_side[c] > 0,
-                smoothstep(-0.05, 0.5, facing),
-                smoothstep(0.35, 0.8, facing),
-            )
+            profile = gaussian(along / tpl.crease_width[c])
+            facing = up * (-tpl.crease_side[c] / radius)
+            face_mask = smoothstep(self.crease_face_low[c], self.crease_face_high[c], facing)
             near = smoothstep(radius + 0.006, radius + 0.0025, (up * up + side * side).sqrt())
-            bone, parent = tpl.crease_bone[c], tpl.crease_parent[c]
-            owner = weights[:, bone] + torch.where(bone == parent, 0.0, weights[:, parent])
-            crease_shape = profile * face_mask * near * owner.clamp(max=1.0)
+            owner = (weights @ self.crease_owner[:, c]).clamp(max=1.0)
+            crease_shape = profile * face_mask * near * owner
             displacement = displacement + crease_shape @ tpl.crease_depth[c]
 
         # Palm lines: arcs on the palmar side of the palm, where the palm owns the surface.
-        x_palm = _apply(points, self.palm_matrix, self.palm_offset)[:, 0]
+        x_palm = torch.cat(_apply(points, self.palm_matrix, self.palm_offset), dim=1)
         line_shape = None
         if sel.lines:
             planar = x_palm[:, None, 0::2] - tpl.line_center  # [N, L, 2]
@@ -701,10 +769,14 @@ class PosedField:
             cos_mid = (planar * tpl.line_mid).sum(-1) / dist_center
             arc_mask = smoothstep(tpl.line_cos_half - 0.06, tpl.line_cos_half + 0.06, cos_mid)
             palm_y, half = tpl.palm_center_y, tpl.palm_half_thickness
-            palm_face = smoothstep(palm_y - 0.3 * half, palm_y - 0.75 * half, x_palm[:, 1])
+            height = x_palm[:, 1]
+            palm_face = smoothstep(palm_y - 0.3 * half, palm_y - 0.75 * half, height)
+            palm_face = palm_face * smoothstep(
+                palm_y - half - 0.009, palm_y - half - 0.005, height
+            )
             across = (dist_center - tpl.line_radius) / tpl.line_width
             line_shape = (
-                torch.exp(-0.5 * across * across)
+                gaussian(across)
                 * arc_mask
                 * (palm_face * (weights[:, 0] + weights[:, 13]))[:, None]
             )
@@ -714,8 +786,7 @@ class PosedField:
         nail_mask = None
         if sel.nails.numel():
             n = sel.nails
-            local = _apply(points, self.nail_matrix[n], self.nail_offset[n])
-            along, up, side = local.unbind(-1)
+            along, up, side = _apply(points, self.nail_matrix[n], self.nail_offset[n])
             radius = tpl.nail_radius[n]
             start, end = tpl.nail_start[n], tpl.nail_end[n]
             cuticle = along - 0.45 * side * side / radius
@@ -724,13 +795,14 @@ class PosedField:
                 * smoothstep(end + 0.0008, end - 0.0004, along)
                 * smoothstep(0.3, 0.6, up / radius)
                 * smoothstep(radius + 0.004, radius + 0.0015, (up * up + side * side).sqrt())
-                * weights[:, tpl.nail_bone[n]]
+                * (weights @ self.nail_owner[:, n])
             )
             displacement = displacement - tpl.nail_height * nail_mask.sum(-1)
 
         # Bumps: plane waves at the rest-pose point, carried by the owning bones.
-        x_rest = _apply(points, self.rest_matrix, self.rest_offset)  # [N, 16, 3]
-        rest_points = (weights[..., None] * x_rest).sum(1)
+        # sum_j w_j (R_j x + t_j) = (sum_j w_j R_j) x + sum_j w_j t_j
+        blended = (weights @ self.rest_flat).reshape(num, 3, 3)
+        rest_points = (blended @ points[:, :, None])[..., 0] + weights @ self.rest_offset
         waves = torch.sin(rest_points @ tpl.noise_freqs.T + tpl.noise_phases)
         displacement = displacement + waves @ tpl.noise_amps
 
@@ -748,9 +820,9 @@ class PosedField:
         zeros = sdf.new_zeros(sdf.shape)
         if nail_mask is not None:
             n = sel.nails
-            local = _apply(points, self.nail_matrix[n], self.nail_offset[n])
+            along = _apply(points, self.nail_matrix[n], self.nail_offset[n])[0]
             span = (tpl.nail_end[n] - tpl.nail_start[n]).clamp_min(1e-6)
-            along = ((local[..., 0] - tpl.nail_start[n]) / span).clamp(0.0, 1.0)
+            along = ((along - tpl.nail_start[n]) / span).clamp(0.0, 1.0)
             total = nail_mask.sum(-1)
             nail = total.clamp(max=1.0)
             nail_along = (along * nail_mask).sum(-1) / total.clamp_min(1e-6)
@@ -763,8 +835,7 @@ class PosedField:
             crease = torch.maximum(crease, line_shape.amax(-1))
         crease = crease.clamp(max=1.0)
         # Palmar side: for fingers from the bone-local dorsal coordinate, for the palm from height.
-        bone_local = _apply(points, self.bone_matrix, self.bone_offset)  # [N, 16, 3]
-        along, up = bone_local[..., 0], bone_local[..., 1]
+        along, up, _ = _apply(points, self.bone_matrix, self.bone_offset)  # [N, 16] each
         bone_radius = skel.radii.mean(-1)
         finger_palmar = smoothstep(0.15 * bone_radius, -0.45 * bone_radius, up)
         palm_y, half = tpl.palm_center_y, tpl.palm_half_thickness
@@ -772,7 +843,7 @@ class PosedField:
         finger_palmar = torch.cat([palm_palmar[:, None], finger_palmar[:, 1:]], dim=1)
         palmar = (weights * finger_palmar).sum(-1)
         # Knuckles: the back of each joint, where the joint's two bones own the surface.
-        joint_near = torch.exp(-0.5 * (along / (0.6 * bone_radius)) ** 2)
+        joint_near = gaussian(along / (0.6 * bone_radius))
         back = smoothstep(0.2 * bone_radius, 0.8 * bone_radius, up)
         parents = torch.as_tensor(PARENTS[1:], device=points.device)
         joint_owner = (weights[:, 1:] + weights[:, parents]).clamp(max=1.0)

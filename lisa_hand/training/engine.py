@@ -4,10 +4,11 @@ The engine knows nothing about hands: it runs a *step function* that samples its
 returns its losses, and takes care of everything around it::
 
     def step_fn(ctx: StepContext) -> dict[str, torch.Tensor]:
-        idx = torch.randint(num_items, (global_batch,), generator=ctx.generator)  # same on all ranks
-        local = shard(dataset[idx], ctx.dist)                                   # this rank's part
-        pred = ctx.model(local.x.to(ctx.device))                                # through DDP
-        data = global_mean(((pred - local.y) ** 2).sum(-1), global_batch, ctx.dist)
+        idx = torch.randint(num_items, (batch,), generator=ctx.generator)  # same on every rank
+        x, y = shard((inputs[idx], targets[idx]), ctx.dist)              # this rank's slice
+        pred = ctx.model(x.to(ctx.device))                               # through DDP
+        data = global_mean(((pred - y.to(ctx.device)) ** 2).sum(-1), batch, ctx.dist)
+        prior = unwrap(ctx.model).codes.pow(2).mean()  # same on every rank: no scaling
         return {"total": data + 1e-4 * prior, "data": data, "prior": prior}
 
     result = train(model, step_fn, TrainerConfig(steps=1000), out_dir, run_config=full_config)
@@ -67,7 +68,6 @@ from .distributed import (
     cleanup,
     gather_objects,
     init_distributed,
-    unwrap,
     wrap_ddp,
 )
 
@@ -399,6 +399,7 @@ class Trainer:
             raise
         self._stop_signal: int | None = None
         self._last_checkpoint: Path | None = None
+        self._saved_step = self.step if self.resumed_from is not None else -1
 
     # --------------------------------------------------------------------------------------------
     # resume
@@ -486,6 +487,7 @@ class Trainer:
             if self.config.keep_every and self.step % self.config.keep_every == 0:
                 copy_checkpoint(self.last_path, self.out_dir / f"step_{self.step:08d}.pt")
         self._last_checkpoint = self.last_path
+        self._saved_step = self.step
         return self.last_path
 
     def _check_ranks_agree(self) -> None:
@@ -541,8 +543,8 @@ class Trainer:
             if self._stop_signal is not None and signum == signal.SIGINT:
                 raise KeyboardInterrupt  # second Ctrl-C: abort now, no checkpoint
             self._stop_signal = signum
-            self._note(f"received {signal.Signals(signum).name}: stopping after this step "
-                       "and writing a checkpoint (Ctrl-C again to abort without one)")
+            self._note(f"received {signal.Signals(signum).name}: stopping at the end of "
+                       "the current step and writing a checkpoint (Ctrl-C again to abort without one)")
 
         for signum in (signal.SIGINT, signal.SIGTERM):
             try:
@@ -599,6 +601,12 @@ class Trainer:
         began = time.perf_counter()
         try:
             while self.step < config.steps:
+                if self._stop_signal is not None and not self.dist.is_distributed:
+                    # One process: a stop requested between steps (e.g. during a hook) stops
+                    # before the next step. Several: the request travels with the next step's
+                    # collective so that every rank stops after the same step.
+                    status = "interrupted"
+                    break
                 step = self.step
                 losses, lr, grad_norm, stop = self._one_step(step, params)
                 self.step = step + 1
@@ -616,8 +624,8 @@ class Trainer:
                     print(f"step {done}/{config.steps} {_format_losses(losses, lr)}",
                           file=sys.stderr, flush=True)
                 written = None
-                if (done == config.steps or stop
-                        or (config.checkpoint_every and done % config.checkpoint_every == 0)):
+                if done == config.steps or (config.checkpoint_every
+                                            and done % config.checkpoint_every == 0):
                     written = self.save()
                 info = StepInfo(step, losses, lr, grad_norm, written, self)
                 for hook in self.hooks:
@@ -633,6 +641,8 @@ class Trainer:
                 log.close()
         seconds = time.perf_counter() - began
         if status == "interrupted":
+            if self._saved_step != self.step:
+                self.save()
             self._note(f"stopped at step {self.step}; checkpoint {self._last_checkpoint} "
                        "(run the same command again to resume)")
         return TrainResult(status, self.step, start, losses, self._last_checkpoint,
@@ -725,11 +735,13 @@ class Trainer:
             where = f"the last good checkpoint is {last}"
         else:
             where = "no checkpoint was written yet"
-        bad = [f"{k}={v}" for k, v in losses.items() if not math.isfinite(v)]
+        # Name a specific term before 'total' (which is non-finite whenever a term is).
+        bad = sorted((k for k, v in losses.items() if not math.isfinite(v)),
+                     key=lambda k: k == "total")
         if bad:
-            what = f"loss {bad[0].split('=')[0]!r} is {bad[0].split('=')[1]}"
+            what = f"loss {bad[0]!r} is {losses[bad[0]]}"
             if len(bad) > 1:
-                what += f" (also non-finite: {', '.join(bad[1:])})"
+                what += f" (also non-finite: {', '.join(f'{k}={losses[k]}' for k in bad[1:])})"
         else:
             names = {id(p): n for n, p in self.model.named_parameters()}
             bad_params = [names.get(id(p), "?") for p in params

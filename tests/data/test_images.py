@@ -149,7 +149,7 @@ def test_oblique_camera_and_camera_frame_light(sphere):
     (view,) = render_views(*sphere, [camera], (0.6, 0.5, 0.4), shading)
     hit, points, depth, cos_incidence = analytic_sphere(camera)
     assert iou(view.mask, hit) > 0.98
-    both = view.mask & hit
+    both = view.mask & hit & (cos_incidence > 0.2)
     assert depth_error_along_normal(view, depth, cos_incidence, hit) < 1.2e-4
     # A headlight: the light direction is minus the camera's z axis, n . l = -n . z.
     light_world = -camera.R[2].double().numpy()
@@ -247,6 +247,22 @@ def test_supersampling(sphere):
     assert (smooth.rgb[edge].sum(-1) < sharp.rgb[edge].sum(-1) + 1e-6).mean() > 0.9
 
 
+def test_camera_inside_the_mesh_sees_back_faces_everywhere():
+    """No bounding-rectangle culling when the camera is inside the box; back faces get normals
+    flipped towards the camera."""
+    room = trimesh.creation.icosphere(subdivisions=3, radius=1.0)
+    camera = axis_camera(0.5)  # at (0, 0, -0.5), inside the unit sphere
+    (view,) = render_views(room.vertices, room.faces, [camera], (0.5, 0.5, 0.5),
+                           ShadingConfig(ambient=0.0, diffuse=1.0,
+                                         light_directions=((0.0, 0.0, -1.0),)),
+                           return_normals=True)
+    assert view.mask.all()
+    # Straight ahead the wall is at z = 1: depth 1.5 m; it faces the camera (normal -z).
+    centre = view.depth[HEIGHT // 2 - 1:HEIGHT // 2 + 1, WIDTH // 2 - 1:WIDTH // 2 + 1]
+    np.testing.assert_allclose(centre, 1.5, atol=0.01)
+    assert (view.normals[..., 2] < 0).all() and (view.rgb > 0.3).all()
+
+
 def test_views_of_different_sizes(sphere):
     cameras = [axis_camera(), oblique_camera()]
     views = render_views(*sphere, cameras, affine_albedo)
@@ -273,10 +289,30 @@ def test_sphere_tracing_agrees_with_ray_casting(fine_sphere):
         assert np.abs(a.normals[both] - b.normals[both]).max() < 0.01
 
 
-def test_vertex_normals_of_a_sphere_point_outwards(sphere):
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_sphere_tracing_on_cuda_matches_cpu():
+    cameras = [axis_camera()]
+
+    def sdf_fn(points):
+        return points.norm(dim=-1) - RADIUS
+
+    (cpu,) = sphere_trace_views(sdf_fn, cameras, affine_albedo, (0.0, 0.0, 0.0), 0.12)
+    cuda_cameras = [camera.to("cuda") for camera in cameras]
+    (gpu,) = sphere_trace_views(sdf_fn, cuda_cameras,
+                                lambda p: affine_albedo(p.cpu()).to(p.device), (0.0, 0.0, 0.0),
+                                0.12)
+    assert iou(cpu.mask, gpu.mask) > 0.99
+    both = cpu.mask & gpu.mask
+    assert np.abs(cpu.depth[both] - gpu.depth[both]).max() < 1e-4
+
+
+def test_vertex_normals_match_trimesh_and_the_sphere(sphere):
     vertices, faces = sphere
     normals = vertex_normals(vertices, faces)
-    np.testing.assert_allclose(normals, vertices / RADIUS, atol=2e-3)
+    np.testing.assert_allclose(normals, vertices / RADIUS, atol=3e-3)
+    capsule = trimesh.creation.capsule(height=0.1, radius=0.03)  # faces of very different shapes
+    np.testing.assert_allclose(vertex_normals(capsule.vertices, capsule.faces),
+                               capsule.vertex_normals, atol=1e-5)
 
 
 def test_project_keypoints():

@@ -1,0 +1,560 @@
+"""Field benchmark: points per second of the LISA field against a straightforward reference.
+
+``python -m lisa_hand.bench field [--json FILE]``
+
+The reference is what one writes first: 16 separate ``nn.Sequential`` per-bone MLPs run in a
+Python loop, every point through every bone, the pose features and latent codes concatenated to
+every point's input, float32, ``torch.nn.Softplus``. It applies the same bone regions (masking)
+as the model, so both compute the same function; the weights are copied from the model and the
+outputs compared (max abs error printed).
+
+The optimised field is measured step by step, each step adding one idea to the previous:
+
+1. ``stacked``: stacked weights ``[J, in, out]`` (one einsum a layer), every point through every
+   bone, the conditioning folded into a per-frame bias (``cull=False``).
+2. ``culled``: each bone's MLPs run only on the points inside its region, the skinning MLP only
+   on points in two or more regions (``cull=True``).
+3. ``culled_bf16``: as 2 with the hidden layers' products in bfloat16.
+
+Beside the model, the ways of running the stacked MLP on the culled (point, bone) pairs are
+timed on the same pairs (``pair_strategies``): the sorted pairs with a loop over the bones in row
+chunks (what the model does), the same without chunks, ``torch.nn.functional.grouped_mm``, a
+padded bmm, and per-bone ``index_select``/``index_copy`` from the unsorted points.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+from torch import nn
+
+from ..fields import FieldConfig, bone_segments, capsule_distance, masked_softmax, pose_features
+from ..fields.bones import SEGMENT_BONES, bone_centres
+from ..fields.encoding import positional_encoding
+from ..model import FieldOutput, FrameState, LisaModel
+from ..skeleton import NUM_JOINTS
+
+__all__ = [
+    "BENCH_REST_JOINTS",
+    "FieldBenchmark",
+    "bench_pose",
+    "sample_bench_points",
+    "ReferenceField",
+    "run_field_benchmark",
+    "main",
+]
+
+# An average adult right hand in MANO's rest convention (fingers along -x, palm facing -y,
+# thumb on +z), metres: wrist, index 1-3, middle 1-3, pinky 1-3, ring 1-3, thumb 1-3.
+BENCH_REST_JOINTS = (
+    (0.0, 0.0, 0.0),
+    (-0.0895, -0.0015, 0.021), (-0.1315, -0.0015, 0.0248), (-0.1555, -0.0015, 0.027),
+    (-0.0925, 0.0, -0.002), (-0.1378, 0.0, -0.0013), (-0.1646, 0.0, -0.0009),
+    (-0.0775, -0.005, -0.039), (-0.1099, -0.005, -0.0446), (-0.1298, -0.005, -0.048),
+    (-0.0885, -0.002, -0.0215), (-0.1312, -0.002, -0.0245), (-0.1575, -0.002, -0.0263),
+    (-0.026, -0.012, 0.02), (-0.0546, -0.0238, 0.0451), (-0.0793, -0.0285, 0.0606),
+)  # fmt: skip
+
+# Accepted differences between the optimised field and the float32 reference: 0.1 mm on the SDF
+# (a tenth of the best fitting errors the paper reports), 2e-3 on colour and weights.
+SDF_TOLERANCE_M = 1e-4
+COLOR_TOLERANCE = 2e-3
+WEIGHT_TOLERANCE = 2e-3
+
+
+def bench_pose(generator: torch.Generator) -> torch.Tensor:
+    """A moderately flexed hand with a random global orientation. -> [1, 48] radians"""
+    pose = 0.15 * torch.randn(1, NUM_JOINTS, 3, generator=generator)
+    pose[:, 1:, 2] += 0.35  # flex the fingers about their lateral (z) axes
+    pose[:, 0] = torch.randn(3, generator=generator)
+    return pose.reshape(1, 3 * NUM_JOINTS)
+
+
+def sample_bench_points(
+    model: LisaModel, state: FrameState, num_points: int, generator: torch.Generator
+) -> torch.Tensor:
+    """Points around the posed hand: half uniform in its bounding box (2 cm padding), half near
+    the bones (uniform along a random region segment, plus 1 cm Gaussian noise).
+
+    -> [1, num_points, 3] world metres
+    """
+    config = model.config
+    start, end = bone_segments(state.rest_joints, config.tip_extension)
+    transforms = state.kinematics.transforms[:, list(SEGMENT_BONES)]
+    rot, trans = transforms[..., :3, :3], transforms[..., :3, 3]
+    start = (rot @ start[..., None])[..., 0] + trans
+    end = (rot @ end[..., None])[..., 0] + trans
+    ends = torch.cat([start, end], dim=1)[0]
+    low, high = ends.amin(dim=0) - 0.02, ends.amax(dim=0) + 0.02
+    num_box = num_points // 2
+    box = low + (high - low) * torch.rand(num_box, 3, generator=generator)
+    num_near = num_points - num_box
+    segment = torch.randint(0, start.shape[1], (num_near,), generator=generator)
+    along = torch.rand(num_near, 1, generator=generator)
+    near = start[0, segment] + along * (end[0, segment] - start[0, segment])
+    near = near + 0.01 * torch.randn(num_near, 3, generator=generator)
+    return torch.cat([box, near], dim=0)[None]
+
+
+class ReferenceField(nn.Module):
+    """The straightforward implementation (for timing and checking; per-bone compositions).
+
+    16 ``nn.Sequential`` SDF MLPs and 16 colour MLPs whose first layer reads
+    ``concat(PE(x_j), pose_j, shape[, color])`` for every point, a skinning ``nn.Sequential``,
+    and a Python loop over the bones. Weights are copied from ``model``.
+    """
+
+    def __init__(self, model: LisaModel) -> None:
+        super().__init__()
+        config = model.config
+        if not config.per_bone or config.composition != "lisa":
+            raise ValueError("the reference implements the 'lisa' composition")
+        self.config = config
+        self.sdf = nn.ModuleList(
+            [
+                _sequential(model.sdf_mlp, j, nn.Softplus(beta=config.softplus_beta))
+                for j in range(16)
+            ]
+        )
+        self.color = None
+        if model.color_mlp is not None:
+            self.color = nn.ModuleList(
+                [_sequential(model.color_mlp, j, nn.ReLU()) for j in range(16)]
+            )
+        self.skinning = _sequential(model.skinning_mlp, 0, nn.Softplus(beta=config.softplus_beta))
+        self.register_buffer("radius", model.region_radius.clone(), persistent=False)
+
+    def forward(
+        self,
+        points: torch.Tensor,
+        pose: torch.Tensor,
+        kinematics,
+        rest_joints: torch.Tensor,
+        shape_code: torch.Tensor,
+        color_code: torch.Tensor | None,
+        pose_mask: torch.Tensor,
+    ) -> FieldOutput:
+        """points: [1, N, 3] world metres; the rest as for :meth:`LisaModel.prepare`."""
+        config = self.config
+        scale = config.coordinate_scale
+        num = points.shape[1]
+        features = pose_features(pose, kinematics.rotmats, config.pose_conditioning, pose_mask)
+        centres = bone_centres(rest_joints, config.tip_extension)
+        start, end = bone_segments(rest_joints, config.tip_extension)
+        locals_, excess = [], []
+        for j in range(NUM_JOINTS):
+            transform = kinematics.transforms[0, j]
+            rest = (points[0] - transform[:3, 3]) @ transform[:3, :3]  # R^T (x - t)
+            locals_.append((rest - centres[0, j]) / scale)
+            segments = [s for s, owner in enumerate(SEGMENT_BONES) if owner == j]
+            distances = []
+            for s in segments:
+                vec = end[0, s] - start[0, s]
+                length = vec.norm()
+                distances.append(
+                    capsule_distance(rest, start[0, s], vec / length, length.expand(num))
+                )
+            excess.append(torch.stack(distances, -1).amin(-1) - self.radius[j])
+        excess = torch.stack(excess, dim=-1)  # [N, J] metres
+        active = excess < 0
+        fallback = excess.argmin(dim=-1)
+        bone_sdf, colors = [], []
+        for j in range(NUM_JOINTS):
+            encoded = positional_encoding(locals_[j], config.pe_frequencies)
+            cond = torch.cat([features[0, j], shape_code[0]]).expand(num, -1)
+            value = self.sdf[j](torch.cat([encoded, cond], dim=-1))[:, 0] * scale
+            bone_sdf.append(torch.where(active[:, j], value, excess[:, j] + config.outside_margin))
+            if self.color is not None and color_code is not None:
+                cond = torch.cat([features[0, j], shape_code[0], color_code[0]]).expand(num, -1)
+                color = torch.sigmoid(self.color[j](torch.cat([encoded, cond], dim=-1)))
+                colors.append(torch.where(active[:, j, None], color, 0.5))
+        bone_sdf = torch.stack(bone_sdf, dim=-1)
+        skin_in = torch.cat([torch.cat(locals_, dim=-1), bone_sdf / scale], dim=-1)
+        weights = masked_softmax(self.skinning(skin_in), active, fallback)
+        sdf = (weights * bone_sdf).sum(-1)
+        rgb = None
+        if colors:
+            rgb = (weights[..., None] * torch.stack(colors, dim=-2)).sum(-2)[None]
+        return FieldOutput(
+            sdf=sdf[None],
+            rgb=rgb,
+            weights=weights[None],
+            bone_sdf=bone_sdf[None],
+            region_mask=active[None],
+        )
+
+
+def _sequential(mlp, group: int, activation: nn.Module) -> nn.Sequential:
+    """One group of a :class:`StackedMLP` as an ``nn.Sequential`` on ``concat(point, cond)``."""
+    first_weight = mlp.point_weight[group]
+    if mlp.cond_weight is not None:
+        first_weight = torch.cat([first_weight, mlp.cond_weight[group]], dim=0)
+    weights = [(first_weight, mlp.first_bias[group])]
+    weights += [(w[group], b[group]) for w, b in mlp.layers()]
+    modules: list[nn.Module] = []
+    for index, (weight, bias) in enumerate(weights):
+        linear = nn.Linear(weight.shape[0], weight.shape[1])
+        with torch.no_grad():
+            linear.weight.copy_(weight.t())
+            linear.bias.copy_(bias)
+        modules.append(linear)
+        if index < len(weights) - 1:
+            modules.append(activation)
+    return nn.Sequential(*modules)
+
+
+def _mlp_flops(mlp, rows: int, with_cond: bool) -> float:
+    """Multiply-add FLOPs (2 per MAC) of ``rows`` points through one group of ``mlp``."""
+    first_in = mlp.point_dim + (mlp.cond_dim if with_cond else 0)
+    macs = first_in * mlp.hidden + (mlp.depth - 1) * mlp.hidden**2 + mlp.hidden * mlp.out_dim
+    return 2.0 * rows * macs
+
+
+@dataclass
+class FieldBenchmark:
+    """Numbers of one benchmark run (see :func:`run_field_benchmark`)."""
+
+    num_points: int
+    points_per_s: float
+    reference_points_per_s: float
+    speedup: float
+    gflops: float
+    matmul_gflops: float
+    extra: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        values = {
+            "num_points": self.num_points,
+            "points_per_s": self.points_per_s,
+            "reference_points_per_s": self.reference_points_per_s,
+            "speedup": self.speedup,
+            "gflops": self.gflops,
+            "matmul_gflops": self.matmul_gflops,
+        }
+        values.update(self.extra)
+        return values
+
+
+def _time(fn: Callable[[], object], repeats: int) -> float:
+    """Best wall time of ``repeats`` calls after one warm-up (the machine is shared: the best
+    run is the least disturbed one)."""
+    fn()
+    best = math.inf
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - start)
+    return best
+
+
+def matmul_gflops(size: int = 2048, repeats: int = 5) -> float:
+    """GFLOP/s of a large float32 matrix product (the machine's practical peak)."""
+    a = torch.randn(size, size)
+    b = torch.randn(size, size)
+    return 2.0 * size**3 / _time(lambda: a @ b, repeats) / 1e9
+
+
+def _max_error(a: torch.Tensor | None, b: torch.Tensor | None) -> float:
+    if a is None or b is None:
+        return float("nan")
+    return float((a.double() - b.double()).abs().max())
+
+
+def run_field_benchmark(
+    num_points: int = 65536,
+    *,
+    config: FieldConfig | None = None,
+    repeats: int = 5,
+    seed: int = 0,
+    log: Callable[[str], None] = print,
+) -> FieldBenchmark:
+    """Measure the field and the reference on ``num_points`` points around a posed hand."""
+    torch.manual_seed(seed)
+    generator = torch.Generator().manual_seed(seed)
+    config = FieldConfig() if config is None else config
+    rest_joints = torch.tensor(BENCH_REST_JOINTS)
+    model = LisaModel(config, init_rest_joints=rest_joints).eval()
+    with torch.no_grad():  # a model some way into training: perturb the initial weights
+        for param in model.parameters():
+            param.add_(0.02 * torch.randn(param.shape, generator=generator))
+    pose = bench_pose(generator)
+    translation = 0.05 * torch.randn(1, 3, generator=generator)
+    shape_code = 0.1 * torch.randn(1, config.shape_dim, generator=generator)
+    color_code = 0.1 * torch.randn(1, config.color_dim, generator=generator)
+    extra: dict = {"threads": torch.get_num_threads(), "config": config.to_dict()}
+
+    with torch.no_grad():
+        state = model.prepare(pose, translation, rest_joints[None], shape_code, color_code)
+        points = sample_bench_points(model, state, num_points, generator)
+        active = model.field(state, points, with_color=False).region_mask
+    pairs = int(active.sum())
+    multi = int((active.sum(-1) >= 2).sum())
+    extra["active_bones_per_point"] = pairs / num_points
+    extra["points_in_no_region"] = float((active.sum(-1) == 0).float().mean())
+    extra["points_in_2plus_regions"] = multi / num_points
+    log(
+        f"points: {num_points}, active bones per point {pairs / num_points:.2f}, "
+        f"in no region {extra['points_in_no_region']:.1%}, in 2+ regions {multi / num_points:.1%}"
+    )
+
+    peak = matmul_gflops()
+    log(f"large fp32 matmul (2048^3): {peak:.1f} GFLOP/s")
+
+    # Reference, geometry (SDF + weights) and with colour.
+    reference = ReferenceField(model).eval()
+
+    def run_reference(color: bool):
+        return reference(
+            points,
+            pose,
+            state.kinematics,
+            rest_joints[None],
+            shape_code,
+            color_code if color else None,
+            model.pose_mask,
+        )
+
+    with torch.no_grad():
+        ref_geo_time = _time(lambda: run_reference(False), max(1, repeats // 3))
+        ref_geo = run_reference(False)
+        ref_col_time = _time(lambda: run_reference(True), max(1, repeats // 3))
+        ref_col = run_reference(True)
+    sdf_mlp, color_mlp, skin_mlp = model.sdf_mlp, model.color_mlp, model.skinning_mlp
+    ref_geo_flops = 16 * _mlp_flops(sdf_mlp, num_points, True) + _mlp_flops(
+        skin_mlp, num_points, False
+    )
+    ref_col_flops = ref_geo_flops + 16 * _mlp_flops(color_mlp, num_points, True)
+    log(
+        f"reference (16 nn.Sequential, loop, concat): geometry {num_points / ref_geo_time:,.0f} "
+        f"points/s ({ref_geo_flops / ref_geo_time / 1e9:.1f} GFLOP/s), with colour "
+        f"{num_points / ref_col_time:,.0f} points/s ({ref_col_flops / ref_col_time / 1e9:.1f} GFLOP/s)"
+    )
+
+    culled_geo_flops = _mlp_flops(sdf_mlp, pairs, False) + _mlp_flops(skin_mlp, multi, False)
+    culled_col_flops = culled_geo_flops + _mlp_flops(color_mlp, pairs, False)
+    dense_geo_flops = 16 * _mlp_flops(sdf_mlp, num_points, False) + _mlp_flops(
+        skin_mlp, num_points, False
+    )
+    dense_col_flops = dense_geo_flops + 16 * _mlp_flops(color_mlp, num_points, False)
+
+    steps = {
+        "stacked": ({"cull": False}, "float32", dense_geo_flops, dense_col_flops),
+        "culled": ({"cull": True}, "float32", culled_geo_flops, culled_col_flops),
+        "culled_bf16": ({"cull": True}, "bfloat16", culled_geo_flops, culled_col_flops),
+    }
+    results = {}
+    for name, (options, precision, geo_flops, col_flops) in steps.items():
+        model.config = dataclasses.replace(config, inference_precision=precision)
+        with torch.no_grad():
+            geo_time = _time(
+                lambda opts=options: model.field(state, points, with_color=False, **opts), repeats
+            )
+            geo = model.field(state, points, with_color=False, **options)
+            col_time = _time(
+                lambda opts=options: model.field(state, points, with_color=True, **opts), repeats
+            )
+            col = model.field(state, points, with_color=True, **options)
+        # Weights are compared where a point is in some region: elsewhere they are one-hot on
+        # the nearest region, and equidistant regions (beyond a shared joint) tie, decided by
+        # rounding; the SDF is the same either way.
+        inside = ref_geo.region_mask.any(-1)
+        errors = {
+            "sdf": _max_error(geo.sdf, ref_geo.sdf),
+            "weights": _max_error(geo.weights[inside], ref_geo.weights[inside]),
+            "rgb": _max_error(col.rgb, ref_col.rgb),
+        }
+        ok = (
+            errors["sdf"] <= SDF_TOLERANCE_M
+            and errors["weights"] <= WEIGHT_TOLERANCE
+            and errors["rgb"] <= COLOR_TOLERANCE
+        )
+        results[name] = {
+            "points_per_s": num_points / geo_time,
+            "points_per_s_color": num_points / col_time,
+            "speedup": ref_geo_time / geo_time,
+            "speedup_color": ref_col_time / col_time,
+            "gflops": geo_flops / geo_time / 1e9,
+            "gflops_color": col_flops / col_time / 1e9,
+            "max_abs_error": errors,
+            "within_tolerance": ok,
+        }
+        log(
+            f"{name:12s}: geometry {num_points / geo_time:>12,.0f} points/s "
+            f"(x{ref_geo_time / geo_time:5.1f}, {geo_flops / geo_time / 1e9:5.1f} GFLOP/s), "
+            f"with colour {num_points / col_time:>12,.0f} points/s (x{ref_col_time / col_time:5.1f}); "
+            f"max abs error sdf {errors['sdf']:.2e} m, weights {errors['weights']:.2e}, "
+            f"rgb {errors['rgb']:.2e} ({'within' if ok else 'OUTSIDE'} tolerance)"
+        )
+    model.config = config
+
+    best = max(
+        (r for r in results.values() if r["within_tolerance"]),
+        key=lambda r: r["points_per_s"],
+        default=results["culled"],
+    )
+    best_name = next(name for name, r in results.items() if r is best)
+    extra.update(
+        {
+            "steps": results,
+            "headline_step": best_name,
+            "points_per_s_color": best["points_per_s_color"],
+            "reference_points_per_s_color": num_points / ref_col_time,
+            "speedup_color": best["speedup_color"],
+            "tolerance": {
+                "sdf_m": SDF_TOLERANCE_M,
+                "weights": WEIGHT_TOLERANCE,
+                "rgb": COLOR_TOLERANCE,
+            },
+            "max_abs_error": best["max_abs_error"],
+        }
+    )
+    extra["pair_strategies"] = _pair_strategies(model, state, points, repeats, log)
+    result = FieldBenchmark(
+        num_points=num_points,
+        points_per_s=best["points_per_s"],
+        reference_points_per_s=num_points / ref_geo_time,
+        speedup=best["speedup"],
+        gflops=best["gflops"],
+        matmul_gflops=peak,
+        extra=extra,
+    )
+    log(
+        f"headline ({best_name}): {result.points_per_s:,.0f} points/s vs reference "
+        f"{result.reference_points_per_s:,.0f} points/s: speedup x{result.speedup:.1f}; "
+        f"{result.gflops:.1f} GFLOP/s vs matmul {peak:.1f} GFLOP/s"
+    )
+    return result
+
+
+def _pair_strategies(
+    model: LisaModel,
+    state: FrameState,
+    points: torch.Tensor,
+    repeats: int,
+    log: Callable[[str], None],
+) -> dict:
+    """Time ways of running the stacked SDF MLP on the culled (point, bone) pairs."""
+    import torch.nn.functional as F
+
+    mlp = model.sdf_mlp
+    config = model.config
+    with torch.no_grad():
+        local = model.bone_local_points(state, points)
+        active = model.region_excess(state, local) < 0
+    flat = active.reshape(-1, NUM_JOINTS)
+    bias = state.sdf_bias[0]  # [J, H]
+    layers = mlp.layers()
+
+    def run_rows(x: torch.Tensor, j: int) -> torch.Tensor:
+        hidden = mlp.act(torch.addmm(bias[j], x, mlp.point_weight[j]))
+        for index, (weight, layer_bias) in enumerate(layers):
+            hidden = torch.addmm(layer_bias[j], hidden, weight[j])
+            if index < len(layers) - 1:
+                hidden = mlp.act(hidden)
+        return hidden
+
+    def sorted_pairs():
+        bone, point = flat.t().nonzero(as_tuple=True)
+        sizes = flat.sum(0).tolist()
+        enc = positional_encoding(
+            local.reshape(-1, 3)[point * NUM_JOINTS + bone], config.pe_frequencies
+        )
+        return enc, sizes
+
+    def loop_chunked():
+        enc, sizes = sorted_pairs()
+        return mlp.forward_grouped(enc, sizes, bias)
+
+    def loop_unchunked():
+        enc, sizes = sorted_pairs()
+        return mlp.forward_grouped(enc, sizes, bias, chunk_rows=1 << 30)
+
+    # grouped_mm needs row strides that are multiples of 16 bytes: pad the encoding to 40.
+    pad = (-mlp.point_dim) % 4
+    padded_first = F.pad(mlp.point_weight, (0, 0, 0, pad))
+    out_pad = (-mlp.out_dim) % 4
+    padded_layers = layers[:-1] + [
+        (F.pad(layers[-1][0], (0, out_pad)), F.pad(layers[-1][1], (0, out_pad)))
+    ]
+
+    def grouped_mm():
+        enc, sizes = sorted_pairs()
+        enc = F.pad(enc, (0, pad))
+        offsets = torch.tensor(sizes).cumsum(0).to(torch.int32)
+        group = torch.repeat_interleave(torch.arange(NUM_JOINTS), torch.tensor(sizes))
+        hidden = mlp.act(F.grouped_mm(enc, padded_first, offs=offsets) + bias[group])
+        for index, (weight, layer_bias) in enumerate(padded_layers):
+            hidden = F.grouped_mm(hidden, weight, offs=offsets) + layer_bias[group]
+            if index < len(layers) - 1:
+                hidden = mlp.act(hidden)
+        return hidden[:, : mlp.out_dim]
+
+    def padded_bmm():
+        enc, sizes = sorted_pairs()
+        group = torch.repeat_interleave(torch.arange(NUM_JOINTS), torch.tensor(sizes))
+        starts = torch.tensor([0] + sizes[:-1]).cumsum(0)
+        slot = torch.arange(enc.shape[0]) - starts[group]
+        padded = enc.new_zeros(NUM_JOINTS, max(sizes), enc.shape[1])
+        padded[group, slot] = enc
+        hidden = mlp.act(torch.baddbmm(bias[:, None], padded, mlp.point_weight))
+        for index, (weight, layer_bias) in enumerate(layers):
+            hidden = torch.baddbmm(layer_bias[:, None], hidden, weight)
+            if index < len(layers) - 1:
+                hidden = mlp.act(hidden)
+        return hidden[group, slot]
+
+    def index_select_scatter():
+        out = local.new_zeros(flat.shape[0], NUM_JOINTS)
+        local_flat = local.reshape(-1, NUM_JOINTS, 3)
+        for j in range(NUM_JOINTS):
+            rows = flat[:, j].nonzero()[:, 0]
+            enc = positional_encoding(local_flat[rows, j], config.pe_frequencies)
+            out[:, j].index_copy_(0, rows, run_rows(enc, j)[:, 0])
+        return out
+
+    strategies = {
+        "sorted_loop_chunked": loop_chunked,
+        "sorted_loop_unchunked": loop_unchunked,
+        "grouped_mm": grouped_mm,
+        "padded_bmm": padded_bmm,
+        "index_select_scatter": index_select_scatter,
+    }
+    pairs = int(flat.sum())
+    flops = _mlp_flops(mlp, pairs, False)
+    timings = {}
+    with torch.no_grad():
+        for name, fn in strategies.items():
+            seconds = _time(fn, repeats)
+            timings[name] = {"ms": seconds * 1e3, "gflops": flops / seconds / 1e9}
+            log(
+                f"  pairs via {name:22s}: {seconds * 1e3:8.1f} ms ({flops / seconds / 1e9:5.1f} GFLOP/s)"
+            )
+    return timings
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m lisa_hand.bench field [--json FILE] [--points N] [--repeats R]``"""
+    import argparse
+
+    parser = argparse.ArgumentParser(
+        prog="python -m lisa_hand.bench field", description=__doc__.split("\n")[0]
+    )
+    parser.add_argument("--json", type=Path, default=None, help="also write the numbers to FILE")
+    parser.add_argument("--points", type=int, default=65536, help="points per batch")
+    parser.add_argument("--repeats", type=int, default=5, help="timed runs per variant (best kept)")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    if args.points < 1:
+        raise ValueError(f"--points must be >= 1, got {args.points}")
+    result = run_field_benchmark(args.points, repeats=args.repeats, seed=args.seed)
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(result.to_dict(), indent=2))
+        print(f"wrote {args.json}")
