@@ -42,7 +42,7 @@ from .fields.bones import (
     bone_axes,
     bone_centres,
     bone_segments,
-    capsule_distance,
+    segment_distances,
 )
 from .fields.composition import blend, masked_softmax, nasa_selection, one_hot_weights
 from .fields.config import FieldConfig
@@ -67,8 +67,11 @@ class FrameState:
     rest_joints: [B, 16, 3] metres.
     world_to_local: [B, 16, 3, 3] ``R_j^T / coordinate_scale``; with ``local_offset`` [B, 16, 3]
         it maps a world point to bone ``j``'s centred local coordinates in network units.
-    segment_start, segment_dir: [B, 20, 3] region segments in their bone's local units (start,
-        unit direction); segment_length: [B, 20] units. Owners: :data:`SEGMENT_BONES`.
+    region_origin: [B, 3] world metres, the posed wrist joint.
+    segment_start, segment_dir: [B, 20, 3] the posed region segments in world axes (start
+        relative to ``region_origin``, metres; unit direction); segment_length: [B, 20] metres.
+        Owners: :data:`SEGMENT_BONES`. Distances are rigid-invariant, so these equal the
+        distances in each bone's rest frame.
     sdf_bias: [B, G, sdf_hidden] the SDF MLPs' first-layer bias, conditioning folded in.
     color_bias: [B, G, color_hidden] the same for the colour MLPs, or None without colour.
     hand_to_local: [B, 3, 3] and hand_offset [B, 3]: the single MLP's input frame (the root
@@ -79,6 +82,7 @@ class FrameState:
     rest_joints: torch.Tensor
     world_to_local: torch.Tensor
     local_offset: torch.Tensor
+    region_origin: torch.Tensor
     segment_start: torch.Tensor
     segment_dir: torch.Tensor
     segment_length: torch.Tensor
@@ -290,9 +294,12 @@ class LisaModel(nn.Module):
         local_offset = -((rot_t @ trans[..., None])[..., 0] + centres) / scale
 
         start, end = bone_segments(rest_joints, config.tip_extension)
-        owners = centres[:, list(SEGMENT_BONES)]
-        segment_start = (start - owners) / scale
-        segment_vec = (end - start) / scale
+        owner_transforms = kinematics.transforms[:, list(SEGMENT_BONES)]
+        owner_rot, owner_trans = owner_transforms[..., :3, :3], owner_transforms[..., :3, 3]
+        region_origin = kinematics.joints[:, 0]
+        posed_start = (owner_rot @ start[..., None])[..., 0] + owner_trans
+        segment_start = posed_start - region_origin[:, None]
+        segment_vec = (owner_rot @ (end - start)[..., None])[..., 0]
         segment_length = segment_vec.norm(dim=-1)
         segment_dir = segment_vec / segment_length.clamp_min(1e-12)[..., None]
 
@@ -317,6 +324,7 @@ class LisaModel(nn.Module):
             rest_joints=rest_joints,
             world_to_local=world_to_local,
             local_offset=local_offset,
+            region_origin=region_origin,
             segment_start=segment_start,
             segment_dir=segment_dir,
             segment_length=segment_length,
@@ -359,19 +367,17 @@ class LisaModel(nn.Module):
         elif with_color and self.color_mlp is None:
             raise ValueError("with_color=True but the model was built with use_color=False")
         if not with_gradient:
-            low_precision = (
-                self.config.inference_precision == "bfloat16"
-                and points.dtype == torch.float32
-                and not torch.is_grad_enabled()
-            )
-            return self._evaluate(state, points, with_color, cull, low_precision)
+            precision = self.config.inference_precision
+            if points.dtype != torch.float32 or torch.is_grad_enabled():
+                precision = "float32"
+            return self._evaluate(state, points, with_color, cull, precision)
 
         outer_grad = torch.is_grad_enabled()
         if create_graph is None:
             create_graph = self.training and outer_grad
         with torch.enable_grad():
             query = points if points.requires_grad else points.detach().requires_grad_(True)
-            out = self._evaluate(state, query, with_color, cull, False)
+            out = self._evaluate(state, query, with_color, cull, "float32")
             (grad,) = torch.autograd.grad(
                 out.sdf,
                 query,
@@ -444,24 +450,19 @@ class LisaModel(nn.Module):
         local = torch.bmm(points, stacked).reshape(batch, num, NUM_JOINTS, 3)
         return local + state.local_offset[:, None]
 
-    def region_excess(self, state: FrameState, local: torch.Tensor) -> torch.Tensor:
-        """Distance from each bone-local point to the bone's region, negative inside (units).
+    def region_excess(self, state: FrameState, points: torch.Tensor) -> torch.Tensor:
+        """Distance from each point to each bone's region, negative inside.
 
-        local: [B, N, 16, 3] from :meth:`bone_local_points` -> [B, N, 16] network units
+        points: [B, N, 3] world metres -> [B, N, 16] metres
         """
-        start = state.segment_start[:, None]
-        direction = state.segment_dir[:, None]
-        length = state.segment_length[:, None]
-        cut = _NUM_PALM_SEGMENTS
-        palm = capsule_distance(
-            local[:, :, :1], start[:, :, :cut], direction[:, :, :cut], length[:, :, :cut]
-        ).amin(dim=-1, keepdim=True)
-        fingers = capsule_distance(
-            local[:, :, 1:], start[:, :, cut:], direction[:, :, cut:], length[:, :, cut:]
+        relative = points - state.region_origin[:, None]
+        distance = segment_distances(
+            relative, state.segment_start, state.segment_dir, state.segment_length
         )
-        distance = torch.cat([palm, fingers], dim=-1)
-        radius = self.region_radius.to(local.dtype) / self.config.coordinate_scale
-        return distance - radius
+        cut = _NUM_PALM_SEGMENTS
+        palm = distance[..., :cut].amin(dim=-1, keepdim=True)
+        distance = torch.cat([palm, distance[..., cut:]], dim=-1)
+        return distance - self.region_radius.to(points.dtype)
 
     def _pair_bias(
         self,
@@ -483,24 +484,25 @@ class LisaModel(nn.Module):
         points: torch.Tensor,
         with_color: bool,
         cull: bool,
-        low_precision: bool,
+        precision: str,
     ) -> FieldOutput:
         config = self.config
         scale = config.coordinate_scale
         batch, num = points.shape[:2]
-        local = self.bone_local_points(state, points)  # [B, N, J, 3]
-        excess = self.region_excess(state, local)  # [B, N, J], < 0 inside
+        local = self.bone_local_points(state, points)  # [B, N, J, 3] units
+        excess = self.region_excess(state, points)  # [B, N, J] metres, < 0 inside
         active = excess < 0
         fallback = excess.detach().argmin(dim=-1)  # nearest region, for points in none
-        stand_in = excess * scale + config.outside_margin  # metres
+        stand_in = excess + config.outside_margin  # metres
         if not config.per_bone:
             return self._evaluate_single(
-                state, points, active, stand_in, with_color, cull, low_precision
+                state, points, active, stand_in, with_color, cull, precision
             )
 
         num_pairs_all = batch * num * NUM_JOINTS
         flat_active = active.reshape(-1, NUM_JOINTS)
-        mlp_options = {"low_precision": low_precision}
+        mlp_options = {"low_precision": precision == "bfloat16"}
+        color_options = {"low_precision": precision != "float32"}
         if cull:
             bone_index, point_index = flat_active.t().nonzero(as_tuple=True)  # bone-major
             group_sizes = flat_active.sum(dim=0).tolist()
@@ -535,7 +537,7 @@ class LisaModel(nn.Module):
                 bias, per_row = self._pair_bias(state.color_bias, num, point_index, bone_index)
                 color_pairs = torch.sigmoid(
                     self.color_mlp.forward_grouped(
-                        encoded, group_sizes, bias, bias_per_row=per_row, **mlp_options
+                        encoded, group_sizes, bias, bias_per_row=per_row, **color_options
                     )
                 )
                 weight_pairs = weights.reshape(num_pairs_all)[pair_flat]
@@ -568,14 +570,14 @@ class LisaModel(nn.Module):
         if config.composition == "nasa":
             return one_hot_weights(nasa_selection(bone_sdf, active, fallback), NUM_JOINTS, dtype)
         batch, num = active.shape[:2]
-        inputs = [local.reshape(batch, num, 3 * NUM_JOINTS)]
-        if config.composition == "lisa":
-            inputs.append(bone_sdf / config.coordinate_scale)
-        inputs = torch.cat(inputs, dim=-1)
+        lisa = config.composition == "lisa"
         mlp = self.skinning_mlp
         if not cull:
+            inputs = [local.reshape(batch, num, 3 * NUM_JOINTS)]
+            if lisa:
+                inputs.append(bone_sdf / config.coordinate_scale)
             bias = mlp.first_bias.expand(batch, 1, -1)
-            logits = mlp.forward_dense(inputs[..., None, :], bias)[..., 0, :]
+            logits = mlp.forward_dense(torch.cat(inputs, dim=-1)[..., None, :], bias)[..., 0, :]
             return masked_softmax(logits, active, fallback)
         count = active.sum(dim=-1)
         first_active = active.to(torch.uint8).argmax(dim=-1)
@@ -584,8 +586,11 @@ class LisaModel(nn.Module):
         rows = (count.reshape(-1) >= 2).nonzero()[:, 0]
         if rows.numel() == 0:
             return weights.reshape(batch, num, NUM_JOINTS)
+        inputs = [local.reshape(-1, 3 * NUM_JOINTS)[rows]]
+        if lisa:
+            inputs.append(bone_sdf.reshape(-1, NUM_JOINTS)[rows] / config.coordinate_scale)
         logits = mlp.forward_grouped(
-            inputs.reshape(batch * num, -1)[rows], [rows.numel()], mlp.first_bias, **mlp_options
+            torch.cat(inputs, dim=-1), [rows.numel()], mlp.first_bias, **mlp_options
         )
         blended = masked_softmax(
             logits, active.reshape(-1, NUM_JOINTS)[rows], fallback.reshape(-1)[rows]
@@ -600,7 +605,7 @@ class LisaModel(nn.Module):
         stand_in: torch.Tensor,
         with_color: bool,
         cull: bool,
-        low_precision: bool,
+        precision: str,
     ) -> FieldOutput:
         """The VolSDF baseline: one MLP on the hand-frame point, inside the union of regions."""
         config = self.config
@@ -614,11 +619,12 @@ class LisaModel(nn.Module):
             rows = inside.reshape(-1).nonzero()[:, 0]
             encoded = positional_encoding(local.reshape(-1, 3)[rows], config.pe_frequencies)
             zeros = torch.zeros_like(rows)
-            options = {"low_precision": low_precision}
+            options = {"low_precision": precision == "bfloat16"}
             bias, per_row = self._pair_bias(state.sdf_bias, num, rows, zeros)
             sdf_rows = self.sdf_mlp.forward_grouped(
                 encoded, [rows.numel()], bias, bias_per_row=per_row, **options
             )[:, 0]
+            options = {"low_precision": precision != "float32"}
             sdf = outside_sdf.reshape(-1).index_put((rows,), sdf_rows * scale).reshape(batch, num)
             if with_color:
                 bias, per_row = self._pair_bias(state.color_bias, num, rows, zeros)

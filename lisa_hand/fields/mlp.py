@@ -137,24 +137,31 @@ class StackedMLP(nn.Module):
             )
         return bias + torch.einsum("bgc,gch->bgh", cond, self.cond_weight)
 
-    def forward_dense(self, points: torch.Tensor, first_bias: torch.Tensor) -> torch.Tensor:
+    def forward_dense(
+        self, points: torch.Tensor, first_bias: torch.Tensor, *, chunk_rows: int = GROUP_CHUNK_ROWS
+    ) -> torch.Tensor:
         """Every point of a frame through every group (a batched product per layer).
 
         points: [B, N, G, point_dim]; first_bias: [B, G, hidden] (from :meth:`condition`).
+        chunk_rows: rows (points x groups) per chunk; each chunk runs through all layers.
         -> [B, N, G, out_dim]
         """
         batch, num, groups, _ = points.shape
-        # Group-major rows, so that each layer is one bmm over [G, B * N, in].
-        hidden = points.permute(2, 0, 1, 3).reshape(groups, batch * num, -1)
-        bias = first_bias.permute(1, 0, 2)[:, :, None]  # [G, B, 1, H]
-        hidden = hidden @ self.point_weight
-        hidden = self.act((hidden.reshape(groups, batch, num, -1) + bias).flatten(1, 2))
         layers = self.layers()
-        for index, (weight, layer_bias) in enumerate(layers):
-            hidden = torch.baddbmm(layer_bias[:, None], hidden, weight)
-            if index < len(layers) - 1:
-                hidden = self.act(hidden)
-        return hidden.reshape(groups, batch, num, -1).permute(1, 2, 0, 3)
+        step = max(1, chunk_rows // groups)
+        outputs = []
+        for frame in range(batch):
+            bias = first_bias[frame][:, None]  # [G, 1, H]
+            for lo in range(0, num, step):
+                # Group-major rows: each layer is one bmm over [G, rows, in].
+                hidden = points[frame, lo : lo + step].transpose(0, 1)
+                hidden = self.act(torch.baddbmm(bias, hidden, self.point_weight))
+                for index, (weight, layer_bias) in enumerate(layers):
+                    hidden = torch.baddbmm(layer_bias[:, None], hidden, weight)
+                    if index < len(layers) - 1:
+                        hidden = self.act(hidden)
+                outputs.append(hidden.transpose(0, 1))
+        return torch.cat(outputs, dim=0).reshape(batch, num, groups, self.out_dim)
 
     def forward_grouped(
         self,

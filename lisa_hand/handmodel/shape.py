@@ -185,10 +185,10 @@ _FINGER_SPLAY = {"index": 0.09, "middle": 0.015, "ring": -0.07, "pinky": -0.17}
 # Thumb, for the average hand: CMC joint (metres), bone lengths as fractions of L (metacarpal,
 # proximal, distal + pad), in-plane angles of the three bones relative to the metacarpal's
 # ``thumb_angle`` (radians), their palmar tilt (radians), and radii at CMC, MCP, IP and tip (m).
-_THUMB_CMC = (-0.026, -0.012, 0.020)
-_THUMB_FRACTIONS = (0.215, 0.16, 0.14)
+_THUMB_CMC = (-0.029, -0.011, 0.020)
+_THUMB_FRACTIONS = (0.23, 0.165, 0.145)
 _THUMB_ANGLE_OFFSETS = (0.0, -0.16, -0.28)
-_THUMB_TILT = (0.30, 0.16, 0.10)
+_THUMB_TILT = (0.22, 0.12, 0.08)
 _THUMB_RADII = (0.0125, 0.0108, 0.0104, 0.0092)
 # How far the thumb's nail side is turned from the back of the hand toward +z (radians).
 _THUMB_PRONATION = 1.0

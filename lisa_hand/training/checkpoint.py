@@ -152,8 +152,11 @@ def check_finite_state(state: Mapping[str, Any], what: str) -> None:
     names = [k for k, v in state.items() if torch.is_tensor(v) and v.is_floating_point()]
     if not names:
         return
-    flags = torch.stack([torch.isfinite(state[k]).all().to("cpu", non_blocking=False)
-                         for k in names])
+    flags_on_device = [torch.isfinite(state[k]).all() for k in names]
+    if len({flag.device for flag in flags_on_device}) == 1:
+        flags = torch.stack(flags_on_device).cpu()
+    else:  # a state spread over several devices: one copy per tensor
+        flags = torch.stack([flag.cpu() for flag in flags_on_device])
     if bool(flags.all()):
         return
     bad = names[int((~flags).nonzero()[0, 0])]

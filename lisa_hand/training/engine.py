@@ -406,7 +406,12 @@ class Trainer:
 
     def _resume(self, resume: bool | str | os.PathLike) -> Path | None:
         if resume is True:
-            path = self.last_path if self.last_path.is_file() else None
+            exists = self.last_path.is_file()
+            if len(set(gather_objects(exists, self.dist))) > 1:
+                raise ValueError(f"{self.last_path}: some ranks see this checkpoint and others "
+                                 "do not; the run folder must be on a filesystem shared by "
+                                 "every node")
+            path = self.last_path if exists else None
         elif resume is False or resume is None:
             path = None
         else:
@@ -456,11 +461,11 @@ class Trainer:
     # --------------------------------------------------------------------------------------------
     # checkpoints
 
-    def save(self) -> Path | None:
+    def save(self) -> Path:
         """Checkpoint the current state to ``out_dir/last.pt`` (and a kept copy) now.
 
-        Collective: call it on every rank. Returns the path (on every rank), or None when the
-        run folder is not written (never: rank 0 always writes). Raises ``NonFiniteError``
+        Collective: call it on every rank; when it returns, the file is written (rank 0 writes
+        it) and every rank gets its path. Raises ``NonFiniteError``
         (writing nothing) when a parameter is NaN/inf, and ``RuntimeError`` when the ranks'
         weights disagree (a 'ddp' step function that bypassed ``ctx.model``).
         """
@@ -470,25 +475,45 @@ class Trainer:
                                         f"{self.last_path} (the previous one is left intact)")
         self._check_ranks_agree()
         rng = gather_objects(capture_rng_state({"data": self.generator}), self.dist)
+        failure: BaseException | None = None
         if self.dist.is_main:
-            extra = self.extra_state() if callable(self.extra_state) else self.extra_state
-            ckpt = Checkpoint(
-                step=self.step,
-                model=model_state,
-                optimizer=self.optimizer.state_dict(),
-                scheduler=(self.scheduler.state_dict()
-                           if hasattr(self.scheduler, "state_dict") else None),
-                rng=rng,
-                config=config_to_dict(self.run_config),
-                trainer=config_to_dict(self.config),
-                extra=dict(extra or {}),
-            )
-            save_checkpoint(self.last_path, ckpt)
-            if self.config.keep_every and self.step % self.config.keep_every == 0:
-                copy_checkpoint(self.last_path, self.out_dir / f"step_{self.step:08d}.pt")
+            try:
+                self._write_checkpoint(model_state, rng)
+            except BaseException as exc:  # re-raised below, after telling the other ranks
+                failure = exc
+        if self.dist.is_distributed:
+            # Rank 0 tells every rank whether the file is written: a barrier (after save()
+            # returns, the file exists for every rank) that cannot hang on a failed write.
+            import torch.distributed as tdist
+
+            status = torch.tensor([0.0 if failure is not None else 1.0], device=self.device)
+            tdist.broadcast(status, src=0)
+            if failure is None and status.item() == 0.0:
+                raise RuntimeError(f"step {self.step}: rank 0 failed to write the checkpoint "
+                                   f"{self.last_path} (see rank 0's error)")
+        if failure is not None:
+            raise failure
         self._last_checkpoint = self.last_path
         self._saved_step = self.step
         return self.last_path
+
+    def _write_checkpoint(self, model_state: dict[str, torch.Tensor],
+                          rng: list[dict[str, Any]]) -> None:
+        extra = self.extra_state() if callable(self.extra_state) else self.extra_state
+        ckpt = Checkpoint(
+            step=self.step,
+            model=model_state,
+            optimizer=self.optimizer.state_dict(),
+            scheduler=(self.scheduler.state_dict()
+                       if hasattr(self.scheduler, "state_dict") else None),
+            rng=rng,
+            config=config_to_dict(self.run_config),
+            trainer=config_to_dict(self.config),
+            extra=dict(extra or {}),
+        )
+        save_checkpoint(self.last_path, ckpt)
+        if self.config.keep_every and self.step % self.config.keep_every == 0:
+            copy_checkpoint(self.last_path, self.out_dir / f"step_{self.step:08d}.pt")
 
     def _check_ranks_agree(self) -> None:
         if not self.dist.is_distributed:
@@ -543,8 +568,9 @@ class Trainer:
             if self._stop_signal is not None and signum == signal.SIGINT:
                 raise KeyboardInterrupt  # second Ctrl-C: abort now, no checkpoint
             self._stop_signal = signum
-            self._note(f"received {signal.Signals(signum).name}: stopping at the end of "
-                       "the current step and writing a checkpoint (Ctrl-C again to abort without one)")
+            self._note(f"received {signal.Signals(signum).name}: stopping at the end of the "
+                       "current step and writing a checkpoint (Ctrl-C again to abort without "
+                       "one)")
 
         for signum in (signal.SIGINT, signal.SIGTERM):
             try:

@@ -1,0 +1,389 @@
+"""The open hand: a subject (shape + appearance + detail seed) and its posed ground truth.
+
+>>> hand = OpenHand()                                  # the average right hand
+>>> posed = hand.posed(named_pose("fist"))
+>>> mesh = posed.mesh()                                # watertight, >= 100k vertices
+>>> sdf, weights = posed.sdf_and_ownership(points)     # points [N, 3] metres
+
+Coordinates: metres, world frame; the rest pose and axes are described in
+:mod:`lisa_hand.handmodel.shape` (right hand: wrist at the origin, fingers along -x, palm facing
+-y, thumb on +z; a left hand is its mirror image through x = 0). A pose is MANO's 48-D
+axis-angle vector in the hand's own side convention (see :mod:`lisa_hand.handmodel.poses`).
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from ..skeleton.kinematics import check_side, forward_kinematics, mirror_points, mirror_pose
+from ..skeleton.tree import FINGER_JOINTS, FINGER_NAMES, NUM_JOINTS, POSE_DIM, joints_to_keypoints
+from .appearance import Appearance, albedo, sample_appearance
+from .sdf import HandFieldOutput, HandTemplate, PosedField, build_template
+from .shape import HandShape, sample_shape
+
+__all__ = [
+    "OpenHand",
+    "PosedHand",
+    "SurfaceSamples",
+    "sample_hand",
+    "DEFAULT_VOXELS_PER_LENGTH",
+]
+
+DEFAULT_VOXELS_PER_LENGTH = 150
+"""Default meshing resolution: voxels per hand length (1.2 mm for an 18.5 cm hand)."""
+
+_MIRROR = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=torch.float64))
+# Gradient bound passed to the mesher: the displacements keep |grad sdf| below about 1.1.
+_LIPSCHITZ = 1.2
+
+
+@dataclass(frozen=True)
+class OpenHand:
+    """One subject of the open hand model.
+
+    shape: the hand's :class:`HandShape` (bone lengths, widths, thickness, ...).
+    appearance: its skin :class:`Appearance`.
+    detail_seed: seeds the fine detail (creases, palm lines, bumps).
+    side: 'right' or 'left' (the left hand is the mirror image of the right one).
+    """
+
+    shape: HandShape = field(default_factory=HandShape)
+    appearance: Appearance = field(default_factory=Appearance)
+    detail_seed: int = 0
+    side: str = "right"
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.shape, HandShape):
+            raise TypeError(f"shape must be a HandShape, got {type(self.shape).__name__}")
+        if not isinstance(self.appearance, Appearance):
+            raise TypeError(
+                f"appearance must be an Appearance, got {type(self.appearance).__name__}"
+            )
+        if not isinstance(self.detail_seed, (int, np.integer)) or isinstance(self.detail_seed, bool):
+            raise TypeError(f"detail_seed must be an int, got {self.detail_seed!r}")
+        check_side(self.side)
+
+    @functools.cached_property
+    def template(self) -> HandTemplate:
+        """The right-hand rest-pose parts and detail (float64, CPU)."""
+        return build_template(self.shape, int(self.detail_seed))
+
+    @property
+    def rest_joints(self) -> torch.Tensor:
+        """[16, 3] float64 rest-pose joints of this side, metres."""
+        joints = self.template.skeleton.joints
+        return mirror_points(joints) if self.side == "left" else joints.clone()
+
+    @property
+    def rest_fingertips(self) -> torch.Tensor:
+        """[5, 3] float64 rest-pose fingertips (thumb, index, middle, ring, pinky) of this side."""
+        tips = self.template.skeleton.fingertips
+        return mirror_points(tips) if self.side == "left" else tips.clone()
+
+    def posed(
+        self,
+        pose: torch.Tensor | None = None,
+        translation: torch.Tensor | None = None,
+        dtype: torch.dtype = torch.float32,
+        device: torch.device | str | None = None,
+    ) -> PosedHand:
+        """Pose the hand.
+
+        pose: [48] or [1, 48] axis-angle radians in this side's convention; None = rest pose.
+        translation: [3] or [1, 3] metres, added after the rotations; None = zero.
+        dtype, device: of the field's evaluation (float32 or float64; default CPU).
+        """
+        return PosedHand(self, pose, translation, dtype, device)
+
+
+def sample_hand(generator: torch.Generator, side: str = "right") -> OpenHand:
+    """A random subject: shape (:func:`sample_shape`), appearance (:func:`sample_appearance`) and
+    detail seed, all from ``generator`` (same seed, same subject)."""
+    check_side(side)
+    shape = sample_shape(generator)
+    appearance = sample_appearance(generator)
+    detail_seed = int(torch.randint(0, 2**31 - 1, (), generator=generator))
+    return OpenHand(shape=shape, appearance=appearance, detail_seed=detail_seed, side=side)
+
+
+@dataclass
+class SurfaceSamples:
+    """Points on a posed hand's surface with their exact attributes (world frame).
+
+    points: [N, 3] metres, on the zero level set (|sdf| < 1e-5 m).
+    normals: [N, 3] outward unit normals (normalised SDF gradients).
+    weights: [N, 16] skinning weights (bone ownership), rows summing to 1.
+    colors: [N, 3] albedo, sRGB in [0, 1].
+    """
+
+    points: torch.Tensor
+    normals: torch.Tensor
+    weights: torch.Tensor
+    colors: torch.Tensor
+
+
+def _check_vector(value, size: int, name: str) -> torch.Tensor:
+    if not isinstance(value, torch.Tensor):
+        raise TypeError(f"{name} must be a torch.Tensor, got {type(value).__name__}")
+    if value.shape not in ((size,), (1, size)):
+        raise ValueError(f"{name} must have shape [{size}] or [1, {size}], got {tuple(value.shape)}")
+    value = value.reshape(size).detach().to(torch.float64)
+    if not torch.isfinite(value).all():
+        raise ValueError(f"{name} contains NaN or inf values")
+    return value
+
+
+class PosedHand:
+    """A subject in one pose: joints, keypoints, and the exact field (SDF, ownership, albedo).
+
+    Build with :meth:`OpenHand.posed`. Attributes (world frame, this hand's side, float64 CPU):
+
+    joints: [16, 3] posed MANO joints, metres.
+    fingertips: [5, 3] surface points at the finger ends (thumb, index, middle, ring, pinky).
+    keypoints: [21, 3] OpenPose/MediaPipe keypoints (``joints_to_keypoints``).
+    transforms: [16, 4, 4] rest-to-posed bone transforms ``A_j`` (LBS transforms).
+    pose: [48], translation: [3] the inputs (float64).
+    """
+
+    def __init__(
+        self,
+        hand: OpenHand,
+        pose: torch.Tensor | None,
+        translation: torch.Tensor | None,
+        dtype: torch.dtype,
+        device: torch.device | str | None,
+    ) -> None:
+        if dtype not in (torch.float32, torch.float64):
+            raise TypeError(f"dtype must be torch.float32 or torch.float64, got {dtype}")
+        self.hand = hand
+        self.pose = (
+            torch.zeros(POSE_DIM, dtype=torch.float64)
+            if pose is None
+            else _check_vector(pose, POSE_DIM, "pose")
+        )
+        self.translation = (
+            torch.zeros(3, dtype=torch.float64)
+            if translation is None
+            else _check_vector(translation, 3, "translation")
+        )
+        self.dtype = dtype
+        self.device = torch.device(device) if device is not None else torch.device("cpu")
+        self.mirrored = hand.side == "left"
+        # Everything is computed on the right hand; a left hand mirrors inputs and outputs.
+        pose_right = mirror_pose(self.pose) if self.mirrored else self.pose
+        transl_right = mirror_points(self.translation) if self.mirrored else self.translation
+        template = hand.template
+        kinematics = forward_kinematics(
+            pose_right[None], template.skeleton.joints, transl_right[None]
+        )
+        transforms_right = kinematics.transforms[0]
+        self._field = PosedField(template, transforms_right.to(self.device, dtype))
+        tips_right = self._fingertips(transforms_right)
+        joints_right = kinematics.joints[0]
+        if self.mirrored:
+            self.joints = mirror_points(joints_right)
+            self.fingertips = mirror_points(tips_right)
+            self.transforms = _MIRROR @ transforms_right @ _MIRROR
+        else:
+            self.joints, self.fingertips, self.transforms = joints_right, tips_right, transforms_right
+        self.keypoints = joints_to_keypoints(self.joints, self.fingertips)
+
+    # ------------------------------------------------------------------------------------------
+    def _to_field(self, points: torch.Tensor, name: str = "points") -> torch.Tensor:
+        if not isinstance(points, torch.Tensor):
+            raise TypeError(f"{name} must be a torch.Tensor, got {type(points).__name__}")
+        if points.dim() != 2 or points.shape[1] != 3:
+            raise ValueError(f"{name} must have shape [N, 3] (metres), got {tuple(points.shape)}")
+        if not points.is_floating_point():
+            raise TypeError(f"{name} must be a floating point tensor, got {points.dtype}")
+        points = points.to(self.device, self.dtype)
+        return mirror_points(points) if self.mirrored else points
+
+    def evaluate(self, points: torch.Tensor, with_features: bool = False) -> HandFieldOutput:
+        """The full field output at points (see :class:`HandFieldOutput`); ``rest_points`` are in
+        the right hand's rest frame.
+
+        points: [N, 3] world points, metres. Differentiable with respect to ``points``.
+        """
+        return self._field.evaluate(self._to_field(points), with_features=with_features)
+
+    def sdf(self, points: torch.Tensor) -> torch.Tensor:
+        """Signed distance to the hand surface, negative inside.
+
+        points: [N, 3] world points, metres -> [N] metres (the field's dtype).
+        """
+        return self.evaluate(points).sdf
+
+    def sdf_and_ownership(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Signed distance and skinning weights (which bones own each point).
+
+        points: [N, 3] world points, metres -> (sdf [N] metres, weights [N, 16], rows sum to 1).
+        """
+        out = self.evaluate(points)
+        return out.sdf, out.weights
+
+    def albedo(self, points: torch.Tensor) -> torch.Tensor:
+        """Skin colour at (surface) points, a function of their rest-pose position.
+
+        points: [N, 3] world points, metres -> [N, 3] sRGB in [0, 1].
+        """
+        out = self.evaluate(points, with_features=True)
+        return self._albedo(out)
+
+    def _albedo(self, out: HandFieldOutput) -> torch.Tensor:
+        return albedo(
+            self.hand.appearance, out.rest_points, out.palmar, out.nail, out.nail_along,
+            out.crease, out.knuckle,
+        )  # fmt: skip
+
+    def normals(self, points: torch.Tensor) -> torch.Tensor:
+        """Outward unit normals: the normalised SDF gradient (autograd).
+
+        points: [N, 3] world points, metres -> [N, 3].
+        """
+        with torch.enable_grad():
+            query = points.detach().to(self.device, self.dtype).requires_grad_(True)
+            values = self.sdf(query)
+            (gradient,) = torch.autograd.grad(values.sum(), query)
+        return gradient / gradient.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+
+    def bounding_box(self, margin: float = 0.004) -> tuple[np.ndarray, np.ndarray]:
+        """An axis-aligned box around the whole surface: (min [3], max [3]) metres (float64).
+
+        Built from the posed parts' bounding spheres, so it may be loose by a few mm.
+        """
+        field = self._field
+        centers = torch.cat([field.cone_center, field.slab_center]).double()
+        radii = torch.cat([field.template.cone_bound, field.template.slab_bound]).double()
+        if self.mirrored:
+            centers = mirror_points(centers)
+        low = (centers - radii[:, None]).amin(0) - margin
+        high = (centers + radii[:, None]).amax(0) + margin
+        return low.cpu().numpy(), high.cpu().numpy()
+
+    def default_voxel_size(self) -> float:
+        """Hand length / :data:`DEFAULT_VOXELS_PER_LENGTH`, metres."""
+        return self.hand.shape.hand_length / DEFAULT_VOXELS_PER_LENGTH
+
+    def mesh(
+        self,
+        voxel_size: float | None = None,
+        resolution: int | None = None,
+        colors: bool = True,
+        skin_weights: bool = True,
+    ):
+        """Watertight triangle mesh of the surface (marching cubes, coarse to fine).
+
+        voxel_size: grid spacing, metres (default :meth:`default_voxel_size`: about 1.2 mm,
+            100k-200k vertices). resolution: alternatively, grid samples along the longest side
+            of the bounding box. Give at most one.
+        colors: attach per-vertex albedo; skin_weights: attach per-vertex ownership weights.
+        -> :class:`lisa_hand.meshing.Mesh` (world frame, float32 vertices, outward faces).
+        """
+        from ..meshing import Mesh, colors_to_uint8, extract_mesh
+
+        if voxel_size is not None and resolution is not None:
+            raise ValueError("give voxel_size or resolution, not both")
+        low, high = self.bounding_box()
+        extent = float((high - low).max())
+        if resolution is not None:
+            if not isinstance(resolution, int) or resolution < 8:
+                raise ValueError(f"resolution must be an int >= 8, got {resolution!r}")
+            voxel_size = extent / (resolution - 1)
+        elif voxel_size is None:
+            voxel_size = self.default_voxel_size()
+        if not (isinstance(voxel_size, (int, float)) and 1e-5 <= voxel_size <= 0.05):
+            raise ValueError(f"voxel_size must be within [1e-5, 0.05] metres, got {voxel_size!r}")
+        samples = int(np.ceil(extent / voxel_size)) + 1
+        high = low + (samples - 1) * voxel_size  # a cubic grid of voxel_size cells
+        mesh = extract_mesh(
+            self.sdf, low, high, samples, lipschitz=_LIPSCHITZ, chunk_size=1 << 22,
+            device=self.device, dtype=self.dtype,
+        )  # fmt: skip
+        if not (colors or skin_weights):
+            return mesh
+        vertices = torch.from_numpy(mesh.vertices).to(self.device, self.dtype)
+        with torch.no_grad():
+            out = self.evaluate(vertices, with_features=colors)
+        return Mesh(
+            vertices=mesh.vertices,
+            faces=mesh.faces,
+            colors=colors_to_uint8(self._albedo(out)) if colors else None,
+            skin_weights=out.weights.float().cpu().numpy() if skin_weights else None,
+        )
+
+    def project_to_surface(self, points: torch.Tensor, iterations: int = 3) -> torch.Tensor:
+        """Move points onto the zero level set by Newton steps along the SDF gradient.
+
+        points: [N, 3] metres near the surface (within a few mm) -> [N, 3].
+        """
+        current = points.detach().to(self.device, self.dtype)
+        for _ in range(iterations):
+            with torch.enable_grad():
+                query = current.clone().requires_grad_(True)
+                values = self.sdf(query)
+                (gradient,) = torch.autograd.grad(values.sum(), query)
+            step = values.detach() / (gradient * gradient).sum(-1).clamp_min(1e-12)
+            current = current - step[:, None] * gradient
+        return current
+
+    def surface_samples(
+        self, num: int, generator: torch.Generator, voxel_size: float | None = None
+    ) -> SurfaceSamples:
+        """Points uniformly spread over the surface, projected exactly onto it.
+
+        Faces of a mesh (``voxel_size``, default twice :meth:`default_voxel_size`) are drawn by
+        area, points uniformly inside them, then moved onto the zero level set by Newton steps.
+
+        num: number of points (>= 1). generator: a seeded ``torch.Generator`` (CPU).
+        """
+        if not isinstance(num, int) or num < 1:
+            raise ValueError(f"num must be a positive int, got {num!r}")
+        if not isinstance(generator, torch.Generator):
+            raise TypeError(f"generator must be a torch.Generator, got {type(generator).__name__}")
+        mesh = self.mesh(voxel_size or 2.0 * self.default_voxel_size(), colors=False,
+                         skin_weights=False)  # fmt: skip
+        vertices = torch.from_numpy(mesh.vertices).double()
+        corners = vertices[torch.from_numpy(mesh.faces)]  # [F, 3, 3]
+        areas = torch.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0], dim=-1)
+        areas = areas.norm(dim=-1)
+        face = torch.multinomial(areas, num, replacement=True, generator=generator)
+        u, v = torch.rand(2, num, generator=generator, dtype=torch.float64)
+        flip = (u + v) > 1.0
+        u, v = torch.where(flip, 1.0 - u, u), torch.where(flip, 1.0 - v, v)
+        chosen = corners[face]
+        points = chosen[:, 0] + u[:, None] * (chosen[:, 1] - chosen[:, 0])
+        points = points + v[:, None] * (chosen[:, 2] - chosen[:, 0])
+        points = self.project_to_surface(points.to(self.dtype))
+        normals = self.normals(points)
+        with torch.no_grad():
+            out = self.evaluate(points, with_features=True)
+        return SurfaceSamples(
+            points=points, normals=normals, weights=out.weights, colors=self._albedo(out)
+        )
+
+    # ------------------------------------------------------------------------------------------
+    def _fingertips(self, transforms_right: torch.Tensor) -> torch.Tensor:
+        """[5, 3] the surface points where each distal bone's axis leaves the finger (right)."""
+        skel = self.hand.template.skeleton
+        distal = [FINGER_JOINTS[name][2] for name in FINGER_NAMES]
+        tips_rest = skel.fingertips
+        rot = transforms_right[distal, :3, :3]
+        tips = (rot @ tips_rest[..., None])[..., 0] + transforms_right[distal, :3, 3]
+        directions = (rot @ skel.bone_dirs[distal][..., None])[..., 0]
+        field = PosedField(self.hand.template, transforms_right)
+        with torch.no_grad():
+            for _ in range(4):  # Newton steps along the bone: the surface normal is ~ the axis
+                values = field.evaluate(tips).sdf
+                tips = tips - values[:, None] * directions
+        return tips
+
+    def __repr__(self) -> str:
+        return (
+            f"PosedHand(side={self.hand.side!r}, hand_length={self.hand.shape.hand_length:.3f}, "
+            f"dtype={self.dtype}, joints={NUM_JOINTS})"
+        )
