@@ -47,7 +47,7 @@ from .fields.bones import (
 from .fields.composition import blend, masked_softmax, nasa_selection, one_hot_weights
 from .fields.config import FieldConfig
 from .fields.encoding import encoding_dim, positional_encoding
-from .fields.mlp import StackedMLP, geometric_init_
+from .fields.mlp import StackedMLP, geometric_init_, soft_min_init_
 from .fields.pose import local_pose_mask, pose_feature_dim, pose_features
 from .skeleton import NUM_JOINTS, POSE_DIM, Kinematics, check_pose, forward_kinematics
 
@@ -177,12 +177,13 @@ class LisaModel(nn.Module):
                 activation="softplus",
                 beta=config.softplus_beta,
             )
-            with torch.no_grad():  # start from near-uniform weights over the active bones
-                self.skinning_mlp.out_weight.mul_(0.01)
-                self.skinning_mlp.out_bias.zero_()
+            self._init_skinning()
         self.register_buffer("pose_mask", local_pose_mask(config.per_bone), persistent=False)
-        radii = [config.palm_region_radius] + [config.finger_region_radius] * (NUM_JOINTS - 1)
-        self.register_buffer("region_radius", torch.tensor(radii), persistent=False)
+        # Python floats, made into a tensor of the points' dtype at use (a float32 buffer would
+        # round the radii for float64 evaluation).
+        self.region_radii = (config.palm_region_radius,) + (config.finger_region_radius,) * (
+            NUM_JOINTS - 1
+        )
         self.geometric_init_(init_rest_joints)
 
     # ------------------------------------------------------------------------------------------
@@ -219,6 +220,18 @@ class LisaModel(nn.Module):
                 reach = (rest_joints.double() - centre).norm(dim=-1).max()
                 axes, half_lengths = axes[:1], (reach / scale).reshape(1)
         geometric_init_(self.sdf_mlp, radii, axes=axes, half_lengths=half_lengths)
+
+    @torch.no_grad()
+    def _init_skinning(self) -> None:
+        """LISA: logits ``~ -20 s_j`` (a soft minimum of the bone SDFs, so the fresh blobs form
+        their union). NARF, or LISA narrower than 16: near-uniform weights over active bones."""
+        mlp = self.skinning_mlp
+        if self.config.composition == "lisa":
+            sdf_inputs = 3 * NUM_JOINTS
+            if soft_min_init_(mlp, sdf_inputs, NUM_JOINTS, sharpness=20.0, value_max=2.0):
+                return
+        mlp.out_weight.mul_(0.01)
+        mlp.out_bias.zero_()
 
     def extra_repr(self) -> str:
         return f"composition={self.config.composition!r}"
@@ -462,7 +475,7 @@ class LisaModel(nn.Module):
         cut = _NUM_PALM_SEGMENTS
         palm = distance[..., :cut].amin(dim=-1, keepdim=True)
         distance = torch.cat([palm, distance[..., cut:]], dim=-1)
-        return distance - self.region_radius.to(points.dtype)
+        return distance - points.new_tensor(self.region_radii)
 
     def _pair_bias(
         self,
@@ -501,6 +514,9 @@ class LisaModel(nn.Module):
 
         num_pairs_all = batch * num * NUM_JOINTS
         flat_active = active.reshape(-1, NUM_JOINTS)
+        # 'bfloat16': every MLP; 'mixed': only the colour MLPs. The skinning MLP stays exact in
+        # 'mixed': its logits reach tens (a soft minimum of the SDFs), where bfloat16's 8 bits
+        # move the weights by ~1e-1.
         mlp_options = {"low_precision": precision == "bfloat16"}
         color_options = {"low_precision": precision != "float32"}
         if cull:

@@ -1,14 +1,18 @@
 """Benchmarks: ``python -m lisa_hand.bench NAME [options]`` (scripts that print numbers).
 
-Each benchmark is a module of this package with a ``main(argv)`` function, listed in
-:data:`BENCHMARKS`.
+Each benchmark is a module ``lisa_hand.bench.NAME`` with a ``main(argv)`` function; the
+dispatcher finds them by name (:func:`benchmark_names`).
 """
 
 from __future__ import annotations
 
-__all__ = ["BENCHMARKS"]
+import pkgutil
+from pathlib import Path
 
-BENCHMARKS = {
-    "field": "lisa_hand.bench.field",
-}
-"""Benchmark name -> module with ``main(argv: list[str] | None)``."""
+__all__ = ["benchmark_names"]
+
+
+def benchmark_names() -> list[str]:
+    """Names of the benchmark modules in this package (e.g. 'field')."""
+    here = [str(Path(__file__).parent)]
+    return sorted(m.name for m in pkgutil.iter_modules(here) if not m.name.startswith("_"))

@@ -1,23 +1,23 @@
-"""``python -m lisa_hand.bench NAME [options]``: run one benchmark (see :data:`BENCHMARKS`)."""
+"""``python -m lisa_hand.bench NAME [options]``: run one benchmark (see :func:`benchmark_names`)."""
 
 from __future__ import annotations
 
 import importlib
 import sys
 
-from . import BENCHMARKS
+from . import benchmark_names
 
 
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
-    if not argv or argv[0] in ("-h", "--help") or argv[0] not in BENCHMARKS:
-        names = ", ".join(sorted(BENCHMARKS))
-        print(f"usage: python -m lisa_hand.bench NAME [options]   (NAME: {names})", file=sys.stderr)
+    names = benchmark_names()
+    if not argv or argv[0] in ("-h", "--help") or argv[0] not in names:
+        print(f"usage: python -m lisa_hand.bench NAME [options]   (NAME: {', '.join(names)})")
         if argv and argv[0] not in ("-h", "--help"):
             print(f"unknown benchmark {argv[0]!r}", file=sys.stderr)
             return 2
         return 0 if argv else 2
-    module = importlib.import_module(BENCHMARKS[argv[0]])
+    module = importlib.import_module(f"{__package__}.{argv[0]}")
     try:
         module.main(argv[1:])
     except (ValueError, OSError) as exc:

@@ -129,7 +129,7 @@ class ReferenceField(nn.Module):
                 [_sequential(model.color_mlp, j, nn.ReLU()) for j in range(16)]
             )
         self.skinning = _sequential(model.skinning_mlp, 0, nn.Softplus(beta=config.softplus_beta))
-        self.register_buffer("radius", model.region_radius.clone(), persistent=False)
+        self.radius = model.region_radii
 
     def forward(
         self,
@@ -200,7 +200,9 @@ def _sequential(mlp, group: int, activation: nn.Module) -> nn.Sequential:
     weights += [(w[group], b[group]) for w, b in mlp.layers()]
     modules: list[nn.Module] = []
     for index, (weight, bias) in enumerate(weights):
-        linear = nn.Linear(weight.shape[0], weight.shape[1])
+        linear = nn.Linear(
+            weight.shape[0], weight.shape[1], dtype=weight.dtype, device=weight.device
+        )
         with torch.no_grad():
             linear.weight.copy_(weight.t())
             linear.bias.copy_(bias)
@@ -242,32 +244,28 @@ class FieldBenchmark:
         return values
 
 
-def _time(fn: Callable[[], object], repeats: int) -> float:
-    """Best wall time of ``repeats`` calls after one warm-up (the machine is shared: the best
-    run is the least disturbed one)."""
-    fn()
-    best = math.inf
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - start)
-    return best
-
-
 def _max_error(a: torch.Tensor | None, b: torch.Tensor | None) -> float:
     if a is None or b is None:
         return float("nan")
     return float((a.double() - b.double()).abs().max())
 
 
-def _interleaved_best(fns: dict[str, Callable[[], object]], rounds: int) -> dict[str, float]:
-    """Best wall time of each function over ``rounds`` rounds, the functions interleaved in
-    each round, so that a burst of load from other processes hits all of them alike."""
-    for fn in fns.values():  # warm-up
+def _interleaved_best(
+    fns: dict[str, Callable[[], object]],
+    rounds: int,
+    slow: tuple[str, ...] = (),
+    slow_rounds: int = 2,
+) -> dict[str, float]:
+    """Best wall time of each function over ``rounds`` rounds (``slow_rounds`` for the names in
+    ``slow``), the functions interleaved in each round, so that a burst of load from other
+    processes hits all of them alike. One warm-up call each first."""
+    for fn in fns.values():
         fn()
     best = dict.fromkeys(fns, math.inf)
-    for _ in range(rounds):
+    for index in range(max(rounds, slow_rounds)):
         for name, fn in fns.items():
+            if index >= (slow_rounds if name in slow else rounds):
+                continue
             start = time.perf_counter()
             fn()
             best[name] = min(best[name], time.perf_counter() - start)
@@ -278,7 +276,7 @@ _STEPS = {
     # name: (cull, inference precision, what it adds)
     "stacked": (False, "float32", "stacked weights, conditioning folded into a per-frame bias"),
     "culled": (True, "float32", "bone culling (regions), skinning MLP only where 2+ bones"),
-    "culled_bf16_color": (True, "bfloat16-color", "colour MLPs' hidden products in bfloat16"),
+    "culled_mixed": (True, "mixed", "colour MLPs' hidden products in bfloat16"),
     "culled_bf16": (True, "bfloat16", "all MLPs' hidden products in bfloat16"),
 }
 
@@ -289,6 +287,7 @@ def run_field_benchmark(
     config: FieldConfig | None = None,
     repeats: int = 5,
     seed: int = 0,
+    compile_mlp: bool = False,
     log: Callable[[str], None] = print,
 ) -> FieldBenchmark:
     """Measure the field and the reference on ``num_points`` points around a posed hand.
@@ -357,7 +356,8 @@ def run_field_benchmark(
         for name in _STEPS:
             fns[name + suffix] = lambda n=name, c=color: run_step(n, c)
     with torch.no_grad():
-        best = _interleaved_best(fns, repeats)
+        slow = ("reference", "reference_color", "stacked", "stacked_color")
+        best = _interleaved_best(fns, repeats, slow=slow, slow_rounds=max(1, min(repeats, 2)))
         ref_geo, ref_col = run_reference(False), run_reference(True)
         outputs = {name: (run_step(name, False), run_step(name, True)) for name in _STEPS}
     peak = 2.0 * size**3 / best["matmul"] / 1e9
@@ -454,7 +454,9 @@ def run_field_benchmark(
             },
         }
     )
-    extra["pair_strategies"] = _pair_strategies(model, state, points, repeats, log)
+    extra["pair_strategies"] = _pair_strategies(
+        model, state, points, repeats, log, compile_mlp=compile_mlp
+    )
     result = FieldBenchmark(
         num_points=num_points,
         points_per_s=top["points_per_s"],
@@ -479,6 +481,7 @@ def _pair_strategies(
     points: torch.Tensor,
     repeats: int,
     log: Callable[[str], None],
+    compile_mlp: bool = False,
 ) -> dict:
     """Time ways of running the stacked SDF MLP on the culled (point, bone) pairs."""
     import torch.nn.functional as F
@@ -559,6 +562,36 @@ def _pair_strategies(
             out[:, j].index_copy_(0, rows, run_rows(enc, j)[:, 0])
         return out
 
+    compile_seconds = None
+    if compile_mlp:
+        # torch.compile (inductor, C++ codegen) of one chunk through all layers, dynamic rows.
+        def run_chunk(x, first_weight, first_bias, *params):
+            hidden = mlp.act(torch.addmm(first_bias, x, first_weight))
+            for index in range(0, len(params), 2):
+                hidden = torch.addmm(params[index + 1], hidden, params[index])
+                if index < len(params) - 2:
+                    hidden = mlp.act(hidden)
+            return hidden
+
+        compiled = torch.compile(run_chunk, dynamic=True)
+
+        def loop_compiled():
+            enc, sizes = sorted_pairs()
+            outputs, start = [], 0
+            for j, size in enumerate(sizes):
+                for lo in range(start, start + size, 4096):
+                    hi = min(lo + 4096, start + size)
+                    params = [t for w, b in layers for t in (w[j], b[j])]
+                    outputs.append(compiled(enc[lo:hi], mlp.point_weight[j], bias[j], *params))
+                start += size
+            return torch.cat(outputs)
+
+        with torch.no_grad():
+            begin = time.perf_counter()
+            loop_compiled()
+            compile_seconds = time.perf_counter() - begin
+        log(f"torch.compile of the chunk MLP: first call (compilation) {compile_seconds:.1f} s")
+
     strategies = {
         "sorted_loop_chunked": loop_chunked,
         "sorted_loop_unchunked": loop_unchunked,
@@ -566,6 +599,8 @@ def _pair_strategies(
         "padded_bmm": padded_bmm,
         "index_select_scatter": index_select_scatter,
     }
+    if compile_mlp:
+        strategies["sorted_loop_compiled"] = loop_compiled
     pairs = int(flat.sum())
     flops = _mlp_flops(mlp, pairs, False)
     with torch.no_grad():
@@ -575,6 +610,8 @@ def _pair_strategies(
     for name, seconds in best.items():
         timings[name] = {"ms": seconds * 1e3, "gflops": flops / seconds / 1e9}
         log(f"  {name:22s}: {seconds * 1e3:8.1f} ms ({flops / seconds / 1e9:5.1f} GFLOP/s)")
+    if compile_seconds is not None:
+        timings["compile_seconds"] = compile_seconds
     return timings
 
 
@@ -587,12 +624,19 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--json", type=Path, default=None, help="also write the numbers to FILE")
     parser.add_argument("--points", type=int, default=65536, help="points per batch")
-    parser.add_argument("--repeats", type=int, default=5, help="timed runs per variant (best kept)")
+    parser.add_argument(
+        "--repeats", type=int, default=5, help="timed runs per variant, best kept (reference: 2)"
+    )
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument(
+        "--compile", action="store_true", help="also time a torch.compile'd MLP (slow to build)"
+    )
     args = parser.parse_args(argv)
     if args.points < 1:
         raise ValueError(f"--points must be >= 1, got {args.points}")
-    result = run_field_benchmark(args.points, repeats=args.repeats, seed=args.seed)
+    result = run_field_benchmark(
+        args.points, repeats=args.repeats, seed=args.seed, compile_mlp=args.compile
+    )
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(result.to_dict(), indent=2))

@@ -6,10 +6,16 @@
       dataset.json              generator settings, counts, format version
       split.json                {"train": [subject ids], "val": [...], "test": [...]}
       s000/                     one folder per subject
-        subject.json            side, shape and appearance parameters, rest joints, template betas
+        subject.json            "id", "side" ("right"/"left"), "shape" (named open-hand shape
+                                parameters), "appearance" (named albedo parameters), "detail_seed",
+                                "rest_joints" [16,3] m (the open hand's true skeleton),
+                                "template_betas" [10] and "template_rest_joints" [16,3] m (pseudo
+                                ground truth: the MANO-like template fitted to this subject; this
+                                skeleton is the one LISA is trained and fitted with)
         f000/                   one folder per frame (a pose of that subject)
-          params.json           pose [48] axis-angle rad, translation [3] m, joints [16,3] m,
-                                keypoints [21,3] m, pose name, per-camera gain and bias
+          params.json           "pose" [48] axis-angle rad, "translation" [3] m, "joints" [16,3] m,
+                                "keypoints" [21,3] m, "pose_name" (or null), "camera_gain" and
+                                "camera_bias" ({camera name: [3]}, the simulated calibration)
           mesh.ply              ground-truth mesh, metres, vertex colours (albedo), skinning weights
           scan.npz              points [N,3], normals [N,3], weights [N,16] (ground-truth owners),
                                 template_weights [N,16] (pseudo ground truth, nearest template

@@ -14,13 +14,14 @@ from .bones import (
     bone_centres,
     bone_segments,
     capsule_distance,
+    segment_distances,
     unpose_points,
 )
 from .composition import blend, masked_softmax, nasa_selection, one_hot_weights
 from .config import COMPOSITIONS, POSE_CONDITIONINGS, PRECISIONS, FieldConfig
 from .encoding import encoding_dim, positional_encoding
 from .latents import LatentTable
-from .mlp import ACTIVATIONS, StackedMLP, geometric_init_
+from .mlp import ACTIVATIONS, StackedMLP, geometric_init_, soft_min_init_
 from .pose import LOCAL_POSE_DIM, local_pose_mask, pose_feature_dim, pose_features
 
 __all__ = [
@@ -33,6 +34,7 @@ __all__ = [
     "bone_centres",
     "bone_segments",
     "capsule_distance",
+    "segment_distances",
     "unpose_points",
     "blend",
     "masked_softmax",
@@ -48,6 +50,7 @@ __all__ = [
     "ACTIVATIONS",
     "StackedMLP",
     "geometric_init_",
+    "soft_min_init_",
     "LOCAL_POSE_DIM",
     "local_pose_mask",
     "pose_feature_dim",

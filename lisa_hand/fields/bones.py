@@ -124,8 +124,9 @@ def segment_distances(
     Expands ``|x - p - t d|^2 = |x - p|^2 - t (2 (x - p).d - t)`` with ``t = clamp((x - p).d, 0,
     L)``; ``x.p`` and ``x.d`` for all segments come from one [B, N, 3] @ [B, 3, 2S] product.
     Express points and starts relative to a nearby origin (e.g. the wrist): the expansion
-    loses ``eps |x|^2 / d`` to cancellation (float32: ~1e-8 m at 2 cm from a segment within
-    0.3 m of the origin).
+    loses about ``eps |x|^2 / d`` to cancellation at distance ``d`` (float32, within 0.3 m of
+    the origin: ~1e-8 m at 2 cm, the regions' boundaries) and ``sqrt(eps) |x|`` on the segment
+    itself (float32: ~0.05 mm, deep inside the hand, where only the region test uses it).
 
     points: [B, N, 3]; start, direction (unit): [B, S, 3]; length: [B, S] -> [B, N, S]
     (same units; finite gradient everywhere).

@@ -10,7 +10,7 @@ __all__ = ["COMPOSITIONS", "POSE_CONDITIONINGS", "PRECISIONS", "FieldConfig"]
 
 COMPOSITIONS = ("lisa", "nasa", "narf", "single")
 POSE_CONDITIONINGS = ("local", "full")
-PRECISIONS = ("float32", "bfloat16-color", "bfloat16")
+PRECISIONS = ("float32", "mixed", "bfloat16")
 
 
 @dataclass(frozen=True)
@@ -87,11 +87,11 @@ class FieldConfig:
     """Build the colour MLPs (False: geometry only, e.g. a shape prior)."""
 
     inference_precision: str = "float32"
-    """Precision of the MLPs' hidden layers when no gradient is recorded: 'float32';
-    'bfloat16-color' (the colour MLPs' hidden products in bfloat16: colour error ~1e-4, the
-    SDF exact); or 'bfloat16' (all MLPs: SDF error ~0.2 mm). bfloat16 is fast on CPUs with
-    AVX512-BF16/AMX and on GPUs, slow elsewhere. Gradients and float64 always run in the
-    input dtype."""
+    """Precision of the MLPs' hidden layers when no gradient is recorded: 'float32'; 'mixed'
+    (the colour MLPs' hidden products in bfloat16, colour error ~1e-4, geometry exact); or
+    'bfloat16' (all MLPs: SDF error ~0.2 mm or more, skinning weights ~1e-1). bfloat16 is fast
+    on CPUs with AVX512-BF16/AMX and on GPUs, slow elsewhere. Gradients and float64 always run
+    in the input dtype."""
 
     def __post_init__(self) -> None:
         choices = {

@@ -21,7 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["StackedMLP", "ACTIVATIONS", "geometric_init_"]
+__all__ = ["StackedMLP", "ACTIVATIONS", "geometric_init_", "soft_min_init_"]
 
 ACTIVATIONS = ("softplus", "relu")
 
@@ -244,8 +244,10 @@ def geometric_init_(
     VolSDF, only the raw coordinates (the first ``raw_dim`` point inputs; the sinusoids start at
     zero weight) enter the first layer. With ``axes`` and ``half_lengths`` the sphere becomes a
     spheroid stretched along the bone, ``D = I - (1 - r / a) u u^T`` with ``a = half_length + r``
-    (a capsule-like blob around the bone). Conditioning weights start small (``cond_std``), so
-    the initial shape barely depends on pose and latents.
+    (a capsule-like blob around the bone). The output is then calibrated to a unit slope
+    between the surfaces ``|D x| = r`` and ``3 r`` and to zero on average over ``|D x| = r``.
+    Conditioning weights start small (``cond_std``), so the initial shape barely depends on pose
+    and latents.
 
     radii: [G] in network units; axes: [G, 3] unit vectors; half_lengths: [G] network units.
     """
@@ -257,11 +259,14 @@ def geometric_init_(
     std = math.sqrt(2.0) / math.sqrt(hidden)
     first = torch.zeros_like(mlp.point_weight)
     raw = torch.randn(groups, raw_dim, hidden, dtype=dtype, device=device) * std
+    eye = torch.eye(raw_dim, dtype=dtype, device=device)
+    unsquash = eye.expand(groups, raw_dim, raw_dim)
     if axes is not None and half_lengths is not None:
         axes = axes.to(dtype=dtype, device=device)
         stretch = radii / (half_lengths.to(dtype=dtype, device=device) + radii)  # r / a
-        eye = torch.eye(raw_dim, dtype=dtype, device=device)
-        squash = eye - (1.0 - stretch)[:, None, None] * axes[:, :, None] * axes[:, None, :]
+        outer = axes[:, :, None] * axes[:, None, :]
+        squash = eye - (1.0 - stretch)[:, None, None] * outer
+        unsquash = eye + (1.0 / stretch - 1.0)[:, None, None] * outer  # D^-1
         raw = squash.transpose(-1, -2) @ raw  # x @ (D^T G) = (D x) @ G
     first[:, :raw_dim] = raw
     mlp.point_weight.copy_(first)
@@ -272,4 +277,53 @@ def geometric_init_(
         weight.normal_(0.0, std)
         bias.zero_()
     mlp.out_weight.normal_(math.sqrt(math.pi) / math.sqrt(hidden), 1e-4)
-    mlp.out_bias.copy_(-radii[:, None].expand(groups, mlp.out_dim))
+    mlp.out_bias.zero_()
+    # Calibrate: ReLU's cone |D x| is only approximated (Softplus(0) = log(2) / beta, finite
+    # width, a rounded tip), which at radii of ~0.2 units moves the surface by a good fraction
+    # of r. Rescale the output to a unit slope between the surfaces |D x| = r and 3 r, and
+    # shift it to be 0 on average over |D x| = r.
+    num_dirs = 64
+    dirs = torch.randn(num_dirs, raw_dim, dtype=dtype, device=device)
+    dirs = dirs / dirs.norm(dim=-1, keepdim=True)
+    surface = radii[:, None, None] * (dirs @ unsquash.transpose(-1, -2))  # [G, D, raw]
+    probe = torch.zeros(1, 2 * num_dirs, groups, mlp.point_dim, dtype=dtype, device=device)
+    probe[0, :num_dirs, :, :raw_dim] = surface.transpose(0, 1)
+    probe[0, num_dirs:, :, :raw_dim] = 3.0 * surface.transpose(0, 1)
+    zero_bias = torch.zeros(1, groups, hidden, dtype=dtype, device=device)
+    values = mlp.forward_dense(probe, zero_bias)[0, :, :, 0]  # [2 D, G]
+    rise = (values[num_dirs:] - values[:num_dirs]).mean(dim=0)  # [G]
+    mlp.out_weight.mul_((2.0 * radii / rise)[:, None, None])
+    on_surface = mlp.forward_dense(probe[:, :num_dirs], zero_bias)[0].mean(dim=0)  # [G, out]
+    mlp.out_bias.copy_(-on_surface)
+
+
+@torch.no_grad()
+def soft_min_init_(
+    mlp: StackedMLP, value_offset: int, num_values: int, sharpness: float, value_max: float
+) -> bool:
+    """Initialise a one-group MLP so that its logits are ``sharpness * (value_max - v_j)``.
+
+    ``v`` are the inputs ``[value_offset, value_offset + num_values)`` (per-bone SDFs in network
+    units), so a softmax over the logits is a soft minimum of the per-bone SDFs: a fresh LISA
+    model blends its bone blobs into their union (a blobby hand) instead of their average.
+    ``num_values`` hidden units per layer carry ``v`` through identity weights (Softplus is
+    linear well above zero, which the bias ``sharpness * value_max`` ensures for
+    ``v < value_max``); the other units keep a small random init.
+    Returns False (and changes nothing) when the hidden width is below ``num_values``.
+    """
+    if mlp.num_groups != 1 or mlp.hidden < num_values or mlp.out_dim != num_values:
+        return False
+    span = slice(0, num_values)
+    eye = torch.eye(num_values, dtype=mlp.point_weight.dtype, device=mlp.point_weight.device)
+    mlp.point_weight[0, :, span] = 0.0
+    mlp.point_weight[0, value_offset : value_offset + num_values, span] = -sharpness * eye
+    mlp.first_bias[0, span] = sharpness * value_max
+    for weight, bias in zip(mlp.hidden_weights, mlp.hidden_biases, strict=True):
+        weight[0, span, :] = 0.0
+        weight[0, :, span] = 0.0
+        weight[0, span, span] = eye
+        bias[0, span] = 0.0
+    mlp.out_weight.mul_(0.01)
+    mlp.out_weight[0, span, :] = eye
+    mlp.out_bias.zero_()
+    return True

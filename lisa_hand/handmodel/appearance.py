@@ -73,7 +73,8 @@ class Appearance:
             low, high = APPEARANCE_BOUNDS[field.name]
             if not (math.isfinite(value) and low <= value <= high):
                 raise ValueError(
-                    f"Appearance.{field.name} = {value!r} is outside the valid range [{low}, {high}]"
+                    f"Appearance.{field.name} = {value!r} is outside the valid range "
+                    f"[{low}, {high}]"
                 )
 
 
@@ -117,7 +118,9 @@ def skin_color(appearance: Appearance) -> np.ndarray:
     frac = position - low
     color = _PALETTE[low] * (1.0 - frac) + _PALETTE[low + 1] * frac
     tint = appearance.undertone
-    return np.clip(color * np.array([1.0 + 0.05 * tint, 1.0 - 0.01 * tint, 1.0 - 0.06 * tint]), 0, 1)
+    return np.clip(
+        color * np.array([1.0 + 0.05 * tint, 1.0 - 0.01 * tint, 1.0 - 0.06 * tint]), 0, 1
+    )
 
 
 def _noise_waves(seed: int, count: int, low_wavelength: float, high_wavelength: float):
@@ -170,10 +173,13 @@ def albedo(
     color = color * (1.0 - appearance.crease_darkness * 0.3 * crease[:, None])
 
     # Nails: pinkish plate over the local skin, pale lunula near the cuticle, white free edge.
-    nail_base = base + (t(_NAIL_PINK) - base) * (0.55 + 0.3 * appearance.nail_tint)
+    nail_base = base + (t(_NAIL_PINK) - base) * (0.7 + 0.25 * appearance.nail_tint)
+    nail_base = nail_base * 1.04
     nail_base = nail_base * (1.0 + 0.05 * (appearance.nail_tint - 0.5) * t([0.5, -0.6, -0.4]))
     lunula = torch.clamp(1.0 - nail_along / 0.2, 0.0, 1.0) * 0.35
     free_edge = torch.clamp((nail_along - 0.82) / 0.12, 0.0, 1.0)
-    nail_color = nail_base + (t(_NAIL_WHITE) - nail_base) * torch.maximum(lunula, free_edge)[:, None]
+    nail_color = (
+        nail_base + (t(_NAIL_WHITE) - nail_base) * torch.maximum(lunula, free_edge)[:, None]
+    )
     color = color + (nail_color - color) * nail[:, None]
     return color.clamp(0.0, 1.0)

@@ -254,7 +254,9 @@ def synergy_to_angles(synergies: torch.Tensor) -> torch.Tensor:
     spread = syn[..., 4]
     for k, finger in enumerate(("index", "middle", "ring", "pinky")):
         curl = syn[..., k]
-        flexion = curl.clamp_min(0.0)[..., None] * flex_pos + curl.clamp_max(0.0)[..., None] * flex_neg
+        flexion = (
+            curl.clamp_min(0.0)[..., None] * flex_pos + curl.clamp_max(0.0)[..., None] * flex_neg
+        )
         chain = [j - 1 for j in FINGER_JOINTS[finger]]
         angles[..., chain, 0] = flexion
         # Spread fades as the finger curls (collateral ligaments tighten in flexion).
@@ -262,11 +264,11 @@ def synergy_to_angles(synergies: torch.Tensor) -> torch.Tensor:
         angles[..., chain[0], 1] = _SPREAD[finger] * spread * fade
     curl, opposition, abduction = syn[..., 5], syn[..., 6], syn[..., 7]
     cmc, mcp, ip = (j - 1 for j in FINGER_JOINTS["thumb"])
-    angles[..., cmc, 0] = 0.55 * opposition + 0.1 * curl
-    angles[..., cmc, 1] = 0.45 * opposition + 0.75 * abduction
-    angles[..., cmc, 2] = 0.55 * opposition
-    angles[..., mcp, 0] = 0.55 * curl + 0.2 * opposition
-    angles[..., ip, 0] = 0.95 * curl + 0.1 * opposition
+    angles[..., cmc, 0] = 0.5 * opposition + 0.1 * curl
+    angles[..., cmc, 1] = 0.2 * opposition + 0.75 * abduction
+    angles[..., cmc, 2] = 0.7 * opposition
+    angles[..., mcp, 0] = 0.55 * curl + 0.1 * opposition
+    angles[..., ip, 0] = 0.9 * curl + 0.05 * opposition
     return angles
 
 
@@ -354,15 +356,26 @@ def sample_pose(
     return angles_to_pose(angles, orient, side=side).float()
 
 
-# Named poses as synergies (SYNERGY_NAMES order) plus per-joint angle overrides (radians).
-_NAMED: dict[str, tuple[tuple[float, ...], dict[int, tuple[float, float, float]]]] = {
+# Named poses as synergies (SYNERGY_NAMES order) plus per-joint overrides: MANO joint ->
+# (flexion, abduction, twist) radians, None keeps the synergy's value. The pinch and ok thumbs
+# and index fingers come from a small inverse-kinematics fit on the average hand (pad to pad).
+_Override = tuple[float | None, float | None, float | None]
+_NAMED: dict[str, tuple[tuple[float, ...], dict[int, _Override]]] = {
     "flat": ((0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0), {}),
     "relaxed": ((0.22, 0.3, 0.36, 0.42, 0.15, 0.25, 0.2, 0.15), {}),
     "fist": ((1.0, 1.0, 1.0, 1.0, 0.0, 0.75, 0.55, 0.0), {}),
     "point": ((-0.05, 1.0, 1.0, 1.0, 0.1, 0.7, 0.6, 0.0), {}),
-    "pinch": ((0.42, 0.45, 0.5, 0.55, 0.1, 0.35, 0.7, 0.35), {}),
-    "ok": ((0.55, 0.12, 0.16, 0.2, 0.45, 0.3, 0.75, 0.3), {}),
-}
+    "pinch": (
+        (0.42, 0.45, 0.5, 0.55, 0.1, 0.1, 0.8, 0.2),
+        {1: (0.64, None, None), 2: (0.95, None, None), 3: (0.8, None, None),
+         13: (0.43, 0.15, 0.57), 14: (0.0, 0.0, 0.0), 15: (0.1, 0.0, 0.0)},
+    ),
+    "ok": (
+        (0.6, 0.12, 0.16, 0.2, 0.45, 0.1, 0.8, 0.2),
+        {1: (0.5, None, None), 2: (1.03, None, None), 3: (0.9, None, None),
+         13: (0.41, 0.05, 0.75), 14: (0.0, 0.0, 0.0), 15: (0.1, 0.0, 0.0)},
+    ),
+}  # fmt: skip
 POSE_NAMES = tuple(_NAMED)
 
 
@@ -377,7 +390,9 @@ def named_pose(name: str, side: str = "right", dtype: torch.dtype = torch.float3
     synergies, overrides = _NAMED[name]
     angles = synergy_to_angles(torch.tensor(synergies, dtype=torch.float64))
     for joint, values in overrides.items():
-        angles[joint - 1] = torch.tensor(values, dtype=torch.float64)
+        for k, value in enumerate(values):
+            if value is not None:
+                angles[joint - 1, k] = value
     angles = torch.maximum(torch.minimum(angles, JOINT_LIMITS[..., 1]), JOINT_LIMITS[..., 0])
     return angles_to_pose(angles, side=side).to(dtype)
 
@@ -414,7 +429,9 @@ def interpolate_poses(
     return poses.to(dtype)
 
 
-def pose_sequence(poses: list[torch.Tensor], frames_per_segment: int, side: str = "right") -> torch.Tensor:
+def pose_sequence(
+    poses: list[torch.Tensor], frames_per_segment: int, side: str = "right"
+) -> torch.Tensor:
     """Chain :func:`interpolate_poses` through several key poses (no repeated key frames).
 
     poses: K >= 2 tensors [48]. frames_per_segment: poses per segment including its start (>= 1).

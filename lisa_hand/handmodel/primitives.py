@@ -102,8 +102,10 @@ def smooth_union(distances: torch.Tensor, blend: float) -> tuple[torch.Tensor, t
     return value, terms / total
 
 
-def smoothstep(low: float | torch.Tensor, high: float | torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-    """Cubic Hermite step: 0 below ``low``, 1 above ``high`` (``low > high`` gives a falling step)."""
+def smoothstep(
+    low: float | torch.Tensor, high: float | torch.Tensor, x: torch.Tensor
+) -> torch.Tensor:
+    """Cubic Hermite step: 0 below ``low``, 1 above ``high`` (``low > high``: a falling step)."""
     t = ((x - low) / (high - low)).clamp(0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
 

@@ -7,20 +7,23 @@ taken into the bone's rest frame with ``x_j = A_j^-1 x`` (``A_j`` = rest-to-pose
 - round cones (hulls of two spheres) along each phalanx, their axes a little palmar of the bone
   so that the back of a flexed joint shows a knuckle, plus lateral capsules for the condyles at
   the PIP/DIP/IP joints and the metacarpal heads (the knuckles of a fist);
-- a palm body (a rounded convex slab spanning the wrist and the four MCP joints), a short forearm
-  stub, the hypothenar pad and the thumb's metacarpal with the thenar eminence, blended with a wide
-  radius (``blend_palm``, about 4 mm) into one soft body;
+- a palm body (a rounded convex slab spanning a short forearm stub, the wrist and the four MCP
+  joints), the hypothenar pad, the finger webs, the first web space and the thumb's metacarpal
+  with the thenar eminence, blended with a wide radius (``blend_palm``, about 3.5 mm) into one
+  soft body;
 - everything joined by a smooth minimum ``s = -k log sum_i exp(-d_i / k)`` (``k = blend``, about
-  1.5 mm). Because the parts of two bones move rigidly and blend, a flexed joint bulges on the
+  1.2 mm). Because the parts of two bones move rigidly and blend, a flexed joint bulges on the
   outside and creases on the inside: pose-dependent deformation that linear blend skinning of a
   template cannot represent.
 
 Fine detail is added as small displacements (slopes kept below about 0.3 so that ``|grad s|``
 stays within a few percent of 1): flexion creases across the palmar side of each finger joint,
 dorsal knuckle wrinkles, palm lines, raised fingernails, and per-subject smooth bumps of about
-0.1-0.3 mm. Skinning weights are the union's blend factors ``softmax(-d / k)`` summed per bone
-(the derivatives of ``s`` with respect to each part's distance), so they sum to 1 and say which
-bones own a point.
+0.1-0.2 mm. Near the surface ``|grad s|`` is 1 (to 5 %) on about 80 % of an open hand; it dips
+below 1 inside the blends (part junctions, contacts between fingers) where the smooth union
+slightly under-estimates the distance. Skinning weights are the union's blend factors
+``softmax(-d / k)`` summed per bone (the derivatives of ``s`` with respect to each part's
+distance), so they sum to 1 and say which bones own a point.
 
 Speed: each part, crease and nail has a rest-pose local frame; posing composes it with
 ``A_j^-1`` into one affine map, so local coordinates of all parts come from one small matrix
@@ -31,6 +34,7 @@ parts, creases and nails that cannot reach a cell (their blend weight there is b
 
 from __future__ import annotations
 
+import contextlib
 import math
 from dataclasses import dataclass
 
@@ -42,7 +46,7 @@ from ..skeleton.tree import FINGER_JOINTS, FINGER_NAMES, NUM_JOINTS, PARENTS
 from .primitives import gaussian, round_cone_sdf, rounded_polygon_sdf, smooth_union, smoothstep
 from .shape import HandShape, RestSkeleton, rest_skeleton
 
-__all__ = ["HandTemplate", "HandFieldOutput", "PosedField", "build_template"]
+__all__ = ["HandTemplate", "HandFieldOutput", "PosedField", "build_template", "single_threaded"]
 
 _DISTAL_BONES = tuple(FINGER_JOINTS[name][2] for name in FINGER_NAMES)
 _NUM_NOISE_WAVES = 24
@@ -70,8 +74,9 @@ class HandTemplate:
         from the start sphere's centre). cone_length: [P], cone_radii: [P, 2] metres.
     cone_palm: [P] bool, True for the palm group (blended with ``blend_palm``).
     slab_rot, slab_origin, slab_bone: [Q, 3, 3], [Q, 3], [Q] plane frames of the rounded slabs
-        (rows a, b, normal); slab_vertices: Q tensors [V, 2] (counter-clockwise outlines);
-        slab_radius: [Q] half thicknesses. Slabs belong to the palm group.
+        (rows a, b, normal; all slabs share the axes and differ in height); slab_vertices: Q
+        tensors [V, 2] (counter-clockwise outlines); slab_radius: [Q] half thicknesses. Slabs
+        belong to the palm group (Q = 1 here: palm, wrist and forearm stub in one outline).
     blend, blend_palm: smooth-union radii k of the whole hand and of the palm group, metres.
     crease_rot, crease_origin, crease_bone: [C, ...] frames (rows: along, dorsal, lateral;
         origin at the crease's centre on the bone axis). crease_parent: [C] the other bone whose
@@ -269,12 +274,30 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
     cmc, thumb_mcp = joints[13], ends[13]
     cones.append((cmc, thumb_mcp, radii[13, 0], radii[13, 1], 13, True))
     thumb_len = np.linalg.norm(thumb_mcp - cmc)
-    toward_palm = -dorsal[13] * 0.0065 * scale * thick
+    toward_palm = -dorsal[13] * 0.0075 * scale * thick
     cones.append(
-        (cmc + dirs[13] * 0.05 * thumb_len + toward_palm,
-         cmc + dirs[13] * 0.72 * thumb_len + toward_palm * 0.6,
-         0.0135 * scale * thick, 0.0098 * scale * thick, 13, True)
+        (cmc + dirs[13] * 0.1 * thumb_len + toward_palm + np.array([0, 0.002, 0]) * scale,
+         cmc + dirs[13] * 0.7 * thumb_len + toward_palm * 0.5,
+         0.0125 * scale * thick, 0.0095 * scale * thick, 13, True)
     )  # fmt: skip
+    # First web space: a fan of two cones from the thumb metacarpal (its distal part and its
+    # middle) to a point in the radial border of the palm near the index MCP joint. On the thumb
+    # bone, so the web follows the thumb (it stretches out in palmar abduction).
+    index_mcp = joints[FINGER_JOINTS["index"][0]]
+    web_target = index_mcp + np.array(
+        [0.014 * scale, -0.003 * scale * thick, 0.002 * scale * width]
+    )
+    for along, radius in ((0.85, 0.0068), (0.5, 0.0075)):
+        web_start = cmc + along * (thumb_mcp - cmc)
+        cones.append(
+            (web_start, web_target, radius * scale * thick, 0.0058 * scale * thick, 13, True)
+        )
+    # Finger webs between the bases of neighbouring fingers.
+    bases = [joints[FINGER_JOINTS[f][0]] for f in ("index", "middle", "ring", "pinky")]
+    for left, right in zip(bases[:-1], bases[1:], strict=True):
+        start = 0.5 * (left + right) + np.array([0.0, -0.0035 * scale * thick, 0.0])
+        end = start + np.array([-0.013 * scale, -0.001 * scale, 0.0])
+        cones.append((start, end, 0.0078 * scale, 0.0068 * scale, 0, True))
     # Fingers: phalanx cones (axes a little palmar of the bones) and joint condyles.
     for finger in FINGER_NAMES:
         chain = FINGER_JOINTS[finger]
@@ -291,8 +314,8 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
         # thumb's MCP and IP), attached to the proximal bone.
         for bone in chain[:2]:
             r_joint = radii[bone, 1]
-            half = r_joint * (0.2 + 0.14 * knuckle)
-            radius = r_joint * (0.7 + 0.12 * knuckle)
+            half = r_joint * (0.16 + 0.1 * knuckle)
+            radius = r_joint * (0.66 + 0.1 * knuckle)
             center = ends[bone] + dorsal[bone] * 0.04 * r_joint - dirs[bone] * 0.1 * r_joint
             cones.append(
                 (center - lateral[bone] * half, center + lateral[bone] * half, radius, radius,
@@ -314,7 +337,10 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
     cone_length = np.linalg.norm(cone_end - cone_start, axis=1)
     assert np.all(np.abs(cone_radii[:, 0] - cone_radii[:, 1]) < 0.95 * cone_length)
     cone_rot = np.stack(
-        [_axis_frame(e - s, np.array([0.0, 1.0, 0.0])) for s, e in zip(cone_start, cone_end, strict=True)]
+        [
+            _axis_frame(e - s, np.array([0.0, 1.0, 0.0]))
+            for s, e in zip(cone_start, cone_end, strict=True)
+        ]
     )
     cone_center = 0.5 * (cone_start + cone_end)
     cone_bound = 0.5 * cone_length + cone_radii.max(1)
@@ -322,7 +348,7 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
     # Palm slab and forearm stub: rounded convex polygons in horizontal planes on bone 0.
     mcp = {f: joints[FINGER_JOINTS[f][0]] for f in ("index", "middle", "ring", "pinky")}
     palm_y = -0.002 * scale * thick
-    palm_radius = 0.0115 * scale * thick
+    palm_radius = 0.0122 * scale * thick
     outline = [
         xyz(-0.004, 0.0, 0.011), xyz(-0.004, 0.0, -0.015), xyz(-0.050, 0.0, 0.018),
         xyz(-0.034, 0.0, -0.030),
@@ -331,14 +357,15 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
         mcp["ring"] + np.array([0.003 * scale, 0.0, 0.0]),
         mcp["pinky"] + np.array([0.004 * scale, 0.0, 0.0]),
     ]  # fmt: skip
-    forearm = [xyz(0.004, 0, -0.013), xyz(0.050, 0, -0.013), xyz(0.050, 0, 0.009),
-               xyz(0.004, 0, 0.009)]  # fmt: skip
+    # The wrist and a short forearm stub belong to the same slab (one exact rounded polygon, no
+    # blend at the wrist).
+    outline += [xyz(0.026, 0, -0.0115), xyz(0.026, 0, 0.0075)]
     # Plane frame rows (a, b, normal) = (x, -z, y): right-handed, normal = back of the hand.
     plane_rot = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
-    slab_origin = np.array([[0.0, palm_y, 0.0], [0.0, -0.001 * scale * thick, 0.0]])
-    slab_radius = np.array([palm_radius, 0.0165 * scale * thick])
+    slab_origin = np.array([[0.0, palm_y, 0.0]])
+    slab_radius = np.array([palm_radius])
     slab_vertices, slab_center, slab_bound = [], [], []
-    for points, origin, radius in zip((outline, forearm), slab_origin, slab_radius, strict=True):
+    for points, origin, radius in zip((outline,), slab_origin, slab_radius, strict=True):
         planar = _convex_hull_ccw(np.array([[p[0], -p[2]] for p in points]))
         slab_vertices.append(planar)
         centroid = planar.mean(0)
@@ -374,7 +401,7 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
     for center in (-0.006, -0.013):
         creases.append(
             (0, 0, center * scale + float(rng.normal(0.0, 0.0003)), 0.0007 * scale,
-             0.00035 * scale * float(rng.uniform(0.7, 1.3)), 0.0165 * scale * thick, 1.0)
+             0.00035 * scale * float(rng.uniform(0.7, 1.3)), palm_radius, 1.0)
         )  # fmt: skip
     crease_bone = np.array([c[0] for c in creases])
     crease_center_along = np.array([c[2] for c in creases])
@@ -418,14 +445,15 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
     nail_center = joints[nail_bone] + dirs[nail_bone] * (0.5 * (nail_start + nail_end))[:, None]
     nail_bound = 0.5 * (nail_end - nail_start) + nail_radius + 0.006
 
-    # Bumps: random plane waves, wavelengths 4-16 mm, amplitude proportional to wavelength
-    # (constant slope), RMS height about 0.08 mm.
+    # Bumps: random plane waves, wavelengths 8-30 mm, amplitude proportional to wavelength
+    # (constant slope), RMS height 0.06 mm (peaks about 0.2 mm). Being a 3D field, its gradient
+    # also has a component along the surface normal, so the slope is kept at about 0.02.
     directions = rng.normal(size=(_NUM_NOISE_WAVES, 3))
     directions /= np.linalg.norm(directions, axis=1, keepdims=True)
-    wavelengths = np.exp(rng.uniform(math.log(0.004), math.log(0.016), _NUM_NOISE_WAVES))
-    freqs = directions * (2.0 * math.pi / wavelengths)[:, None]
+    wavelengths = np.exp(rng.uniform(math.log(0.008), math.log(0.030), _NUM_NOISE_WAVES))
+    freqs = directions * (2.0 * math.pi / (wavelengths * scale))[:, None]
     phases = rng.uniform(0.0, 2.0 * math.pi, _NUM_NOISE_WAVES)
-    amps = wavelengths / np.sqrt(np.sum(wavelengths**2) / 2.0) * 0.00008
+    amps = wavelengths / np.sqrt(np.sum(wavelengths**2) / 2.0) * 0.00006 * scale
 
     def t(array, dtype=torch.float64) -> torch.Tensor:
         return torch.as_tensor(np.asarray(array), dtype=dtype)
@@ -440,15 +468,15 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
         cone_palm=t([c[5] for c in cones], torch.bool),
         cone_center=t(cone_center),
         cone_bound=t(cone_bound),
-        slab_rot=t(np.stack([plane_rot, plane_rot])),
+        slab_rot=t(plane_rot[None]),
         slab_origin=t(slab_origin),
-        slab_bone=t([0, 0], torch.long),
+        slab_bone=t([0], torch.long),
         slab_vertices=[t(v) for v in slab_vertices],
         slab_radius=t(slab_radius),
         slab_center=t(slab_center),
         slab_bound=t(slab_bound),
-        blend=0.0015 * shape.flesh * scale,
-        blend_palm=0.004 * shape.flesh * scale,
+        blend=0.0012 * shape.flesh * scale,
+        blend_palm=0.0035 * shape.flesh * scale,
         crease_rot=t(crease_rot),
         crease_origin=t(crease_origin),
         crease_bone=t(crease_bone, torch.long),
@@ -515,6 +543,24 @@ def _apply(
     return flat[:, :num], flat[:, num : 2 * num], flat[:, 2 * num :]
 
 
+@contextlib.contextmanager
+def single_threaded(device: torch.device):
+    """Run CPU tensor work on one thread (restored afterwards); no-op on other devices.
+
+    The field is many small tensor operations: intra-op threads do not pay for their start-up,
+    and when other processes share the cores OpenMP's spinning makes them ten times slower.
+    """
+    if torch.device(device).type != "cpu":
+        yield
+        return
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
 @dataclass
 class _Selection:
     """Indices of the parts, creases, nails and palm lines evaluated for a group of points."""
@@ -523,6 +569,29 @@ class _Selection:
     slabs: list[int]
     creases: torch.Tensor
     nails: torch.Tensor
+    lines: bool
+
+
+@dataclass
+class _Prepared:
+    """A selection's gathered frames (one matrix product gives all local coordinates) and
+    parameter rows; local frame order: cones (palm group first), creases, nails, plane, bone 0."""
+
+    weight: torch.Tensor
+    bias: torch.Tensor
+    count: int
+    num_cones: int
+    num_palm: int
+    palm_on: bool
+    cone_table: torch.Tensor
+    palm_onehot: torch.Tensor | None
+    top_onehot: torch.Tensor
+    num_creases: int
+    crease_table: torch.Tensor
+    crease_owner: torch.Tensor
+    num_nails: int
+    nail_index: torch.Tensor
+    nail_owner: torch.Tensor
     lines: bool
 
 
@@ -570,6 +639,7 @@ class PosedField:
         self.palm_matrix, self.palm_offset = _posed_maps(
             identity[None], torch.zeros_like(identity[:1]), bones[:1], inv
         )
+
         # One-hot part -> bone maps for ownership, and bone -> detail ownership selectors.
         def onehot(index: torch.Tensor) -> torch.Tensor:
             return torch.nn.functional.one_hot(index, NUM_JOINTS).to(self.dtype)
@@ -603,6 +673,92 @@ class PosedField:
             self.all_cones, list(range(len(tpl.slab_vertices))), self.all_creases,
             self.all_nails, True,
         )  # fmt: skip
+        self._init_tables()
+        self._prepared: dict[tuple, _Prepared] = {}
+
+    def _init_tables(self) -> None:
+        """Stacked frames and per-part parameter rows for the hot path (:meth:`_evaluate`)."""
+        tpl = self.template
+        # All local frames in one table: cones, creases, nails, the slabs' plane, bone 0.
+        plane_matrix, plane_offset = _posed_maps(
+            tpl.slab_rot[:1], torch.zeros_like(tpl.slab_origin[:1]), tpl.slab_bone[:1],
+            self.inv_transforms,
+        )  # fmt: skip
+        matrices = [self.cone_matrix, self.crease_matrix, self.nail_matrix, plane_matrix,
+                    self.palm_matrix]  # fmt: skip
+        offsets = [self.cone_offset, self.crease_offset, self.nail_offset, plane_offset,
+                   self.palm_offset]  # fmt: skip
+        self.frame_matrix = torch.cat(matrices)  # [K, 3, 3]
+        self.frame_offset = torch.cat(offsets)  # [K, 3]
+        num_cones, num_creases = tpl.cone_bone.shape[0], tpl.crease_bone.shape[0]
+        self.crease_start = num_cones
+        self.nail_start = num_cones + num_creases
+        self.plane_index = self.nail_start + 5
+        # Cone rows: length, start radius, sin a, tan a.
+        sin_a = (tpl.cone_radii[:, 0] - tpl.cone_radii[:, 1]) / tpl.cone_length
+        tan_a = sin_a / (1.0 - sin_a * sin_a).sqrt()
+        self.cone_table = torch.stack([tpl.cone_length, tpl.cone_radii[:, 0], sin_a, tan_a], 1)
+        # Crease rows: 1 / width, depth, -side / radius, face low, face high, near far, near in.
+        self.crease_table = torch.stack(
+            [1.0 / tpl.crease_width, tpl.crease_depth, -tpl.crease_side / tpl.crease_radius,
+             self.crease_face_low, self.crease_face_high, tpl.crease_radius + 0.006,
+             tpl.crease_radius + 0.0025], 1,
+        )  # fmt: skip
+        # Slabs: both planes share their axes; edges padded to the same count.
+        num_vertices = max(v.shape[0] for v in tpl.slab_vertices)
+        padded = [
+            torch.cat([v, v[-1:].expand(num_vertices - v.shape[0], 2)]) for v in tpl.slab_vertices
+        ]
+        vertices = torch.stack(padded)  # [Q, V, 2]
+        edges = torch.roll(vertices, -1, dims=1) - vertices
+        self.slab_vx, self.slab_vy = vertices[..., 0].reshape(-1), vertices[..., 1].reshape(-1)
+        self.slab_ex, self.slab_ey = edges[..., 0].reshape(-1), edges[..., 1].reshape(-1)
+        self.slab_inv_len = 1.0 / (edges * edges).sum(-1).clamp_min(1e-20).reshape(-1)
+        self.slab_height = tpl.slab_origin @ tpl.slab_rot[0, 2]  # plane heights along normal
+        self.slab_shape = (vertices.shape[0], num_vertices)
+
+    def _prepare(self, sel: _Selection) -> _Prepared:
+        """Gather the frames and parameters of a selection once (cached by its indices)."""
+        key = (tuple(sel.cones.tolist()), tuple(sel.slabs), tuple(sel.creases.tolist()),
+               tuple(sel.nails.tolist()), sel.lines)  # fmt: skip
+        prepared = self._prepared.get(key)
+        if prepared is not None:
+            return prepared
+        tpl = self.template
+        palm_flags = tpl.cone_palm[sel.cones]
+        cones = torch.cat([sel.cones[palm_flags], sel.cones[~palm_flags]])
+        num_palm = int(palm_flags.sum())
+        palm_on = bool(sel.slabs) or num_palm > 0
+        frames = torch.cat(
+            [cones, self.crease_start + sel.creases, self.nail_start + sel.nails,
+             torch.tensor([self.plane_index, self.plane_index + 1], device=self.device)]
+        )  # fmt: skip
+        matrix = self.frame_matrix[frames]
+        count = frames.shape[0]
+        weight = matrix.transpose(0, 1).reshape(3 * count, 3).T.contiguous()
+        bias = self.frame_offset[frames].T.reshape(3 * count).contiguous()
+        onehot = self.cone_onehot[cones]
+        palm_onehot = torch.cat([onehot[:num_palm], self.slab_onehot]) if palm_on else None
+        prepared = _Prepared(
+            weight=weight,
+            bias=bias,
+            count=count,
+            num_cones=cones.shape[0],
+            num_palm=num_palm,
+            palm_on=palm_on,
+            cone_table=self.cone_table[cones],
+            palm_onehot=palm_onehot,
+            top_onehot=onehot[num_palm:],
+            num_creases=sel.creases.shape[0],
+            crease_table=self.crease_table[sel.creases],
+            crease_owner=self.crease_owner[:, sel.creases],
+            num_nails=sel.nails.shape[0],
+            nail_index=sel.nails,
+            nail_owner=self.nail_owner[:, sel.nails],
+            lines=sel.lines and palm_on,
+        )
+        self._prepared[key] = prepared
+        return prepared
 
     # ------------------------------------------------------------------------------------------
     def evaluate(
@@ -617,6 +773,12 @@ class PosedField:
             about 1e-7 m); False evaluates every part at every point (the reference).
         """
         points = points.to(self.dtype)
+        with single_threaded(points.device):
+            return self._evaluate_grouped(points, with_features, cull)
+
+    def _evaluate_grouped(
+        self, points: torch.Tensor, with_features: bool, cull: bool
+    ) -> HandFieldOutput:
         num = points.shape[0]
         if not cull or num <= _MIN_CULL:
             return self._evaluate(points, self._everything, with_features)
@@ -711,59 +873,62 @@ class PosedField:
         self, points: torch.Tensor, sel: _Selection, with_features: bool
     ) -> HandFieldOutput:
         tpl = self.template
+        prep = self._prepare(sel)
         num = points.shape[0]
-        # Part distances: the palm group (cones, then slabs) and the other cones.
-        along, up, side = _apply(points, self.cone_matrix[sel.cones], self.cone_offset[sel.cones])
-        radii = tpl.cone_radii[sel.cones]
-        cone_d = round_cone_sdf(
-            along,
-            up * up + side * side,
-            tpl.cone_length[sel.cones],
-            radii[:, 0],
-            radii[:, 1],
-        )
-        in_palm = tpl.cone_palm[sel.cones]
-        palm_parts = [cone_d[:, in_palm]]
-        palm_onehot = [self.cone_onehot[sel.cones][in_palm]]
-        for q in sel.slabs:
-            local = torch.cat(
-                _apply(points, self.slab_matrix[q : q + 1], self.slab_offset[q : q + 1]), dim=1
-            )
-            palm_parts.append(
-                rounded_polygon_sdf(local, tpl.slab_vertices[q], tpl.slab_radius[q])[:, None]
-            )
-            palm_onehot.append(self.slab_onehot[q : q + 1])
-        palm_d = torch.cat(palm_parts, dim=1)
-        top_d = cone_d[:, ~in_palm]
-        top_onehot = self.cone_onehot[sel.cones][~in_palm]
-        if palm_d.shape[1]:
+        count = prep.count
+        local = torch.addmm(prep.bias, points, prep.weight)  # [N, 3K]: all along | up | side
+        along, up, side = local[:, :count], local[:, count : 2 * count], local[:, 2 * count :]
+
+        # Round cones (branch-free form of primitives.round_cone_sdf with cached rows).
+        k = prep.num_cones
+        table = prep.cone_table
+        c_along, c_up, c_side = along[:, :k], up[:, :k], side[:, :k]
+        radial_sq = c_up * c_up + c_side * c_side
+        radial = (radial_sq + 1e-20).sqrt()
+        center = torch.minimum((c_along - radial * table[:, 3]).clamp_min(0.0), table[:, 0])
+        offset = c_along - center
+        cone_d = (offset * offset + radial_sq + 1e-20).sqrt() - (table[:, 1] - center * table[:, 2])
+
+        # Palm group: palm cones and the two rounded slabs (shared plane axes).
+        if prep.palm_on:
+            plane_a, plane_b = along[:, count - 2 : count - 1], up[:, count - 2 : count - 1]
+            height = side[:, count - 2 : count - 1]
+            rel_x, rel_y = plane_a - self.slab_vx, plane_b - self.slab_vy  # [N, Q V]
+            t = ((rel_x * self.slab_ex + rel_y * self.slab_ey) * self.slab_inv_len).clamp(0, 1)
+            dx, dy = rel_x - t * self.slab_ex, rel_y - t * self.slab_ey
+            shape = (num,) + self.slab_shape
+            seg_sq = (dx * dx + dy * dy).view(shape).amin(-1)  # [N, Q]
+            cross = (self.slab_ex * rel_y - self.slab_ey * rel_x).view(shape).amin(-1)
+            outside = (cross < 0.0).to(points.dtype)
+            heights = height - self.slab_height
+            slab_d = (seg_sq * outside + heights * heights + 1e-20).sqrt() - tpl.slab_radius
+            palm_d = torch.cat([cone_d[:, : prep.num_palm], slab_d], dim=1)
             palm_s, palm_w = smooth_union(palm_d, tpl.blend_palm)
-            top_d = torch.cat([palm_s[:, None], top_d], dim=1)
-        sdf, top_w = smooth_union(top_d, tpl.blend)
-        if palm_d.shape[1]:
-            weights = (top_w[:, :1] * palm_w) @ torch.cat(palm_onehot) + top_w[:, 1:] @ top_onehot
+            top_d = torch.cat([palm_s[:, None], cone_d[:, prep.num_palm :]], dim=1)
+            sdf, top_w = smooth_union(top_d, tpl.blend)
+            weights = (top_w[:, :1] * palm_w) @ prep.palm_onehot + top_w[:, 1:] @ prep.top_onehot
         else:
-            weights = top_w @ top_onehot
+            sdf, top_w = smooth_union(cone_d, tpl.blend)
+            weights = top_w @ prep.top_onehot
 
         # Joint creases and knuckle wrinkles (Gaussian grooves across a bone).
-        displacement = points.new_zeros(num)
+        displacement = None
         crease_shape = None
-        if sel.creases.numel():
-            c = sel.creases
-            along, up, side = _apply(points, self.crease_matrix[c], self.crease_offset[c])
-            radius = tpl.crease_radius[c]
-            profile = gaussian(along / tpl.crease_width[c])
-            facing = up * (-tpl.crease_side[c] / radius)
-            face_mask = smoothstep(self.crease_face_low[c], self.crease_face_high[c], facing)
-            near = smoothstep(radius + 0.006, radius + 0.0025, (up * up + side * side).sqrt())
-            owner = (weights @ self.crease_owner[:, c]).clamp(max=1.0)
+        if prep.num_creases:
+            lo, hi = k, k + prep.num_creases
+            ctab = prep.crease_table
+            r_along, r_up, r_side = along[:, lo:hi], up[:, lo:hi], side[:, lo:hi]
+            profile = gaussian(r_along * ctab[:, 0])
+            face_mask = smoothstep(ctab[:, 3], ctab[:, 4], r_up * ctab[:, 2])
+            near = smoothstep(ctab[:, 5], ctab[:, 6], (r_up * r_up + r_side * r_side).sqrt())
+            owner = (weights @ prep.crease_owner).clamp(max=1.0)
             crease_shape = profile * face_mask * near * owner
-            displacement = displacement + crease_shape @ tpl.crease_depth[c]
+            displacement = crease_shape @ ctab[:, 1]
 
         # Palm lines: arcs on the palmar side of the palm, where the palm owns the surface.
-        x_palm = torch.cat(_apply(points, self.palm_matrix, self.palm_offset), dim=1)
+        x_palm = torch.stack([along[:, -1], up[:, -1], side[:, -1]], dim=1)
         line_shape = None
-        if sel.lines:
+        if prep.lines:
             planar = x_palm[:, None, 0::2] - tpl.line_center  # [N, L, 2]
             dist_center = ((planar * planar).sum(-1) + 1e-14).sqrt()
             cos_mid = (planar * tpl.line_mid).sum(-1) / dist_center
@@ -771,58 +936,73 @@ class PosedField:
             palm_y, half = tpl.palm_center_y, tpl.palm_half_thickness
             height = x_palm[:, 1]
             palm_face = smoothstep(palm_y - 0.3 * half, palm_y - 0.75 * half, height)
-            palm_face = palm_face * smoothstep(
-                palm_y - half - 0.009, palm_y - half - 0.005, height
-            )
+            palm_face = palm_face * smoothstep(palm_y - half - 0.009, palm_y - half - 0.005, height)
             across = (dist_center - tpl.line_radius) / tpl.line_width
             line_shape = (
                 gaussian(across)
                 * arc_mask
                 * (palm_face * (weights[:, 0] + weights[:, 13]))[:, None]
             )
-            displacement = displacement + line_shape @ tpl.line_depth
+            lines = line_shape @ tpl.line_depth
+            displacement = lines if displacement is None else displacement + lines
 
         # Fingernails: a raised plate on the back of each distal bone, cuticle curved proximally.
         nail_mask = None
-        if sel.nails.numel():
-            n = sel.nails
-            along, up, side = _apply(points, self.nail_matrix[n], self.nail_offset[n])
+        nail_along = None
+        if prep.num_nails:
+            lo = k + prep.num_creases
+            hi = lo + prep.num_nails
+            n = prep.nail_index
+            nail_along, n_up, n_side = along[:, lo:hi], up[:, lo:hi], side[:, lo:hi]
             radius = tpl.nail_radius[n]
             start, end = tpl.nail_start[n], tpl.nail_end[n]
-            cuticle = along - 0.45 * side * side / radius
+            cuticle = nail_along - 0.45 * n_side * n_side / radius
             nail_mask = (
-                smoothstep(start, start + 0.0012, cuticle)
-                * smoothstep(end + 0.0008, end - 0.0004, along)
-                * smoothstep(0.3, 0.6, up / radius)
-                * smoothstep(radius + 0.004, radius + 0.0015, (up * up + side * side).sqrt())
-                * (weights @ self.nail_owner[:, n])
+                smoothstep(start, start + 0.0018, cuticle)
+                * smoothstep(end + 0.001, end - 0.001, nail_along)
+                * smoothstep(0.3, 0.6, n_up / radius)
+                * smoothstep(
+                    radius + 0.004, radius + 0.0015, (n_up * n_up + n_side * n_side).sqrt()
+                )
+                * (weights @ prep.nail_owner)
             )
-            displacement = displacement - tpl.nail_height * nail_mask.sum(-1)
+            nails = nail_mask.sum(-1) * -tpl.nail_height
+            displacement = nails if displacement is None else displacement + nails
 
-        # Bumps: plane waves at the rest-pose point, carried by the owning bones.
-        # sum_j w_j (R_j x + t_j) = (sum_j w_j R_j) x + sum_j w_j t_j
-        blended = (weights @ self.rest_flat).reshape(num, 3, 3)
+        # Bumps: plane waves at the rest-pose point, carried by the owning bones:
+        # sum_j w_j (R_j x + t_j) = (sum_j w_j R_j) x + sum_j w_j t_j.
+        blended = (weights @ self.rest_flat).view(num, 3, 3)
         rest_points = (blended @ points[:, :, None])[..., 0] + weights @ self.rest_offset
-        waves = torch.sin(rest_points @ tpl.noise_freqs.T + tpl.noise_phases)
-        displacement = displacement + waves @ tpl.noise_amps
+        waves = torch.sin(torch.addmm(tpl.noise_phases, rest_points, tpl.noise_freqs.T))
+        bumps = waves @ tpl.noise_amps
+        displacement = bumps if displacement is None else displacement + bumps
 
         sdf = sdf + displacement
         if not with_features:
             return HandFieldOutput(sdf=sdf, weights=weights)
         return self._features(points, sdf, weights, rest_points, x_palm, crease_shape,
-                              line_shape, nail_mask, sel)  # fmt: skip
+                              line_shape, nail_mask, nail_along, prep)  # fmt: skip
 
     def _features(
-        self, points, sdf, weights, rest_points, x_palm, crease_shape, line_shape, nail_mask, sel
+        self,
+        points,
+        sdf,
+        weights,
+        rest_points,
+        x_palm,
+        crease_shape,
+        line_shape,
+        nail_mask,
+        nail_along,
+        prep,
     ) -> HandFieldOutput:
         tpl = self.template
         skel = tpl.skeleton
         zeros = sdf.new_zeros(sdf.shape)
         if nail_mask is not None:
-            n = sel.nails
-            along = _apply(points, self.nail_matrix[n], self.nail_offset[n])[0]
+            n = prep.nail_index
             span = (tpl.nail_end[n] - tpl.nail_start[n]).clamp_min(1e-6)
-            along = ((along - tpl.nail_start[n]) / span).clamp(0.0, 1.0)
+            along = ((nail_along - tpl.nail_start[n]) / span).clamp(0.0, 1.0)
             total = nail_mask.sum(-1)
             nail = total.clamp(max=1.0)
             nail_along = (along * nail_mask).sum(-1) / total.clamp_min(1e-6)

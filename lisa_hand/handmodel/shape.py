@@ -46,7 +46,8 @@ class HandShape:
     palm_length: float = 0.50
     """Wrist joint to the middle finger's MCP joint, as a fraction of ``hand_length``."""
     palm_width: float = 1.0
-    """Scale of the palm's breadth: lateral spacing of the MCP joints and the palm outline."""
+    """Scale of the palm's breadth: lateral spacing of the MCP joints (also widened by thicker
+    fingers) and the palm outline."""
     palm_thickness: float = 1.0
     """Scale of the palm's, wrist's and thenar's thickness (dorsal to palmar)."""
     index_ratio: float = 0.93
@@ -82,8 +83,7 @@ class HandShape:
             low, high = SHAPE_BOUNDS[field.name]
             if not (math.isfinite(value) and low <= value <= high):
                 raise ValueError(
-                    f"HandShape.{field.name} = {value!r} is outside the valid range "
-                    f"[{low}, {high}]"
+                    f"HandShape.{field.name} = {value!r} is outside the valid range [{low}, {high}]"
                 )
 
     def as_vector(self) -> np.ndarray:
@@ -126,7 +126,7 @@ _DISTRIBUTION: dict[str, tuple[float, float, float, float]] = {
     "finger_thickness": (1.0, 0.07, 0.84, 1.18),
     "knuckle_size": (1.0, 0.12, 0.72, 1.32),
     "fingertip_taper": (0.74, 0.035, 0.66, 0.84),
-    "finger_spread": (1.0, 0.2, 0.5, 1.5),
+    "finger_spread": (1.0, 0.18, 0.75, 1.5),
     "flesh": (1.0, 0.1, 0.8, 1.25),
 }
 
@@ -169,7 +169,7 @@ FINGER_BONE_FRACTIONS = {
     "ring": (0.48, 0.295, 0.225),
     "pinky": (0.455, 0.28, 0.265),
 }
-_FINGER_BASE_RADIUS = {"index": 0.0100, "middle": 0.0102, "ring": 0.0096, "pinky": 0.0087}
+_FINGER_BASE_RADIUS = {"index": 0.0108, "middle": 0.0110, "ring": 0.0104, "pinky": 0.0094}
 # MCP joints, for the average hand, relative to the middle MCP joint: (dx, dy, dz) metres; dz is
 # scaled by ``palm_width``, dx and dy by the hand length (the MCP line is an arc; the index and
 # little fingers' knuckles sit lower, the palm's transverse arch).
@@ -180,7 +180,8 @@ _MCP_OFFSETS = {
     "pinky": (0.0150, -0.0050, -0.0370),
 }
 _MIDDLE_MCP_Z = -0.0020
-# Rest splay of each finger about the dorsal axis (radians, + toward the thumb), times finger_spread.
+# Rest splay of each finger about the dorsal axis (radians, + toward the thumb), times
+# finger_spread.
 _FINGER_SPLAY = {"index": 0.09, "middle": 0.015, "ring": -0.07, "pinky": -0.17}
 # Thumb, for the average hand: CMC joint (metres), bone lengths as fractions of L (metacarpal,
 # proximal, distal + pad), in-plane angles of the three bones relative to the metacarpal's
@@ -189,9 +190,9 @@ _THUMB_CMC = (-0.029, -0.011, 0.020)
 _THUMB_FRACTIONS = (0.23, 0.165, 0.145)
 _THUMB_ANGLE_OFFSETS = (0.0, -0.16, -0.28)
 _THUMB_TILT = (0.22, 0.12, 0.08)
-_THUMB_RADII = (0.0125, 0.0108, 0.0104, 0.0092)
+_THUMB_RADII = (0.0125, 0.0115, 0.0110, 0.0097)
 # How far the thumb's nail side is turned from the back of the hand toward +z (radians).
-_THUMB_PRONATION = 1.0
+_THUMB_PRONATION = 1.35
 
 
 @dataclass
@@ -263,7 +264,9 @@ def rest_skeleton(shape: HandShape, dtype: torch.dtype = torch.float64) -> RestS
     for finger in ("index", "middle", "ring", "pinky"):
         chain = FINGER_JOINTS[finger]
         dx, dy, dz = _MCP_OFFSETS[finger]
-        mcp = middle_mcp + np.array([dx * scale, dy * scale, dz * scale * shape.palm_width])
+        # Thicker fingers sit further apart (broader knuckles), so that neighbours do not touch.
+        spacing = shape.palm_width * (0.6 + 0.4 * shape.finger_thickness)
+        mcp = middle_mcp + np.array([dx * scale, dy * scale, dz * scale * spacing])
         splay = _FINGER_SPLAY[finger] * shape.finger_spread
         direction = _rotate_about(np.array([-1.0, 0.0, 0.0]), up, splay)
         finger_length = ratios[finger] * middle_finger

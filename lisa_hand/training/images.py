@@ -1,0 +1,634 @@
+"""``lisa train``: LISA from multi-view images (paper Section 4.2, Eq. 10-14).
+
+Learned: the per-bone SDF and colour MLPs and the skinning MLP (:class:`LisaModel`), one shape
+code ``beta+`` and one colour code ``gamma`` per subject (auto-decoder tables), VolSDF's Laplace
+scale ``beta``, a per-camera, per-channel gain and bias (colour calibration, after Neural
+Volumes) and, after the first ``pose_refine_start`` fraction of the steps (paper: 10%), a
+per-frame offset of the given pose (48 axis-angle values) and translation, zero at the start.
+
+Each step draws ``num_frames`` frames and ``num_rays / num_frames`` camera rays in each, mostly
+through the mask and a band around it (:meth:`RayFrames.sample_rays`), renders them with VolSDF
+(:func:`lisa_hand.render.render_rays`; samples from ``render.sampler``) and minimises
+
+    L = lambda_col L_col + lambda_eik L_Eik + lambda_w L_w + lambda_reg L_reg     (Eq. 14)
+
+* ``L_col = |c_k - c^_k|_1`` (Eq. 10), with the calibration applied to the hand's colour only
+  (the dataset's backgrounds are black whatever the camera):
+  ``c_k = g_cam * c_fg + b_cam * opacity + (1 - opacity) * background``, where ``c_fg`` is the
+  rendered colour over a zero background. At inference LISA uses the mean gain and bias
+  (:meth:`ImageModel.mean_calibration`).
+* ``L_Eik`` (Eq. 11) on ``eikonal_ray_points`` of the rays' samples and ``eikonal_uniform_points``
+  uniform points per frame (in the box around the bones' regions: outside them the field is an
+  analytic stand-in with a unit gradient).
+* ``L_w = |w - w^|_1`` (Eq. 12) at ``skinning_points`` points of each frame's ``scan.npz`` against
+  its ``template_weights``: the paper's "approximate 3D mesh and its skinning weights" from the
+  pseudo-ground-truth template. Only these weights are read from the scans, never the geometry.
+* ``L_reg = |beta+|_2 + |gamma|_2`` (Eq. 13).
+* Optionally (``lambda_mask > 0``; NOT in the paper, off by default) a binary cross-entropy
+  between the rendered opacity and the mask.
+
+With a prior (``lisa train-prior``), the SDF and skinning MLPs and the shape codes start from it
+(subjects the prior has not seen start from its mean code); without one the model trains from
+images alone (the paper's LISA-im).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from ..config import config_from_dict
+from ..data.datasets import SPLITS, RayBatch, RayFrames, ScanFrames
+from ..fields.config import FieldConfig
+from ..fields.latents import LatentTable
+from ..losses import color_loss, eikonal_loss, latent_loss, skinning_loss
+from ..model import FrameState, LisaModel
+from ..render import LaplaceDensity, RenderConfig, apply_gain_bias, ray_sphere_bounds, render_rays
+from ..skeleton import NUM_JOINTS, POSE_DIM
+from .distributed import DistContext, shard_slice, unwrap
+from .engine import StepContext, Trainer, TrainerConfig, TrainResult
+from .prior import (
+    PriorModel,
+    _check_non_negative,
+    _check_positive_int,
+    _check_resumed_extra,
+    _optimizer_fn,
+    _seeded,
+    _weighted_total,
+    load_prior,
+    load_run_checkpoint,
+)
+
+__all__ = [
+    "IMAGE_KIND",
+    "COLOR_FIELDS",
+    "ImageTrainConfig",
+    "ImageBatch",
+    "ImageModel",
+    "build_image_model",
+    "calibrate",
+    "train_images",
+    "load_image_model",
+    "geometry_from_prior",
+    "pose_refine_step",
+    "region_bounds",
+    "select_frame",
+]
+
+IMAGE_KIND = "lisa-images"
+"""``Checkpoint.extra["kind"]`` of an image run."""
+
+COLOR_FIELDS = ("use_color", "color_hidden", "color_depth", "color_dim", "inference_precision")
+"""The :class:`FieldConfig` fields that are not part of the geometry (not taken from a prior)."""
+
+
+def _default_image_field() -> FieldConfig:
+    return FieldConfig()
+
+
+def _default_image_trainer() -> TrainerConfig:
+    return TrainerConfig(steps=20_000, lr=5e-4, lr_schedule="cosine", checkpoint_every=1000,
+                         print_every=100, grad_sync="allreduce")
+
+
+def _default_image_render() -> RenderConfig:
+    return RenderConfig(sampler="sphere_traced", num_samples=48, num_samples_extra=16,
+                        stratified=True)
+
+
+@dataclass(frozen=True)
+class ImageTrainConfig:
+    """Everything of an image run (``lisa train``): architecture, loop, rendering, data, losses."""
+
+    field: FieldConfig = dataclasses.field(default_factory=_default_image_field)
+    """The field's architecture (with colour). With a prior and ``field_from_prior``, the
+    geometry fields are replaced by the prior's."""
+    trainer: TrainerConfig = dataclasses.field(default_factory=_default_image_trainer)
+    """The training loop. The default grad_sync 'allreduce' also works when a step leaves some
+    parameters unused (bone culling, the pose offsets before refinement starts), which
+    DistributedDataParallel would reject."""
+    render: RenderConfig = dataclasses.field(default_factory=_default_image_render)
+    """Ray sampling and compositing (VolSDF). Default: the sphere-traced sampler, 48 samples in
+    the band around the surface + 16 uniform ones, stratified (jittered) for training."""
+    split: str = "train"
+    """Dataset split whose subjects get codes and whose images are fitted."""
+    field_from_prior: bool = True
+    """With a prior: take the geometry part of ``field`` (everything but the colour MLPs) from
+    the prior run. False: the two must agree, else an error."""
+    num_rays: int = 1024
+    """Rays per step (the global batch), a multiple of ``num_frames``."""
+    num_frames: int = 4
+    """Frames per step; each gets ``num_rays / num_frames`` rays from any of its views."""
+    mask_fraction: float = 0.9
+    """Fraction of each frame's rays through the mask or the band around it; the others go
+    through the background."""
+    band_px: int = 4
+    """Width of the band around the mask, pixels."""
+    max_band_px: int = 16
+    """The widest band kept in memory (``band_px`` must not exceed it)."""
+    background_per_view: int = 4096
+    """Background pixels kept per view (chosen once at load) for the background rays."""
+    eikonal_ray_points: int = 256
+    """Per frame: samples of the rendered rays where L_Eik is evaluated."""
+    eikonal_uniform_points: int = 256
+    """Per frame: uniform points (in the box around the bones' regions) for L_Eik."""
+    skinning_points: int = 512
+    """Per frame: scan points where L_w is evaluated (0 with lambda_w = 0)."""
+    lambda_col: float = 1.0
+    """Weight of L_col (L1 over RGB in [0, 1], per ray)."""
+    lambda_eik: float = 0.1
+    """Weight of L_Eik."""
+    lambda_w: float = 1.0
+    """Weight of L_w; needs ``scan.npz`` (its ``points`` and ``template_weights``) per frame."""
+    lambda_reg: float = 1e-3
+    """Weight of L_reg."""
+    lambda_mask: float = 0.0
+    """Weight of a BCE loss between the rendered opacity and the mask. Not in the paper
+    (which relies on the colour of black backgrounds); 0 turns it off."""
+    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Colour of the images' background (black in the dataset and in InterHand2.6M)."""
+    beta_init: float = 0.003
+    """Initial Laplace scale beta of the VolSDF density, metres (learned)."""
+    beta_min: float = 1e-4
+    """Lower bound of beta, metres."""
+    pose_refine_start: float = 0.1
+    """Fraction of the steps during which the given poses stay fixed (paper: 10%); after it,
+    per-frame pose and translation offsets are optimised. 1 disables the refinement."""
+    refine_translation: bool = True
+    """Refine the translation together with the pose."""
+    latent_init_std: float = 0.01
+    """Std of the zero-mean Gaussian the codes start from (without a prior)."""
+    latent_lr: float | None = None
+    """Learning rate of the shape and colour codes (None: the trainer's lr)."""
+    pose_lr: float | None = None
+    """Learning rate of the pose and translation offsets (None: the trainer's lr)."""
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the first bad field."""
+        if not isinstance(self.field, FieldConfig):
+            raise ValueError(f"field must be a FieldConfig, got {type(self.field).__name__}")
+        if not self.field.use_color:
+            raise ValueError("field.use_color must be true: training from images needs colour")
+        if not isinstance(self.trainer, TrainerConfig):
+            raise ValueError(f"trainer must be a TrainerConfig, got {type(self.trainer).__name__}")
+        if not isinstance(self.render, RenderConfig):
+            raise ValueError(f"render must be a RenderConfig, got {type(self.render).__name__}")
+        if self.split not in SPLITS:
+            raise ValueError(f"split must be one of {SPLITS}, got {self.split!r}")
+        for name in ("num_rays", "num_frames"):
+            _check_positive_int(self, name)
+        if self.num_rays % self.num_frames:
+            raise ValueError(f"num_rays ({self.num_rays}) must be a multiple of num_frames "
+                             f"({self.num_frames})")
+        for name in ("band_px", "max_band_px", "background_per_view", "eikonal_ray_points",
+                     "eikonal_uniform_points", "skinning_points"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"{name} must be an int >= 0, got {value!r}")
+        if self.max_band_px > 254:
+            raise ValueError(f"max_band_px must be <= 254, got {self.max_band_px}")
+        if self.band_px > self.max_band_px:
+            raise ValueError(f"band_px ({self.band_px}) must not exceed max_band_px "
+                             f"({self.max_band_px})")
+        if not 0.0 <= self.mask_fraction <= 1.0:
+            raise ValueError(f"mask_fraction must be in [0, 1], got {self.mask_fraction!r}")
+        if not 0.0 <= self.pose_refine_start <= 1.0:
+            raise ValueError(f"pose_refine_start must be in [0, 1], got "
+                             f"{self.pose_refine_start!r}")
+        for name in ("lambda_col", "lambda_eik", "lambda_w", "lambda_reg", "lambda_mask",
+                     "latent_init_std", "beta_min"):
+            _check_non_negative(self, name)
+        if not self.beta_init > self.beta_min:
+            raise ValueError(f"beta_init ({self.beta_init!r}) must be > beta_min "
+                             f"({self.beta_min!r})")
+        if len(self.background) != 3 or not all(0.0 <= c <= 1.0 for c in self.background):
+            raise ValueError(f"background must be 3 values in [0, 1], got {self.background!r}")
+        for name in ("latent_lr", "pose_lr"):
+            value = getattr(self, name)
+            if value is not None and not value > 0:
+                raise ValueError(f"{name} must be > 0 or None, got {value!r}")
+        if self.lambda_eik > 0 and self.eikonal_ray_points + self.eikonal_uniform_points == 0:
+            raise ValueError("lambda_eik > 0 needs eikonal_ray_points or eikonal_uniform_points")
+        if self.lambda_w > 0 and self.skinning_points == 0:
+            raise ValueError("lambda_w > 0 needs skinning_points > 0")
+
+    def loss_weights(self) -> dict[str, float]:
+        """The weighted terms of the total loss, by log name (terms weighted 0 are left out)."""
+        weights = {"col": self.lambda_col, "eik": self.lambda_eik, "w": self.lambda_w,
+                   "reg": self.lambda_reg, "mask": self.lambda_mask}
+        return {name: value for name, value in weights.items() if value > 0}
+
+
+def pose_refine_step(config: ImageTrainConfig) -> int:
+    """First step (0-based) at which the pose offsets are optimised: ``ceil(fraction * steps)``."""
+    return math.ceil(config.pose_refine_start * config.trainer.steps)
+
+
+def geometry_from_prior(prior: FieldConfig, field: FieldConfig) -> FieldConfig:
+    """``field`` with every geometry setting (all but :data:`COLOR_FIELDS`) taken from ``prior``."""
+    return dataclasses.replace(prior, **{name: getattr(field, name) for name in COLOR_FIELDS})
+
+
+def _geometry_mismatch(prior: FieldConfig, field: FieldConfig) -> list[str]:
+    return [f.name for f in dataclasses.fields(FieldConfig)
+            if f.name not in COLOR_FIELDS and getattr(prior, f.name) != getattr(field, f.name)]
+
+
+# ------------------------------------------------------------------------------------------------
+# Frame-state helpers
+
+
+def select_frame(state: FrameState, index: int) -> FrameState:
+    """The one-frame state of frame ``index`` of a batched :class:`FrameState` (differentiable).
+
+    Every tensor of a state (and of its kinematics) has the frame axis first.
+    """
+
+    def take(value: Any) -> Any:
+        if isinstance(value, torch.Tensor):
+            return value[index:index + 1]
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            return dataclasses.replace(value, **{f.name: take(getattr(value, f.name))
+                                                 for f in dataclasses.fields(value)})
+        return value
+
+    return take(state)
+
+
+def region_bounds(state: FrameState, model: LisaModel) -> tuple[torch.Tensor, torch.Tensor]:
+    """Axis-aligned box around every bone's region (outside it the field is a stand-in).
+
+    -> (low [B, 3], high [B, 3]) world metres, detached.
+    """
+    start = state.segment_start.detach()
+    end = start + state.segment_dir.detach() * state.segment_length.detach()[..., None]
+    ends = torch.cat([start, end], dim=1) + state.region_origin.detach()[:, None]
+    radius = float(max(model.config.palm_region_radius, model.config.finger_region_radius))
+    return ends.amin(dim=1) - radius, ends.amax(dim=1) + radius
+
+
+# ------------------------------------------------------------------------------------------------
+# The model
+
+
+@dataclass(eq=False)
+class ImageBatch:
+    """What one step of image training consumes. B frames (the rays' frames)."""
+
+    rays: RayBatch
+    """R rays per frame."""
+    skin_points: torch.Tensor
+    """[B, Nw, 3] world metres, scan points for L_w."""
+    skin_weights: torch.Tensor
+    """[B, Nw, 16] their pseudo-ground-truth skinning weights."""
+    uniform_unit: torch.Tensor
+    """[B, Nu, 3] in [0, 1): uniform points in the region box (scaled to it in the model)."""
+    eikonal_pick: torch.Tensor
+    """[B, Ne, 2] in [0, 1): which hit ray and which of its samples for each ray Eikonal point."""
+    seed: int
+    """Seed of the renderer's stratified sampling."""
+
+    def select(self, index: slice) -> ImageBatch:
+        return dataclasses.replace(
+            self, rays=self.rays.select(index), skin_points=self.skin_points[index],
+            skin_weights=self.skin_weights[index], uniform_unit=self.uniform_unit[index],
+            eikonal_pick=self.eikonal_pick[index])
+
+    def to(self, device: torch.device | str, dtype: torch.dtype | None = None) -> ImageBatch:
+        def move(tensor: torch.Tensor) -> torch.Tensor:
+            return tensor.to(device=device, dtype=dtype or tensor.dtype)
+
+        return dataclasses.replace(
+            self, rays=self.rays.to(device, dtype), skin_points=move(self.skin_points),
+            skin_weights=move(self.skin_weights), uniform_unit=move(self.uniform_unit),
+            eikonal_pick=move(self.eikonal_pick))
+
+    @property
+    def num_frames(self) -> int:
+        return self.rays.num_frames
+
+
+class ImageModel(nn.Module):
+    """Everything an image run learns.
+
+    field: :class:`LisaModel` with colour. shape_codes, color_codes: :class:`LatentTable`
+    [S, D]. density: :class:`LaplaceDensity`. gain, bias: [C, 3] per camera and channel.
+    pose_offsets: [F, 48] radians; translation_offsets: [F, 3] metres (per training frame).
+    subject_ids [S], camera_names [C], frame_keys [F] name the rows.
+    """
+
+    def __init__(
+        self,
+        field_config: FieldConfig,
+        subject_ids: list[str],
+        camera_names: list[str],
+        frame_keys: list[str],
+        *,
+        latent_init_std: float = 0.01,
+        beta_init: float = 0.003,
+        beta_min: float = 1e-4,
+        init_rest_joints: torch.Tensor | None = None,
+    ) -> None:
+        super().__init__()
+        if not subject_ids or not camera_names or not frame_keys:
+            raise ValueError("subject_ids, camera_names and frame_keys must not be empty")
+        self.field = LisaModel(field_config, init_rest_joints=init_rest_joints)
+        self.shape_codes = LatentTable(len(subject_ids), field_config.shape_dim, latent_init_std)
+        self.color_codes = LatentTable(len(subject_ids), field_config.color_dim, latent_init_std)
+        self.density = LaplaceDensity(beta_init, beta_min)
+        self.gain = nn.Parameter(torch.ones(len(camera_names), 3))
+        self.bias = nn.Parameter(torch.zeros(len(camera_names), 3))
+        self.pose_offsets = nn.Parameter(torch.zeros(len(frame_keys), POSE_DIM))
+        self.translation_offsets = nn.Parameter(torch.zeros(len(frame_keys), 3))
+        self.subject_ids = list(subject_ids)
+        self.camera_names = list(camera_names)
+        self.frame_keys = list(frame_keys)
+
+    def mean_calibration(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """Gain [3] and bias [3] averaged over the cameras (LISA's calibration at inference)."""
+        return self.gain.mean(dim=0), self.bias.mean(dim=0)
+
+    @torch.no_grad()
+    def init_from_prior(self, prior: PriorModel) -> list[str]:
+        """Copy the prior's SDF and skinning MLPs and shape codes; -> the subjects that got the
+        prior's mean code (not in the prior). The geometry configs must match."""
+        mismatch = _geometry_mismatch(prior.field.config, self.field.config)
+        if mismatch:
+            raise ValueError(f"the prior's field differs from this model's in {mismatch}")
+        prior_state = prior.field.state_dict()
+        geometry = {k: v for k, v in prior_state.items() if not k.startswith("color_mlp.")}
+        missing, unexpected = self.field.load_state_dict(geometry, strict=False)
+        missing = [k for k in missing if not k.startswith("color_mlp.")]
+        if missing or unexpected:
+            raise ValueError(f"the prior's weights do not fit: missing {missing}, unexpected "
+                             f"{unexpected}")
+        mean = prior.shape_codes.mean_code()
+        unseen = []
+        for row, subject in enumerate(self.subject_ids):
+            if subject in prior.subject_ids:
+                code = prior.shape_codes.weight[prior.subject_ids.index(subject)]
+            else:
+                code = mean
+                unseen.append(subject)
+            self.shape_codes.weight[row] = code.to(self.shape_codes.weight)
+        return unseen
+
+    def frame_parameters(
+        self, frame_index: torch.Tensor, pose: torch.Tensor, translation: torch.Tensor,
+        refine_pose: bool, refine_translation: bool = True,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The given pose [B, 48] and translation [B, 3] plus the frames' learned offsets (only
+        with ``refine_pose``; otherwise the offsets are not used and get no gradient)."""
+        if refine_pose:
+            pose = pose + self.pose_offsets[frame_index]
+            if refine_translation:
+                translation = translation + self.translation_offsets[frame_index]
+        return pose, translation
+
+    def forward(
+        self,
+        batch: ImageBatch,
+        *,
+        render: RenderConfig,
+        refine_pose: bool = False,
+        refine_translation: bool = True,
+        background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    ) -> dict[str, torch.Tensor]:
+        """The loss terms of one batch, each averaged over it (see the module docstring).
+
+        -> {"col", "eik", "w", "reg", "mask"} scalar tensors.
+        """
+        rays = batch.rays
+        device, dtype = rays.origins.device, rays.origins.dtype
+        pose, translation = self.frame_parameters(rays.frame_index, rays.pose, rays.translation,
+                                                  refine_pose, refine_translation)
+        shape = self.shape_codes(rays.subject_index)
+        color = self.color_codes(rays.subject_index)
+        state = self.field.prepare(pose, translation, rays.rest_joints, shape, color)
+        low, high = region_bounds(state, self.field)
+        centre, radius = 0.5 * (low + high), 0.5 * (high - low).norm(dim=-1)
+        background_rgb = torch.tensor(background, dtype=dtype, device=device)
+        black = torch.zeros(3, dtype=dtype, device=device)
+        generator = None
+        if render.stratified:
+            generator = torch.Generator(device=device).manual_seed(batch.seed)
+        predictions, opacities, ray_points = [], [], []
+        for frame in range(rays.num_frames):
+            frame_state = select_frame(state, frame)
+            origins, directions = rays.origins[frame], rays.directions[frame]
+            near, far, hit = ray_sphere_bounds(origins, directions, centre[frame], radius[frame])
+            out = render_rays(self.field.field_fn(frame_state), self.field.sdf_fn(frame_state),
+                              origins, directions, near, far, render, self.density, hit=hit,
+                              background=black, generator=generator)
+            camera = rays.camera_index[frame]
+            predictions.append(calibrate(out.rgb, out.opacity, self.gain[camera],
+                                         self.bias[camera], background_rgb))
+            opacities.append(out.opacity)
+            ray_points.append(_pick_ray_samples(origins, directions, out.t_vals, hit,
+                                                batch.eikonal_pick[frame], centre[frame]))
+        prediction = torch.stack(predictions)  # [B, R, 3]
+        opacity = torch.stack(opacities)  # [B, R]
+
+        uniform = low[:, None] + batch.uniform_unit * (high - low)[:, None]
+        num_skin = batch.skin_points.shape[1]
+        points = torch.cat([batch.skin_points, torch.stack(ray_points), uniform], dim=1)
+        zero = prediction.new_zeros(())
+        eik = weights = zero
+        if points.shape[1]:
+            geometry = self.field.field(state, points, with_color=False, with_gradient=True)
+            if points.shape[1] > num_skin:
+                eik = eikonal_loss(geometry.sdf_grad[:, num_skin:])
+            if num_skin and geometry.weights is not None:
+                weights = skinning_loss(geometry.weights[:, :num_skin], batch.skin_weights)
+        mask = F.binary_cross_entropy(opacity.clamp(1e-5, 1.0 - 1e-5), rays.in_mask.to(dtype))
+        return {
+            "col": color_loss(prediction.reshape(-1, 3), rays.rgb.reshape(-1, 3)),
+            "eik": eik,
+            "w": weights,
+            "reg": latent_loss(shape, color),
+            "mask": mask,
+        }
+
+
+def calibrate(rgb_foreground: torch.Tensor, opacity: torch.Tensor, gain: torch.Tensor,
+              bias: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
+    """Colour calibration of the hand only: ``g * c_fg + b * opacity + (1 - opacity) * bg``.
+
+    The per-camera gain and bias of LISA (Section 4.2, after Neural Volumes) act on the hand's
+    colour; the background keeps its colour (black in the dataset, whatever the camera).
+    rgb_foreground: [R, 3] rendered colour over a black background (``sum_i w_i c_i``).
+    opacity: [R] in [0, 1]. gain, bias: [R, 3] or [3]. background: [3] or [R, 3].
+    -> [R, 3]; differentiable w.r.t. everything.
+    """
+    alpha = opacity[:, None]
+    return apply_gain_bias(rgb_foreground, gain, bias * alpha) + (1.0 - alpha) * background
+
+
+def _pick_ray_samples(origins, directions, t_vals, hit, pick, fallback) -> torch.Tensor:
+    """Points at random samples of the rays that hit the bounds: [R, S] t_vals -> [Ne, 3].
+
+    pick: [Ne, 2] in [0, 1) (ray among the hit rays, sample along it); no hit: ``fallback`` [3].
+    """
+    hit_rays = hit.nonzero()[:, 0]
+    num_hit, num_samples = hit_rays.numel(), t_vals.shape[1]
+    if num_hit == 0:
+        return fallback.expand(pick.shape[0], 3)
+    ray = hit_rays[(pick[:, 0] * num_hit).long().clamp_max(num_hit - 1)]
+    sample = (pick[:, 1] * num_samples).long().clamp_max(num_samples - 1)
+    t = t_vals[ray, sample].detach()
+    return (origins[ray] + t[:, None] * directions[ray]).detach()
+
+
+# ------------------------------------------------------------------------------------------------
+# Training
+
+
+def _resolve_prior(config: ImageTrainConfig, prior: str | os.PathLike | PriorModel | None):
+    if prior is None:
+        return config, None, None
+    if isinstance(prior, PriorModel):
+        prior_model, source = prior, "<in memory>"
+    else:
+        prior_model, source = load_prior(prior), str(Path(prior))
+    if config.field_from_prior:
+        config = dataclasses.replace(config, field=geometry_from_prior(prior_model.field.config,
+                                                                       config.field))
+    else:
+        mismatch = _geometry_mismatch(prior_model.field.config, config.field)
+        if mismatch:
+            raise ValueError(f"prior {source}: its field differs in {mismatch}; set "
+                             "field_from_prior=true or the same field values")
+    return config, prior_model, source
+
+
+def build_image_model(
+    rays: RayFrames, config: ImageTrainConfig, prior_model: PriorModel | None = None
+) -> tuple[ImageModel, list[str]]:
+    """The model of an image run on ``rays``'s frames, initialised from ``prior_model`` if given.
+
+    -> (model, subjects initialised with the prior's mean shape code).
+    """
+    model = ImageModel(config.field, rays.subject_ids, rays.camera_names, rays.table.frame_keys,
+                       latent_init_std=config.latent_init_std, beta_init=config.beta_init,
+                       beta_min=config.beta_min,
+                       init_rest_joints=rays.table.rest_joints.mean(dim=0))
+    unseen: list[str] = []
+    if prior_model is not None:
+        unseen = model.init_from_prior(prior_model)
+    return model, unseen
+
+
+def train_images(
+    data_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    config: ImageTrainConfig | None = None,
+    prior: str | os.PathLike | PriorModel | None = None,
+    resume: bool | str | os.PathLike = True,
+    *,
+    hooks=(),
+    dist: DistContext | None = None,
+) -> TrainResult:
+    """Train LISA on the multi-view images of ``data_dir`` into the run folder ``out_dir``.
+
+    data_dir: a dataset (``lisa synth`` layout): per frame ``cameras.json``, ``images/``,
+        ``masks/`` and, for L_w, ``scan.npz`` (its ``points`` and ``template_weights``).
+    config: the run's settings (default ``ImageTrainConfig()``), resolved (the prior's geometry
+        settings) and saved to ``out_dir/config.json``.
+    prior: a prior run folder or checkpoint (``lisa train-prior``), a :class:`PriorModel`, or
+        None (LISA-im: from images only).
+    resume: True: continue from ``out_dir/last.pt`` if present; False: start afresh; a path:
+        continue from that checkpoint. hooks, dist: see :class:`lisa_hand.training.engine.Trainer`.
+    -> :class:`TrainResult`; the model is in ``out_dir/last.pt`` (:func:`load_image_model`).
+    """
+    config = ImageTrainConfig() if config is None else config
+    if not isinstance(config, ImageTrainConfig):
+        raise TypeError(f"config must be an ImageTrainConfig, got {type(config).__name__}")
+    config, prior_model, prior_source = _resolve_prior(config, prior)
+    weights = config.loss_weights()
+    if not weights:
+        raise ValueError("every loss weight is 0: nothing to train")
+    rays = RayFrames(data_dir, config.split, max_band_px=config.max_band_px,
+                     background_per_view=config.background_per_view, seed=config.trainer.seed)
+    scans = None
+    num_skin = config.skinning_points if config.lambda_w > 0 else 0
+    if num_skin:
+        scans = ScanFrames(data_dir, config.split)
+    model, _ = _seeded(config.trainer.seed, lambda: build_image_model(rays, config, prior_model))
+    num_global = config.num_frames
+    refine_from = pose_refine_step(config)
+
+    def step_fn(ctx: StepContext) -> dict[str, torch.Tensor]:
+        generator = ctx.generator
+        ray_batch = rays.sample_rays(config.num_rays, generator, config.mask_fraction,
+                                     config.band_px, num_frames=num_global)
+        if scans is not None:
+            scan_batch = scans.sample(num_global, num_skin, 0, generator,
+                                      frames=ray_batch.frame_index)
+            skin_points, skin_weights = scan_batch.surface_points, scan_batch.surface_weights
+        else:
+            skin_points = torch.zeros(num_global, 0, 3)
+            skin_weights = torch.zeros(num_global, 0, NUM_JOINTS)
+        batch = ImageBatch(
+            rays=ray_batch,
+            skin_points=skin_points,
+            skin_weights=skin_weights,
+            uniform_unit=torch.rand(num_global, config.eikonal_uniform_points, 3,
+                                    generator=generator),
+            eikonal_pick=torch.rand(num_global, config.eikonal_ray_points, 2,
+                                    generator=generator),
+            seed=int(torch.randint(0, 2**62, (1,), generator=generator)),
+        )
+        bare = unwrap(ctx.model)
+        local = batch.select(shard_slice(num_global, ctx.dist)).to(ctx.device, bare.field.dtype)
+        terms = ctx.model(local, render=config.render, refine_pose=ctx.step >= refine_from,
+                          refine_translation=config.refine_translation,
+                          background=config.background)
+        out = _weighted_total(terms, weights, local.num_frames, num_global, ctx.dist)
+        out["beta"] = bare.density.beta.detach()
+        return out
+
+    extra = {"kind": IMAGE_KIND, "subject_ids": list(rays.subject_ids),
+             "camera_names": list(rays.camera_names), "frame_keys": rays.table.frame_keys,
+             "data_dir": str(Path(data_dir)), "prior": prior_source}
+    group_lrs = {("shape_codes", "color_codes"): config.latent_lr,
+                 ("pose_offsets", "translation_offsets"): config.pose_lr}
+    trainer = Trainer(model, step_fn, config.trainer, out_dir, run_config=config,
+                      optimizer_fn=_optimizer_fn(config.trainer, group_lrs), resume=resume,
+                      hooks=hooks, extra_state=extra, dist=dist)
+    _check_resumed_extra(trainer, extra)
+    return trainer.run()
+
+
+def load_image_model(run: str | os.PathLike, map_location: Any = "cpu") -> ImageModel:
+    """Rebuild a trained :class:`ImageModel` from an image run folder or checkpoint file."""
+    ckpt = load_run_checkpoint(run, IMAGE_KIND)
+    config = config_from_dict(ImageTrainConfig, ckpt.config, source=str(ckpt.path))
+    names = {}
+    for key in ("subject_ids", "camera_names", "frame_keys"):
+        value = ckpt.extra.get(key)
+        if not isinstance(value, list) or not value:
+            raise ValueError(f"{ckpt.path}: the checkpoint lists no {key}")
+        names[key] = value
+    model = ImageModel(config.field, names["subject_ids"], names["camera_names"],
+                       names["frame_keys"], latent_init_std=config.latent_init_std,
+                       beta_init=config.beta_init, beta_min=config.beta_min)
+    try:
+        model.load_state_dict(ckpt.model)
+    except RuntimeError as exc:
+        first = " ".join(line.strip() for line in str(exc).strip().splitlines()[:3])
+        raise ValueError(f"{ckpt.path}: the weights do not fit the saved config ({first})") \
+            from None
+    if map_location is not None:
+        model = model.to(map_location)
+    return model.eval()

@@ -1,0 +1,390 @@
+"""``lisa train-prior``: the geometric prior of LISA (paper Section 4.2, "Learning a prior for
+human hand SDFs").
+
+The geometry networks ``G_beta+`` — the per-bone SDF MLPs and the skinning-weight MLP — and one
+shape latent ``beta+`` per training subject (an auto-decoder table, DeepSDF style) are trained on
+posed 3D scans with
+
+    L = lambda_surf L_surf + lambda_normal L_N + lambda_eik L_Eik + lambda_w L_w + lambda_reg L_reg
+
+* ``L_surf = |G(x_surf)|`` at scan points (paper Eq. 16), metres;
+* ``L_N = |grad G(x_surf) - N(x_surf)|_1`` at scan points (Eq. 17);
+* ``L_Eik = (|grad G(x)| - 1)^2`` on the scan points and on off-surface points (Eq. 11; half of
+  them near the surface from the scan's SDF samples, half uniform in the scan's bounding box);
+* ``L_w = |w - w^|_1`` against the pseudo-ground-truth skinning weights at the scan points
+  (``template_weights``, Eq. 12);
+* ``L_reg = |beta+|_2`` (Eq. 13, shape code only: the prior has no colour).
+
+Optionally (``lambda_sdf > 0``; NOT in the paper, off by default) an L1 term between the
+predicted and the true signed distance at the near-surface samples.
+
+The paper gives no loss weights; the defaults here were chosen on the synthetic data (see
+:class:`PriorConfig`). The run folder holds the engine's files (``config.json``, ``log.jsonl``,
+``last.pt``); the checkpoint holds the whole :class:`PriorConfig` and the subject ids, so
+:func:`load_prior` rebuilds the model and its latent table from it alone.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+from torch import nn
+
+from ..config import config_from_dict
+from ..data.datasets import SPLITS, ScanBatch, ScanFrames
+from ..fields.config import FieldConfig
+from ..fields.latents import LatentTable
+from ..losses import eikonal_loss, latent_loss, normal_loss, skinning_loss, surface_loss
+from ..model import LisaModel
+from .checkpoint import LAST_CHECKPOINT, Checkpoint, load_checkpoint
+from .distributed import DistContext, global_mean, shard_slice, unwrap
+from .engine import StepContext, Trainer, TrainerConfig, TrainResult
+
+__all__ = [
+    "PRIOR_KIND",
+    "PriorConfig",
+    "PriorModel",
+    "train_prior",
+    "load_prior",
+    "load_run_checkpoint",
+    "batch_mean",
+]
+
+PRIOR_KIND = "lisa-prior"
+"""``Checkpoint.extra["kind"]`` of a prior run."""
+
+
+def _default_prior_field() -> FieldConfig:
+    return FieldConfig(use_color=False)
+
+
+def _default_prior_trainer() -> TrainerConfig:
+    return TrainerConfig(steps=20_000, lr=5e-4, lr_schedule="cosine", checkpoint_every=1000,
+                         print_every=100, grad_sync="allreduce")
+
+
+def _check_positive_int(config: Any, name: str) -> None:
+    value = getattr(config, name)
+    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+        raise ValueError(f"{name} must be a positive int, got {value!r}")
+
+
+def _check_non_negative(config: Any, name: str) -> None:
+    value = getattr(config, name)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not value >= 0 \
+            or value == float("inf"):
+        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+
+
+@dataclass(frozen=True)
+class PriorConfig:
+    """Everything of a prior run (``lisa train-prior``): architecture, loop, data, losses."""
+
+    field: FieldConfig = dataclasses.field(default_factory=_default_prior_field)
+    """The field's architecture; the prior is geometry only (``use_color`` must be false). The
+    image run that starts from this prior takes the geometry part of it."""
+    trainer: TrainerConfig = dataclasses.field(default_factory=_default_prior_trainer)
+    """The training loop (steps, learning rate and schedule, checkpoints, device). The default
+    grad_sync 'allreduce' also works when a step leaves some parameters unused (bone culling),
+    which DistributedDataParallel would reject."""
+    split: str = "train"
+    """Dataset split whose subjects get a shape code and whose scans are fitted."""
+    frames_per_step: int = 8
+    """Frames (posed scans) per step (the global batch, split among processes)."""
+    surface_points: int = 2048
+    """Scan points per frame and step (L_surf, L_N, L_Eik, L_w)."""
+    space_points: int = 2048
+    """Off-surface points per frame and step (L_Eik, and the optional L_sdf)."""
+    near_fraction: float = 0.5
+    """Fraction of the off-surface points taken from the scan's near-surface SDF samples; the
+    rest are uniform in the scan's bounding box grown by ``uniform_margin``."""
+    uniform_margin: float = 0.02
+    """Metres added on every side of a scan's bounding box for the uniform points."""
+    lambda_surf: float = 100.0
+    """Weight of L_surf (metres: 1 mm of mean error costs 0.1)."""
+    lambda_normal: float = 1.0
+    """Weight of L_N."""
+    lambda_eik: float = 0.1
+    """Weight of L_Eik."""
+    lambda_w: float = 1.0
+    """Weight of L_w (L1 over the 16 weights, in [0, 2])."""
+    lambda_reg: float = 1e-3
+    """Weight of L_reg (mean L2 norm of the frames' shape codes)."""
+    lambda_sdf: float = 0.0
+    """Weight of an L1 loss on the SDF value at the near-surface samples (metres). Not in the
+    paper (which supervises the SDF only on the surface); 0 turns it off."""
+    latent_init_std: float = 0.01
+    """Std of the zero-mean Gaussian the shape codes start from."""
+    latent_lr: float | None = None
+    """Learning rate of the shape codes (None: the trainer's lr; DeepSDF uses about 2x)."""
+
+    def __post_init__(self) -> None:
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise ``ValueError`` naming the first bad field."""
+        if not isinstance(self.field, FieldConfig):
+            raise ValueError(f"field must be a FieldConfig, got {type(self.field).__name__}")
+        if self.field.use_color:
+            raise ValueError("field.use_color must be false: the shape prior is geometry only")
+        if not isinstance(self.trainer, TrainerConfig):
+            raise ValueError(f"trainer must be a TrainerConfig, got {type(self.trainer).__name__}")
+        if self.split not in SPLITS:
+            raise ValueError(f"split must be one of {SPLITS}, got {self.split!r}")
+        for name in ("frames_per_step", "surface_points"):
+            _check_positive_int(self, name)
+        if isinstance(self.space_points, bool) or not isinstance(self.space_points, int) \
+                or self.space_points < 0:
+            raise ValueError(f"space_points must be an int >= 0, got {self.space_points!r}")
+        if not 0.0 <= self.near_fraction <= 1.0:
+            raise ValueError(f"near_fraction must be in [0, 1], got {self.near_fraction!r}")
+        for name in ("uniform_margin", "lambda_surf", "lambda_normal", "lambda_eik", "lambda_w",
+                     "lambda_reg", "lambda_sdf", "latent_init_std"):
+            _check_non_negative(self, name)
+        if self.latent_lr is not None and not (self.latent_lr > 0):
+            raise ValueError(f"latent_lr must be > 0 or None, got {self.latent_lr!r}")
+
+    def loss_weights(self) -> dict[str, float]:
+        """The weighted terms of the total loss, by log name (terms weighted 0 are left out)."""
+        weights = {"surf": self.lambda_surf, "normal": self.lambda_normal, "eik": self.lambda_eik,
+                   "w": self.lambda_w, "reg": self.lambda_reg, "sdf": self.lambda_sdf}
+        return {name: value for name, value in weights.items() if value > 0}
+
+
+def batch_mean(local_mean: torch.Tensor, num_local: int, num_global: int,
+               dist: DistContext) -> torch.Tensor:
+    """This rank's share of a mean over the global batch, from the mean over its own frames.
+
+    Every frame of a step has the same number of points, so the global mean is the mean of the
+    per-rank means weighted by their frame counts; see :func:`distributed.global_mean`.
+    """
+    return global_mean(local_mean.reshape(1) * num_local, num_global, dist)
+
+
+class PriorModel(nn.Module):
+    """The geometry networks of LISA and one shape code per training subject.
+
+    field: :class:`LisaModel` (geometry only). shape_codes: :class:`LatentTable` [S, shape_dim].
+    subject_ids: [S] the subjects of the codes' rows.
+    """
+
+    def __init__(
+        self,
+        field_config: FieldConfig,
+        subject_ids: list[str],
+        *,
+        latent_init_std: float = 0.01,
+        init_rest_joints: torch.Tensor | None = None,
+    ) -> None:
+        """
+        field_config: the architecture (``use_color`` false).
+        subject_ids: one shape code per id.
+        init_rest_joints: [16, 3] metres, a typical skeleton for the geometric initialisation.
+        """
+        super().__init__()
+        if not subject_ids:
+            raise ValueError("subject_ids must not be empty")
+        self.field = LisaModel(field_config, init_rest_joints=init_rest_joints)
+        self.shape_codes = LatentTable(len(subject_ids), field_config.shape_dim, latent_init_std)
+        self.subject_ids = list(subject_ids)
+
+    def subject_index(self, subject_id: str) -> int:
+        """Row of ``subject_id`` in the code table."""
+        try:
+            return self.subject_ids.index(subject_id)
+        except ValueError:
+            raise ValueError(f"subject {subject_id!r} has no shape code (known: "
+                             f"{self.subject_ids})") from None
+
+    def forward(self, batch: ScanBatch) -> dict[str, torch.Tensor]:
+        """The prior's loss terms, each averaged over this batch (B frames, see ScanBatch).
+
+        -> {"surf", "normal", "eik", "w", "reg", "sdf"}: scalar tensors (see the module
+        docstring); "w" is 0 for the 'single' composition (no skinning weights).
+        """
+        model = self.field
+        codes = self.shape_codes(batch.subject_index)
+        state = model.prepare(batch.pose, batch.translation, batch.rest_joints, codes)
+        num_surface = batch.surface_points.shape[1]
+        num_near = batch.near_points.shape[1]
+        points = torch.cat([batch.surface_points, batch.near_points, batch.uniform_points], 1)
+        out = model.field(state, points, with_color=False, with_gradient=True)
+        sdf_surface = out.sdf[:, :num_surface]
+        grad_surface = out.sdf_grad[:, :num_surface]
+        zero = out.sdf.new_zeros(())
+        if out.weights is not None:
+            weights = skinning_loss(out.weights[:, :num_surface], batch.surface_weights)
+        else:
+            weights = zero
+        near = out.sdf[:, num_surface:num_surface + num_near]
+        return {
+            "surf": surface_loss(sdf_surface),
+            "normal": normal_loss(grad_surface, batch.surface_normals),
+            "eik": eikonal_loss(out.sdf_grad),
+            "w": weights,
+            "reg": latent_loss(codes),
+            "sdf": (near - batch.near_sdf).abs().mean() if num_near else zero,
+        }
+
+
+# ------------------------------------------------------------------------------------------------
+# Training
+
+
+def _optimizer_fn(trainer_config: TrainerConfig,
+                  group_lrs: Mapping[tuple[str, ...], float | None]):
+    """The engine's optimizer (Adam, AdamW or SGD of ``trainer_config``), with one parameter
+    group per tuple of top-level module names and its own learning rate (None: the trainer's);
+    the other parameters form the first group."""
+
+    def build(model: nn.Module) -> torch.optim.Optimizer:
+        groups: dict[tuple[str, ...] | None, list[nn.Parameter]] = {None: []}
+        for name, param in model.named_parameters():
+            if param.requires_grad:
+                top = name.split(".")[0]
+                key = next((names for names in group_lrs if top in names), None)
+                groups.setdefault(key, []).append(param)
+        param_groups = [{"params": params} if key is None else
+                        {"params": params, "lr": group_lrs[key] or trainer_config.lr}
+                        for key, params in groups.items() if params]
+        kind = trainer_config.optimizer
+        options = {"lr": trainer_config.lr, "weight_decay": trainer_config.weight_decay}
+        if kind == "adam":
+            return torch.optim.Adam(param_groups, betas=trainer_config.betas, **options)
+        if kind == "adamw":
+            return torch.optim.AdamW(param_groups, betas=trainer_config.betas, **options)
+        return torch.optim.SGD(param_groups, momentum=trainer_config.betas[0], **options)
+
+    return build
+
+
+def _seeded(seed: int, build):
+    """``build()`` with the global torch RNG seeded (the initial weights depend on the seed
+    only), leaving the caller's RNG state untouched."""
+    with torch.random.fork_rng(devices=[]):
+        torch.manual_seed(seed)
+        return build()
+
+
+def _weighted_total(terms: Mapping[str, torch.Tensor], weights: Mapping[str, float],
+                    num_local: int, num_global: int,
+                    dist: DistContext) -> dict[str, torch.Tensor]:
+    out: dict[str, torch.Tensor] = {}
+    total = None
+    for name, weight in weights.items():
+        value = batch_mean(terms[name], num_local, num_global, dist)
+        out[name] = value
+        total = weight * value if total is None else total + weight * value
+    return {"total": total, **out}
+
+
+def _check_resumed_extra(trainer: Trainer, expected: Mapping[str, Any]) -> None:
+    """A resumed run must have the same subjects (cameras, frames) as its checkpoint."""
+    if trainer.resumed_from is None:
+        return
+    for key, value in expected.items():
+        if key in ("data_dir", "prior"):
+            continue
+        saved = trainer.resumed_extra.get(key)
+        if saved is not None and saved != value:
+            raise ValueError(f"{trainer.resumed_from}: the checkpoint was trained with another "
+                             f"{key} ({saved!r}, now {value!r}); use --no-resume or another "
+                             "output folder")
+
+
+def train_prior(
+    data_dir: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    config: PriorConfig | None = None,
+    resume: bool | str | os.PathLike = True,
+    *,
+    hooks=(),
+    dist: DistContext | None = None,
+) -> TrainResult:
+    """Train LISA's geometric prior on the scans of ``data_dir`` into the run folder ``out_dir``.
+
+    data_dir: a dataset (``lisa synth`` layout) with ``scan.npz`` in every frame of the split.
+    config: the run's settings (default ``PriorConfig()``), saved to ``out_dir/config.json``.
+    resume: True: continue from ``out_dir/last.pt`` if present; False: start afresh; a path:
+        continue from that checkpoint. hooks, dist: see :class:`lisa_hand.training.engine.Trainer`.
+    Launch under ``torchrun`` for several processes (each draws the same global batch and keeps
+    its share of the frames). -> :class:`TrainResult`; the model is in ``out_dir/last.pt``
+    (:func:`load_prior`).
+    """
+    config = PriorConfig() if config is None else config
+    if not isinstance(config, PriorConfig):
+        raise TypeError(f"config must be a PriorConfig, got {type(config).__name__}")
+    scans = ScanFrames(data_dir, config.split)
+    model = _seeded(config.trainer.seed, lambda: PriorModel(
+        config.field, scans.subject_ids, latent_init_std=config.latent_init_std,
+        init_rest_joints=scans.table.rest_joints.mean(dim=0)))
+    weights = config.loss_weights()
+    if not weights:
+        raise ValueError("every loss weight is 0: nothing to train")
+    num_global = config.frames_per_step
+
+    def step_fn(ctx: StepContext) -> dict[str, torch.Tensor]:
+        batch = scans.sample(num_global, config.surface_points, config.space_points,
+                             ctx.generator, near_fraction=config.near_fraction,
+                             margin=config.uniform_margin)
+        local = batch.select(shard_slice(num_global, ctx.dist))
+        local = local.to(ctx.device, unwrap(ctx.model).field.dtype)
+        terms = ctx.model(local)
+        return _weighted_total(terms, weights, local.num_frames, num_global, ctx.dist)
+
+    extra = {"kind": PRIOR_KIND, "subject_ids": list(scans.subject_ids),
+             "data_dir": str(Path(data_dir))}
+    trainer = Trainer(model, step_fn, config.trainer, out_dir, run_config=config,
+                      optimizer_fn=_optimizer_fn(config.trainer,
+                                                 {("shape_codes",): config.latent_lr}),
+                      resume=resume, hooks=hooks, extra_state=extra, dist=dist)
+    _check_resumed_extra(trainer, extra)
+    return trainer.run()
+
+
+# ------------------------------------------------------------------------------------------------
+# Loading
+
+
+def load_run_checkpoint(run: str | os.PathLike, kind: str) -> Checkpoint:
+    """The checkpoint of a run folder (``RUN/last.pt``) or a checkpoint file, checked to be of
+    ``kind`` (``Checkpoint.extra["kind"]``)."""
+    path = Path(run)
+    if path.is_dir():
+        path = path / LAST_CHECKPOINT
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: no checkpoint in this run folder (has the run "
+                                    "written one yet?)")
+    ckpt = load_checkpoint(path)
+    found = ckpt.extra.get("kind")
+    if found != kind:
+        raise ValueError(f"{path}: expected a {kind!r} checkpoint, got {found!r}")
+    if ckpt.config is None:
+        raise ValueError(f"{path}: the checkpoint holds no run config")
+    return ckpt
+
+
+def load_prior(run: str | os.PathLike, map_location: Any = "cpu") -> PriorModel:
+    """Rebuild a trained :class:`PriorModel` from a prior run folder or checkpoint file."""
+    ckpt = load_run_checkpoint(run, PRIOR_KIND)
+    config = config_from_dict(PriorConfig, ckpt.config, source=str(ckpt.path))
+    subject_ids = ckpt.extra.get("subject_ids")
+    if not isinstance(subject_ids, list) or not subject_ids:
+        raise ValueError(f"{ckpt.path}: the checkpoint lists no subject_ids")
+    model = PriorModel(config.field, subject_ids,
+                       latent_init_std=config.latent_init_std)
+    try:
+        model.load_state_dict(ckpt.model)
+    except RuntimeError as exc:
+        first = " ".join(line.strip() for line in str(exc).strip().splitlines()[:3])
+        raise ValueError(f"{ckpt.path}: the weights do not fit the saved config ({first})") \
+            from None
+    if map_location is not None:
+        model = model.to(map_location)
+    return model.eval()
