@@ -38,6 +38,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -333,6 +334,8 @@ def run_render_benchmark(
         "beta_m": beta,
         "target_seconds": TARGET_SECONDS,
         "paper_seconds_p100": PAPER_SECONDS_P100,
+        # The machine may be shared: the load says how much the timings can be trusted.
+        "load_average_at_start": os.getloadavg()[0],
     }
 
     # Reference: uniform samples on every ray through the bounding sphere.
@@ -436,6 +439,11 @@ def run_render_benchmark(
                 f"reference {var_psnr:.1f} dB"
             )
 
+    results["load_average_at_end"] = os.getloadavg()[0]
+    log(
+        f"load average (1 min) at start {results['load_average_at_start']:.1f}, at end "
+        f"{results['load_average_at_end']:.1f} (on {os.cpu_count()} cores)"
+    )
     if dense_pixels > 0:
         results["dense_check"] = _dense_check(
             scene, density, reference, fast, dense_pixels, seed, origins, directions, near, far, log

@@ -295,9 +295,9 @@ def build_template(shape: HandShape, detail_seed: int) -> HandTemplate:
     # Finger webs between the bases of neighbouring fingers.
     bases = [joints[FINGER_JOINTS[f][0]] for f in ("index", "middle", "ring", "pinky")]
     for left, right in zip(bases[:-1], bases[1:], strict=True):
-        start = 0.5 * (left + right) + np.array([0.0, -0.0035 * scale * thick, 0.0])
-        end = start + np.array([-0.013 * scale, -0.001 * scale, 0.0])
-        cones.append((start, end, 0.0078 * scale, 0.0068 * scale, 0, True))
+        start = 0.5 * (left + right) + np.array([0.0, -0.002 * scale * thick, 0.0])
+        end = start + np.array([-0.014 * scale, -0.0015 * scale, 0.0])
+        cones.append((start, end, 0.0085 * scale, 0.007 * scale, 0, True))
     # Fingers: phalanx cones (axes a little palmar of the bones) and joint condyles.
     for finger in FINGER_NAMES:
         chain = FINGER_JOINTS[finger]

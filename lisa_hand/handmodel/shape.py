@@ -176,8 +176,8 @@ _FINGER_BASE_RADIUS = {"index": 0.0108, "middle": 0.0110, "ring": 0.0104, "pinky
 _MCP_OFFSETS = {
     "index": (0.0030, -0.0015, 0.0230),
     "middle": (0.0, 0.0, 0.0),
-    "ring": (0.0040, -0.0020, -0.0195),
-    "pinky": (0.0150, -0.0050, -0.0370),
+    "ring": (0.0040, -0.0020, -0.0205),
+    "pinky": (0.0150, -0.0050, -0.0385),
 }
 _MIDDLE_MCP_Z = -0.0020
 # Rest splay of each finger about the dorsal axis (radians, + toward the thumb), times

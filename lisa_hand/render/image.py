@@ -8,10 +8,12 @@ surface is:
    bounding sphere cost nothing.
 2. Culling (``culling='grid'``, the default): a coarse-to-fine occupancy grid of the SDF
    (:func:`build_occupancy_grid`, a few ten thousand SDF evaluations, reusable across views)
-   marks the cells that may hold points with ``sdf <= threshold``. Each ray is walked through the
-   grid with cheap lookups (no field evaluations); rays that meet no occupied cell are dropped and
-   the others get ``[near, far]`` shrunk to the span of their occupied cells. ``'box'`` only
-   clips rays to the occupied cells' bounding box; ``'sphere'`` keeps the sphere bounds.
+   marks the cells that may hold points of the shell ``|sdf| <= threshold`` (the sampler's shell
+   around the surface). Each ray is walked through the grid with cheap lookups (no field
+   evaluations); rays that meet no occupied cell are dropped and the others get ``[near, far]``
+   shrunk to the span of their occupied cells (a ray must cross the shell to reach the inside).
+   ``'box'`` only clips rays to the occupied cells' bounding box; ``'sphere'`` keeps the sphere
+   bounds.
 3. ``mode='volume'`` (the default, what LISA renders): VolSDF compositing with the samples of the
    sphere-traced sampler (:func:`~lisa_hand.render.samplers.sphere_traced_samples`), which
    gathers them in a band around the surface. With ``color_weight_threshold > 0`` the densities
@@ -110,7 +112,7 @@ class ImageRenderConfig:
     cells are refined."""
     grid_margin: float = 5e-4
     """Metres added to the occupancy threshold (a cell is occupied if it may hold points with
-    ``sdf <= threshold``; the threshold is the sampler's shell in volume mode, the tracing
+    ``|sdf| <= threshold``; the threshold is the sampler's shell in volume mode, the tracing
     tolerance in surface mode)."""
     lipschitz: float = 1.0
     """Bound on how much the SDF may overestimate the distance (>= 1 for a learned field that is
@@ -221,33 +223,33 @@ def _call_sdf_chunked(sdf_fn: SdfFn, points: torch.Tensor, chunk_size: int) -> t
 
 @dataclass
 class OccupancyGrid:
-    """Cells of the bounding sphere's cube that may hold points with ``sdf <= threshold``.
+    """Lower bounds of ``|sdf|`` on a grid over the bounding sphere's cube, and the cells that may
+    hold points of the shell ``|sdf| <= threshold`` around the surface.
 
     Cell ``[i, j, k]`` covers ``low + cell_size * ([i, i+1] x [j, j+1] x [k, k+1])`` (x, y, z).
-    A cell is occupied when ``sdf(centre) <= lipschitz * half_diagonal + threshold``: for an SDF
-    that overestimates distances by at most ``lipschitz`` no point of an unoccupied cell has
-    ``sdf <= threshold``.
+    For an SDF whose absolute value is ``lipschitz``-Lipschitz (it overestimates distances by at
+    most that factor), ``|sdf(x)| >= distance_bound[cell] - lipschitz * |x - centre|`` for every
+    point ``x`` (of any cell), and a cell is occupied when that bound may reach the threshold
+    somewhere in it: ``distance_bound <= lipschitz * half_diagonal + threshold``. Cells deep inside
+    are empty too: a ray reaches them only through the shell.
 
-    occupied: [G, G, G] bool. low: [3] metres, the cube's minimum corner.
-    cell_size: metres. threshold: metres. num_evaluations: SDF evaluations spent building it.
+    distance_bound: [G, G, G] metres, a lower bound of ``|sdf|`` at each cell centre (the value
+        itself where it was evaluated). occupied: [G, G, G] bool. low: [3] metres, the cube's
+        minimum corner. cell_size, threshold: metres. lipschitz: >= 1.
+    num_evaluations: SDF evaluations spent building it.
     """
 
+    distance_bound: torch.Tensor
     occupied: torch.Tensor
     low: torch.Tensor
     cell_size: float
     threshold: float
+    lipschitz: float
     num_evaluations: int
 
     @property
     def resolution(self) -> int:
         return self.occupied.shape[0]
-
-    def dilated(self) -> torch.Tensor:
-        """[G, G, G] bool: occupied cells grown by one cell (26-neighbourhood)."""
-        grown = torch.nn.functional.max_pool3d(
-            self.occupied[None, None].float(), kernel_size=3, stride=1, padding=1
-        )
-        return grown[0, 0] > 0
 
     def bounding_box(self) -> tuple[torch.Tensor, torch.Tensor] | None:
         """``(low [3], high [3])`` metres of the occupied cells grown by one cell; None if empty."""
@@ -268,24 +270,27 @@ class OccupancyGrid:
         far: torch.Tensor,
         chunk_size: int = 16384,
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Shrink ``[near, far]`` to the span of the occupied cells along each ray.
+        """Shrink ``[near, far]`` to where the ray may meet the shell ``|sdf| <= threshold``.
 
-        Each ray is probed at ``G + 1`` evenly spaced points of ``[near, far]`` (spacing at most
-        one cell when ``[near, far]`` lies in the cube) against the grid grown by one cell; a ray
-        through an occupied cell crosses the grown grid over at least two cells, so a probe
-        lands there. The new bounds start one spacing before the first occupied probe and end
-        one spacing after the last; rays with no occupied probe get ``hit = False``. Only table
-        lookups: no field evaluations.
+        Table lookups only, no field evaluations: each ray is probed at ``G + 1`` evenly spaced
+        points ``t_k`` of ``[near, far]`` (spacing ``delta`` below one cell). A probe's bound
+        ``b_k = distance_bound[cell] - L |x_k - centre|`` holds ``|sdf| >= b_k`` there, so on the
+        piece ``[t_k, t_k+1]`` ``|sdf| >= (b_k + b_k+1 - L delta) / 2`` (and ``b - L delta / 2``
+        on the two half pieces at the ends). Rays with no piece reaching the threshold miss the
+        shell (``hit = False``); the others start at the first such piece, advanced by the
+        sphere-tracing step ``(b_k - threshold) / L`` that is safe from its probe, and end at the
+        last one, moved back the same way.
 
         origins, directions: [R, 3] metres / unit. near, far: [R] metres, inside the cube
         (e.g. from the sphere the grid was built in).
         Returns ``(near [R], far [R], hit [R] bool)``; rays without a hit get near = far = 0.
         """
         res = self.resolution
-        padded = res + 2  # an empty border: probes outside the cube clamp onto it
+        padded = res + 2  # a border of "far from everything": probes outside clamp onto it
         device, dtype = origins.device, origins.dtype
-        table = torch.zeros(padded, padded, padded, dtype=torch.bool, device=device)
-        table[1:-1, 1:-1, 1:-1] = self.dilated().to(device)
+        lipschitz, threshold = self.lipschitz, self.threshold
+        table = torch.full((padded, padded, padded), 1e3, dtype=dtype, device=device)
+        table[1:-1, 1:-1, 1:-1] = self.distance_bound.to(device=device, dtype=dtype)
         table = table.reshape(-1)
         num_probes = res + 1
         # Probe positions in grid units (cell i spans [i + 1, i + 2) with the border).
@@ -299,20 +304,42 @@ class OccupancyGrid:
         for start in range(0, origins.shape[0], chunk_size):
             rows = slice(start, start + chunk_size)
             ray_near, ray_far = near[rows], far[rows]
-            spacing = (ray_far - ray_near) / num_probes
+            spacing = (ray_far - ray_near) / num_probes  # [R]
             t_probe = ray_near[:, None] + offsets * spacing[:, None]  # [R, P]
-            cells = start_grid[rows, None, :] + t_probe[..., None] * dir_grid[rows, None, :]
-            cells = cells.clamp_(0.0, padded - 1.0).floor_()
-            flat = (cells @ weights).long()  # exact: indices < 2^24
-            occupied = table[flat]  # [R, P] bool
-            as_byte = occupied.view(torch.uint8)
-            first = as_byte.argmax(dim=-1)
-            any_hit = occupied.gather(-1, first[:, None])[:, 0]
-            last = num_probes - 1 - as_byte.flip(-1).argmax(dim=-1)
-            lo = torch.maximum(ray_near + (first.to(dtype) - 0.5) * spacing, ray_near)
-            hi = torch.minimum(ray_near + (last.to(dtype) + 1.5) * spacing, ray_far)
+            position = start_grid[rows, None, :] + t_probe[..., None] * dir_grid[rows, None, :]
+            position = position.clamp_(0.0, padded - 1e-3)
+            cells = position.floor()
+            from_centre = torch.linalg.vector_norm(position - cells - 0.5, dim=-1)
+            bound = table[(cells @ weights).long()] - lipschitz * self.cell_size * from_centre
+            # Lower bounds of |sdf| on the pieces: [near, t_0], [t_k, t_k+1], [t_P-1, far].
+            half_step = 0.5 * lipschitz * spacing[:, None]
+            pieces = torch.cat(
+                [
+                    bound[:, :1] - half_step,
+                    0.5 * (bound[:, :-1] + bound[:, 1:]) - half_step,
+                    bound[:, -1:] - half_step,
+                ],
+                dim=-1,
+            )  # [R, P + 1]
+            reach = (pieces <= threshold).to(torch.uint8)
+            first = reach.argmax(dim=-1)  # piece index; piece k > 0 starts at probe k - 1
+            any_hit = reach.gather(-1, first[:, None])[:, 0] > 0
+            last = num_probes - reach.flip(-1).argmax(dim=-1)  # piece k < P ends at probe k
+            safe = (bound - threshold).clamp_min(0.0) / lipschitz  # [R, P]
+            from_probe = (first - 1).clamp(min=0)
+            lo = (
+                t_probe.gather(-1, from_probe[:, None])[:, 0]
+                + safe.gather(-1, from_probe[:, None])[:, 0]
+            )
+            lo = torch.where(first == 0, ray_near, lo)
+            to_probe = last.clamp(max=num_probes - 1)
+            hi = (
+                t_probe.gather(-1, to_probe[:, None])[:, 0]
+                - safe.gather(-1, to_probe[:, None])[:, 0]
+            )
+            hi = torch.where(last == num_probes, ray_far, hi)
             new_near[rows] = torch.where(any_hit, lo, torch.zeros_like(lo))
-            new_far[rows] = torch.where(any_hit, hi, torch.zeros_like(hi))
+            new_far[rows] = torch.where(any_hit, torch.maximum(hi, lo), torch.zeros_like(hi))
             hit[rows] = any_hit
         return new_near, new_far, hit
 
@@ -329,12 +356,13 @@ def build_occupancy_grid(
     lipschitz: float = 1.0,
     chunk_size: int = 65536,
 ) -> OccupancyGrid:
-    """Occupancy grid of ``{sdf <= threshold}`` in the cube around a bounding sphere.
+    """Occupancy grid of the shell ``{|sdf| <= threshold}`` in the cube around a bounding sphere.
 
     Coarse to fine: the SDF is evaluated at the centres of ``coarse_resolution^3`` cells; only
-    the occupied ones (``sdf <= lipschitz * half_diagonal + threshold``) are split into
+    the occupied ones (``|sdf| <= lipschitz * half_diagonal + threshold``) are split into
     ``(resolution / coarse_resolution)^3`` cells whose centres are evaluated and tested the same
-    way. For a hand in its bounding sphere that is some 20k SDF evaluations for a 64^3 grid.
+    way. The other fine cells get the bound ``|sdf(C)| - lipschitz * |c - C|`` from their coarse
+    centre ``C``. For a hand in its bounding sphere that is some 50k SDF evaluations for 64^3.
 
     sdf_fn: points [N, 3] metres -> sdf [N] metres (an SDF that overestimates distances by at
         most ``lipschitz``). center: [3] metres (its dtype and device are used). radius: metres.
@@ -349,36 +377,47 @@ def build_occupancy_grid(
         raise ValueError(
             f"coarse_resolution ({coarse_resolution}) must divide resolution ({resolution})"
         )
+    if not lipschitz >= 1:
+        raise ValueError(f"lipschitz must be >= 1, got {lipschitz!r}")
     device, dtype = center.device, center.dtype
     low = center - radius
     factor = resolution // coarse_resolution
     coarse_cell = 2.0 * radius / coarse_resolution
     cell = 2.0 * radius / resolution
 
-    axis = torch.arange(coarse_resolution, device=device)
-    coarse_index = torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+    def cube_index(size: int) -> torch.Tensor:
+        axis = torch.arange(size, device=device)
+        return torch.stack(torch.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+
+    coarse_index = cube_index(coarse_resolution)
     centres = low + (coarse_index.to(dtype) + 0.5) * coarse_cell
-    sdf = _call_sdf_chunked(sdf_fn, centres, chunk_size)
-    coarse_occupied = sdf.abs() <= lipschitz * 0.5 * _SQRT3 * coarse_cell + threshold
+    coarse_abs = _call_sdf_chunked(sdf_fn, centres, chunk_size).abs()
+    coarse_occupied = coarse_abs <= lipschitz * 0.5 * _SQRT3 * coarse_cell + threshold
     num_evaluations = centres.shape[0]
 
-    occupied = torch.zeros(resolution**3, dtype=torch.bool, device=device)
-    parents = coarse_index[coarse_occupied]
-    if parents.numel() > 0:
-        sub_axis = torch.arange(factor, device=device)
-        sub = torch.stack(torch.meshgrid(sub_axis, sub_axis, sub_axis, indexing="ij"), -1)
-        fine_index = (parents[:, None, :] * factor + sub.reshape(1, -1, 3)).reshape(-1, 3)
-        centres = low + (fine_index.to(dtype) + 0.5) * cell
-        sdf = _call_sdf_chunked(sdf_fn, centres, chunk_size)
-        fine_occupied = sdf.abs() <= lipschitz * 0.5 * _SQRT3 * cell + threshold
-        flat = (fine_index * torch.tensor([resolution**2, resolution, 1], device=device)).sum(-1)
-        occupied[flat[fine_occupied]] = True
+    # Every fine cell: the bound from its coarse cell's centre.
+    fine_index = cube_index(resolution)
+    parent = fine_index // factor
+    parent_flat = (
+        parent * torch.tensor([coarse_resolution**2, coarse_resolution, 1], device=device)
+    ).sum(-1)
+    offset = ((fine_index % factor).to(dtype) + 0.5) / factor - 0.5  # in coarse cells
+    bound = coarse_abs[parent_flat] - lipschitz * coarse_cell * offset.norm(dim=-1)
+    # The fine cells of occupied coarse cells: evaluated.
+    refine = coarse_occupied[parent_flat]
+    if bool(refine.any()):
+        centres = low + (fine_index[refine].to(dtype) + 0.5) * cell
+        bound[refine] = _call_sdf_chunked(sdf_fn, centres, chunk_size).abs()
         num_evaluations += centres.shape[0]
+    occupied = bound <= lipschitz * 0.5 * _SQRT3 * cell + threshold
+    shape = (resolution, resolution, resolution)
     return OccupancyGrid(
-        occupied=occupied.reshape(resolution, resolution, resolution),
+        distance_bound=bound.reshape(shape),
+        occupied=occupied.reshape(shape),
         low=low,
         cell_size=cell,
         threshold=float(threshold),
+        lipschitz=float(lipschitz),
         num_evaluations=num_evaluations,
     )
 
@@ -689,7 +728,8 @@ def render_image(
         rendered in its dtype and on its device (a list or array uses the camera's).
     bound_radius: the sphere's radius, metres.
     config: :class:`ImageRenderConfig` (default: volume mode, grid culling).
-    density: the VolSDF density (volume mode); None makes ``LaplaceDensity(config.beta)``.
+    density: the VolSDF density (volume mode; on the render device); None makes
+        ``LaplaceDensity(config.beta)``.
     normal_fn: points [N, 3] -> normals [N, 3]; None uses ``config.normals`` on ``sdf_fn``.
     progress: show a tqdm bar over the rays.
     grid: a prebuilt :class:`OccupancyGrid` (e.g. shared by the views of a turntable; built
@@ -712,8 +752,7 @@ def render_image(
     device, dtype = center.device, center.dtype
     radius = float(bound_radius)
     if density is None:
-        density = LaplaceDensity(beta_init=config.beta, beta_min=0.0)
-    density = density.to(device)
+        density = LaplaceDensity(beta_init=config.beta, beta_min=0.0).to(device)
     beta = float(density.beta.detach())
     background = torch.tensor(config.background, dtype=dtype, device=device)
     lipschitz = config.lipschitz

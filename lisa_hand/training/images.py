@@ -296,14 +296,15 @@ class ImageBatch:
     """[B, Nu, 3] in [0, 1): uniform points in the region box (scaled to it in the model)."""
     eikonal_pick: torch.Tensor
     """[B, Ne, 2] in [0, 1): which hit ray and which of its samples for each ray Eikonal point."""
-    seed: int
-    """Seed of the renderer's stratified sampling."""
+    seeds: torch.Tensor
+    """[B] long, seed of each frame's stratified ray sampling (per frame, so that a frame
+    renders the same whichever process gets it)."""
 
     def select(self, index: slice) -> ImageBatch:
         return dataclasses.replace(
             self, rays=self.rays.select(index), skin_points=self.skin_points[index],
             skin_weights=self.skin_weights[index], uniform_unit=self.uniform_unit[index],
-            eikonal_pick=self.eikonal_pick[index])
+            eikonal_pick=self.eikonal_pick[index], seeds=self.seeds[index])
 
     def to(self, device: torch.device | str, dtype: torch.dtype | None = None) -> ImageBatch:
         def move(tensor: torch.Tensor) -> torch.Tensor:
@@ -420,11 +421,12 @@ class ImageModel(nn.Module):
         centre, radius = 0.5 * (low + high), 0.5 * (high - low).norm(dim=-1)
         background_rgb = torch.tensor(background, dtype=dtype, device=device)
         black = torch.zeros(3, dtype=dtype, device=device)
-        generator = None
-        if render.stratified:
-            generator = torch.Generator(device=device).manual_seed(batch.seed)
+        seeds = batch.seeds.tolist()
         predictions, opacities, ray_points = [], [], []
         for frame in range(rays.num_frames):
+            generator = None
+            if render.stratified:
+                generator = torch.Generator(device=device).manual_seed(seeds[frame])
             frame_state = select_frame(state, frame)
             origins, directions = rays.origins[frame], rays.directions[frame]
             near, far, hit = ray_sphere_bounds(origins, directions, centre[frame], radius[frame])
@@ -587,7 +589,7 @@ def train_images(
                                     generator=generator),
             eikonal_pick=torch.rand(num_global, config.eikonal_ray_points, 2,
                                     generator=generator),
-            seed=int(torch.randint(0, 2**62, (1,), generator=generator)),
+            seeds=torch.randint(0, 2**62, (num_global,), generator=generator),
         )
         bare = unwrap(ctx.model)
         local = batch.select(shard_slice(num_global, ctx.dist)).to(ctx.device, bare.field.dtype)
