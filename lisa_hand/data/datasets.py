@@ -108,11 +108,15 @@ def _float_array(value: Any, shape: tuple[int, ...], path: Path, key: str) -> np
     return array
 
 
-def _read_entry(path: Path, key: str, shape: tuple[int, ...]) -> np.ndarray:
+def _read_entries(path: Path, shapes: dict[str, tuple[int, ...]]) -> list[np.ndarray]:
+    """The arrays ``shapes`` names from one JSON object file, checked."""
     data = read_json(path)
-    if not isinstance(data, dict) or key not in data:
-        raise ValueError(f"{path}: missing key {key!r}")
-    return _float_array(data[key], shape, path, key)
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object")
+    missing = [key for key in shapes if key not in data]
+    if missing:
+        raise ValueError(f"{path}: missing key(s) {', '.join(repr(k) for k in missing)}")
+    return [_float_array(data[key], shape, path, key) for key, shape in shapes.items()]
 
 
 def read_frame_table(root: str | os.PathLike, split: str = "train") -> FrameTable:
@@ -137,7 +141,7 @@ def read_frame_table(root: str | os.PathLike, split: str = "train") -> FrameTabl
         if not folder.is_dir():
             raise FileNotFoundError(f"{folder}: subject folder listed in split.json is missing")
         subject_json = folder / "subject.json"
-        rest_joints.append(_read_entry(subject_json, "template_rest_joints", (NUM_JOINTS, 3)))
+        rest_joints.extend(_read_entries(subject_json, {"template_rest_joints": (NUM_JOINTS, 3)}))
         subject_frames = [FramePaths(p) for p in sorted(folder.glob("f*")) if p.is_dir()]
         if not subject_frames:
             raise ValueError(f"{folder}: subject {subject!r} has no frame folders (f000, ...)")
@@ -145,8 +149,9 @@ def read_frame_table(root: str | os.PathLike, split: str = "train") -> FrameTabl
         frame_subject.extend([index] * len(subject_frames))
     poses, translations = [], []
     for paths in frames:
-        poses.append(_read_entry(paths.params, "pose", (POSE_DIM,)))
-        translations.append(_read_entry(paths.params, "translation", (3,)))
+        pose, translation = _read_entries(paths.params, {"pose": (POSE_DIM,), "translation": (3,)})
+        poses.append(pose)
+        translations.append(translation)
     return FrameTable(
         root=root,
         split=split,

@@ -97,7 +97,7 @@ class ImageRenderConfig:
     render: RenderConfig = field(default_factory=_default_volume_render)
     """Volume mode: the ray renderer's sampler settings (its ``background`` and ``chunk_size``
     are not used: see :attr:`background` and :attr:`points_per_call`)."""
-    color_weight_threshold: float = 3e-3
+    color_weight_threshold: float = 1e-2
     """Volume mode: evaluate ``field_fn`` only at samples whose compositing weight exceeds this
     (densities come from ``sdf_fn`` at all samples); the skipped weight is given the kept
     samples' mean colour. 0 renders through :func:`render_rays` unchanged (``field_fn`` at every
@@ -338,8 +338,10 @@ class OccupancyGrid:
                 - safe.gather(-1, to_probe[:, None])[:, 0]
             )
             hi = torch.where(last == num_probes, ray_far, hi)
+            # The safe steps from both ends may cover a lone piece: then it misses too.
+            any_hit &= hi > lo
             new_near[rows] = torch.where(any_hit, lo, torch.zeros_like(lo))
-            new_far[rows] = torch.where(any_hit, torch.maximum(hi, lo), torch.zeros_like(hi))
+            new_far[rows] = torch.where(any_hit, hi, torch.zeros_like(hi))
             hit[rows] = any_hit
         return new_near, new_far, hit
 

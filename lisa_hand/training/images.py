@@ -69,11 +69,12 @@ from .prior import (
 
 __all__ = [
     "IMAGE_KIND",
-    "COLOR_FIELDS",
+    "NON_GEOMETRY_FIELDS",
     "ImageTrainConfig",
     "ImageBatch",
     "ImageModel",
     "build_image_model",
+    "resolve_prior",
     "calibrate",
     "train_images",
     "load_image_model",
@@ -86,8 +87,11 @@ __all__ = [
 IMAGE_KIND = "lisa-images"
 """``Checkpoint.extra["kind"]`` of an image run."""
 
-COLOR_FIELDS = ("use_color", "color_hidden", "color_depth", "color_dim", "inference_precision")
-"""The :class:`FieldConfig` fields that are not part of the geometry (not taken from a prior)."""
+NON_GEOMETRY_FIELDS = (
+    "use_color", "color_hidden", "color_depth", "color_dim", "inference_precision",
+)
+"""The :class:`FieldConfig` fields that do not define the geometry (the colour MLPs, the
+inference precision): an image run keeps its own; all others come from the prior."""
 
 
 def _default_image_field() -> FieldConfig:
@@ -112,9 +116,9 @@ class ImageTrainConfig:
     """The field's architecture (with colour). With a prior and ``field_from_prior``, the
     geometry fields are replaced by the prior's."""
     trainer: TrainerConfig = dataclasses.field(default_factory=_default_image_trainer)
-    """The training loop. The default grad_sync 'allreduce' also works when a step leaves some
-    parameters unused (bone culling, the pose offsets before refinement starts), which
-    DistributedDataParallel would reject."""
+    """The training loop. grad_sync must be 'allreduce' (gradients averaged after backward):
+    steps leave some parameters unused (the pose offsets before refinement starts, rarely a
+    bone), which DistributedDataParallel rejects."""
     render: RenderConfig = dataclasses.field(default_factory=_default_image_render)
     """Ray sampling and compositing (VolSDF). Default: the sphere-traced sampler, 48 samples in
     the band around the surface + 16 uniform ones, stratified (jittered) for training."""
@@ -182,6 +186,10 @@ class ImageTrainConfig:
             raise ValueError("field.use_color must be true: training from images needs colour")
         if not isinstance(self.trainer, TrainerConfig):
             raise ValueError(f"trainer must be a TrainerConfig, got {type(self.trainer).__name__}")
+        if self.trainer.grad_sync != "allreduce":
+            raise ValueError("trainer.grad_sync must be 'allreduce' for image training: the pose "
+                             "offsets get no gradient before refinement starts, which "
+                             "DistributedDataParallel ('ddp') rejects")
         if not isinstance(self.render, RenderConfig):
             raise ValueError(f"render must be a RenderConfig, got {type(self.render).__name__}")
         if self.split not in SPLITS:
@@ -236,13 +244,15 @@ def pose_refine_step(config: ImageTrainConfig) -> int:
 
 
 def geometry_from_prior(prior: FieldConfig, field: FieldConfig) -> FieldConfig:
-    """``field`` with every geometry setting (all but :data:`COLOR_FIELDS`) taken from ``prior``."""
-    return dataclasses.replace(prior, **{name: getattr(field, name) for name in COLOR_FIELDS})
+    """``field`` with every geometry setting (all but :data:`NON_GEOMETRY_FIELDS`) taken from
+    ``prior``."""
+    kept = {name: getattr(field, name) for name in NON_GEOMETRY_FIELDS}
+    return dataclasses.replace(prior, **kept)
 
 
 def _geometry_mismatch(prior: FieldConfig, field: FieldConfig) -> list[str]:
-    return [f.name for f in dataclasses.fields(FieldConfig)
-            if f.name not in COLOR_FIELDS and getattr(prior, f.name) != getattr(field, f.name)]
+    return [f.name for f in dataclasses.fields(FieldConfig) if f.name not in NON_GEOMETRY_FIELDS
+            and getattr(prior, f.name) != getattr(field, f.name)]
 
 
 # ------------------------------------------------------------------------------------------------
@@ -496,7 +506,15 @@ def _pick_ray_samples(origins, directions, t_vals, hit, pick, fallback) -> torch
 # Training
 
 
-def _resolve_prior(config: ImageTrainConfig, prior: str | os.PathLike | PriorModel | None):
+def resolve_prior(
+    config: ImageTrainConfig, prior: str | os.PathLike | PriorModel | None
+) -> tuple[ImageTrainConfig, PriorModel | None, str | None]:
+    """Load the prior (a run folder, a checkpoint or a model) and resolve the field config.
+
+    -> (config with the prior's geometry settings when ``field_from_prior``, the prior model or
+    None, where it came from or None). Raises ValueError when ``field_from_prior`` is false and
+    the geometry settings differ.
+    """
     if prior is None:
         return config, None, None
     if isinstance(prior, PriorModel):
@@ -556,7 +574,7 @@ def train_images(
     config = ImageTrainConfig() if config is None else config
     if not isinstance(config, ImageTrainConfig):
         raise TypeError(f"config must be an ImageTrainConfig, got {type(config).__name__}")
-    config, prior_model, prior_source = _resolve_prior(config, prior)
+    config, prior_model, prior_source = resolve_prior(config, prior)
     weights = config.loss_weights()
     if not weights:
         raise ValueError("every loss weight is 0: nothing to train")
@@ -565,7 +583,12 @@ def train_images(
     scans = None
     num_skin = config.skinning_points if config.lambda_w > 0 else 0
     if num_skin:
-        scans = ScanFrames(data_dir, config.split)
+        try:
+            scans = ScanFrames(data_dir, config.split)
+        except FileNotFoundError as exc:
+            raise FileNotFoundError(f"{exc} (L_w reads the frames' scan.npz: points and "
+                                    "template_weights; set lambda_w=0 to train without)") \
+                from None
     model, _ = _seeded(config.trainer.seed, lambda: build_image_model(rays, config, prior_model))
     num_global = config.num_frames
     refine_from = pose_refine_step(config)

@@ -27,7 +27,7 @@ def tiny_data(tmp_path_factory):
 
 def tiny_trainer(**kwargs) -> TrainerConfig:
     base = dict(steps=20, lr=2e-3, device="cpu", progress=False, print_every=0,
-                checkpoint_every=0, seed=3)
+                checkpoint_every=0, seed=3, grad_sync="allreduce")
     base.update(kwargs)
     return TrainerConfig(**base)
 

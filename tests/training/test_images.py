@@ -24,6 +24,7 @@ from lisa_hand.training.images import (
     load_image_model,
     pose_refine_step,
     region_bounds,
+    resolve_prior,
     select_frame,
     train_images,
 )
@@ -85,9 +86,7 @@ def test_image_model_starts_from_the_prior_geometry(tiny_data, prior_run):
     prior = load_prior(prior_run)
     # field_from_prior: the image run takes the prior's geometry settings (sdf_hidden 32).
     config = tiny_image_config(field=FieldConfig(**{**TINY_FIELD, "sdf_hidden": 16}))
-    from lisa_hand.training.images import _resolve_prior
-
-    resolved, prior_model, _ = _resolve_prior(config, prior_run)
+    resolved, prior_model, _ = resolve_prior(config, prior_run)
     assert resolved.field.sdf_hidden == 32 and resolved.field.color_hidden == 16
     assert resolved.field.use_color
     rays = RayFrames(tiny_data, "train", max_band_px=2)
@@ -212,6 +211,7 @@ def test_select_frame_and_region_bounds(tiny_data):
         (dict(pose_refine_start=1.5), "pose_refine_start must be in"),
         (dict(lambda_col=-1.0), "lambda_col must be a finite number >= 0"),
         (dict(skinning_points=0), "lambda_w > 0 needs skinning_points"),
+        (dict(trainer=tiny_trainer(grad_sync="ddp")), "grad_sync must be 'allreduce'"),
     ],
 )
 def test_bad_config_values(kwargs, message):
