@@ -920,7 +920,8 @@ class PosedField:
             r_along, r_up, r_side = along[:, lo:hi], up[:, lo:hi], side[:, lo:hi]
             profile = gaussian(r_along * ctab[:, 0])
             face_mask = smoothstep(ctab[:, 3], ctab[:, 4], r_up * ctab[:, 2])
-            near = smoothstep(ctab[:, 5], ctab[:, 6], (r_up * r_up + r_side * r_side).sqrt())
+            crease_radial = (r_up * r_up + r_side * r_side + 1e-20).sqrt()
+            near = smoothstep(ctab[:, 5], ctab[:, 6], crease_radial)
             owner = (weights @ prep.crease_owner).clamp(max=1.0)
             crease_shape = profile * face_mask * near * owner
             displacement = crease_shape @ ctab[:, 1]
@@ -962,7 +963,7 @@ class PosedField:
                 * smoothstep(end + 0.001, end - 0.001, nail_along)
                 * smoothstep(0.3, 0.6, n_up / radius)
                 * smoothstep(
-                    radius + 0.004, radius + 0.0015, (n_up * n_up + n_side * n_side).sqrt()
+                    radius + 0.004, radius + 0.0015, (n_up * n_up + n_side * n_side + 1e-20).sqrt()
                 )
                 * (weights @ prep.nail_owner)
             )

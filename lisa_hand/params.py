@@ -1,0 +1,150 @@
+"""``params.json``: one hand as LISA sees it (what fitting writes and meshing, rendering and
+animation read).
+
+Keys (JSON object):
+
+* ``format`` ``"lisa-hand-params"``, ``version`` 1;
+* ``side``: ``"right"`` or ``"left"``;
+* ``pose`` [48]: axis-angle, radians (MANO order: global rotation then 15 finger joints);
+* ``translation`` [3]: metres;
+* ``rest_joints`` [16, 3]: the rest-pose skeleton, metres;
+* ``betas`` [K] or null: the mesh template's shape coefficients that gave ``rest_joints``;
+* ``shape_code`` [D]: LISA's shape latent; ``color_code`` [D'] or null (geometry only);
+* ``model``: the model the codes belong to (a path, or ``"default"`` for the shipped model);
+* ``extra``: free-form information (fit losses, timings), optional.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from .io_utils import read_json, write_json
+from .skeleton import NUM_JOINTS, POSE_DIM, check_side
+
+__all__ = ["PARAMS_FORMAT", "HandParams", "read_params", "write_params"]
+
+PARAMS_FORMAT = "lisa-hand-params"
+_VERSION = 1
+
+
+@dataclass
+class HandParams:
+    """One hand: pose, skeleton and latent codes (float32 CPU tensors).
+
+    pose: [48] radians. translation: [3] metres. rest_joints: [16, 3] metres.
+    shape_code: [D]. color_code: [D'] or None. betas: [K] or None.
+    """
+
+    pose: torch.Tensor
+    translation: torch.Tensor
+    rest_joints: torch.Tensor
+    shape_code: torch.Tensor
+    color_code: torch.Tensor | None = None
+    betas: torch.Tensor | None = None
+    side: str = "right"
+    model: str = "default"
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        check_side(self.side)
+        self.pose = _vector(self.pose, "pose", (POSE_DIM,))
+        self.translation = _vector(self.translation, "translation", (3,))
+        self.rest_joints = _vector(self.rest_joints, "rest_joints", (NUM_JOINTS, 3))
+        self.shape_code = _vector(self.shape_code, "shape_code", (None,))
+        if self.color_code is not None:
+            self.color_code = _vector(self.color_code, "color_code", (None,))
+        if self.betas is not None:
+            self.betas = _vector(self.betas, "betas", (None,))
+
+    def with_pose(self, pose: torch.Tensor, translation: torch.Tensor | None = None) -> HandParams:
+        """The same hand in another pose (and translation, when given)."""
+        return replace(self, pose=pose,
+                       translation=self.translation if translation is None else translation)
+
+    def batch(self, device: torch.device | str = "cpu") -> dict[str, torch.Tensor | None]:
+        """The arguments of :meth:`LisaModel.prepare` for this hand, batch of one."""
+        def one(value: torch.Tensor | None) -> torch.Tensor | None:
+            return None if value is None else value[None].to(device)
+
+        return {
+            "pose": one(self.pose),
+            "translation": one(self.translation),
+            "rest_joints": one(self.rest_joints),
+            "shape_code": one(self.shape_code),
+            "color_code": one(self.color_code),
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        def listed(value: torch.Tensor | None):
+            return None if value is None else value.tolist()
+
+        return {
+            "format": PARAMS_FORMAT,
+            "version": _VERSION,
+            "side": self.side,
+            "pose": listed(self.pose),
+            "translation": listed(self.translation),
+            "rest_joints": listed(self.rest_joints),
+            "betas": listed(self.betas),
+            "shape_code": listed(self.shape_code),
+            "color_code": listed(self.color_code),
+            "model": self.model,
+            "extra": self.extra,
+        }
+
+
+def _vector(value: Any, name: str, shape: tuple[int | None, ...]) -> torch.Tensor:
+    try:
+        tensor = torch.as_tensor(value, dtype=torch.float32).detach().cpu().clone()
+    except (TypeError, ValueError, RuntimeError):
+        raise ValueError(f"{name} must be numbers of shape {list(shape)}") from None
+    if tensor.dim() != len(shape) or any(
+        want is not None and got != want for got, want in zip(tensor.shape, shape)
+    ):
+        raise ValueError(f"{name} must have shape {list(shape)}, got {list(tensor.shape)}")
+    if not torch.isfinite(tensor).all():
+        raise ValueError(f"{name} holds NaN or inf")
+    return tensor
+
+
+def read_params(path: str | os.PathLike) -> HandParams:
+    """Read a ``params.json`` (see the module docstring); errors name the file and the key."""
+    path = Path(path)
+    data = read_json(path)
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object")
+    if data.get("format", PARAMS_FORMAT) != PARAMS_FORMAT:
+        raise ValueError(f"{path}: format {data.get('format')!r} is not {PARAMS_FORMAT!r}")
+    missing = [k for k in ("pose", "translation", "rest_joints", "shape_code") if k not in data]
+    if missing:
+        raise ValueError(f"{path}: missing key(s) {', '.join(missing)}")
+    extra = data.get("extra") or {}
+    try:
+        return HandParams(
+            pose=data["pose"],
+            translation=data["translation"],
+            rest_joints=data["rest_joints"],
+            shape_code=data["shape_code"],
+            color_code=data.get("color_code"),
+            betas=data.get("betas"),
+            side=data.get("side", "right"),
+            model=str(data.get("model", "default")),
+            extra=extra if isinstance(extra, dict) else {},
+        )
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
+
+
+def write_params(path: str | os.PathLike, params: HandParams) -> Path:
+    """Write ``params`` as JSON (atomic)."""
+    data = params.to_dict()
+    for key, value in data["extra"].items():
+        if isinstance(value, float) and not math.isfinite(value):
+            data["extra"][key] = None
+    return write_json(path, data)

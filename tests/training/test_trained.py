@@ -1,0 +1,67 @@
+"""Loading trained runs for inference and exporting them (lisa_hand.trained)."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from lisa_hand.trained import DEFAULT_BETA, export_trained, load_trained
+from lisa_hand.training.images import train_images
+from lisa_hand.training.prior import train_prior
+
+from .conftest import tiny_image_config, tiny_prior_config, tiny_trainer
+
+
+def _sdf(model, points):
+    codes = model.shape_codes[:1]
+    color = None if model.color_codes is None else model.color_codes[:1]
+    rest = torch.tensor([[0.0, 0.0, 0.0]]).repeat(16, 1) + torch.linspace(0, 0.1, 16)[:, None]
+    state = model.field.prepare(torch.zeros(1, 48), None, rest, codes, color)
+    out = model.field.field(state, points[None])
+    return out.sdf[0], None if out.rgb is None else out.rgb[0]
+
+
+def test_image_run_loads_exports_and_reloads(tiny_data, tmp_path):
+    config = tiny_image_config(trainer=tiny_trainer(steps=2))
+    train_images(tiny_data, tmp_path / "run", config)
+    model = load_trained(tmp_path / "run")
+    assert model.has_color and model.beta > 0
+    assert model.shape_codes.shape == (2, 8) and model.gain.shape == (3,)
+    points = torch.randn(200, 3, generator=torch.Generator().manual_seed(0)) * 0.05
+    sdf, rgb = _sdf(model, points)
+
+    path, worst = export_trained(model, tmp_path / "model.pt")
+    assert worst == 0.0
+    again = load_trained(path)
+    sdf2, rgb2 = _sdf(again, points)
+    assert torch.equal(sdf, sdf2) and torch.equal(rgb, rgb2)
+    assert again.subject_ids == model.subject_ids and again.beta == pytest.approx(model.beta)
+
+    half_path, worst = export_trained(model, tmp_path / "half.pt", half=True)
+    assert 0.0 < worst < 1e-2
+    assert half_path.stat().st_size < path.stat().st_size
+    sdf3, _ = _sdf(load_trained(half_path), points)
+    assert (sdf3 - sdf).abs().max() < 1e-3  # metres
+
+
+def test_prior_run_is_geometry_only(tiny_data, tmp_path):
+    train_prior(tiny_data, tmp_path / "prior", tiny_prior_config(trainer=tiny_trainer(steps=2)))
+    model = load_trained(tmp_path / "prior" / "last.pt")
+    assert not model.has_color and model.color_codes is None
+    assert model.beta == DEFAULT_BETA and torch.equal(model.gain, torch.ones(3))
+    assert model.mean_color_code() is None and model.mean_shape_code().shape == (8,)
+
+
+def test_bad_model_files_get_clear_errors(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no such model"):
+        load_trained(tmp_path / "missing.pt")
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(b"not a torch file")
+    with pytest.raises(ValueError, match="corrupt.pt: cannot read"):
+        load_trained(corrupt)
+    other = tmp_path / "other.pt"
+    torch.save({"format": "something"}, other)
+    with pytest.raises(ValueError, match="other.pt: not a LISA model"):
+        load_trained(other)
+    with pytest.raises(FileNotFoundError, match="no checkpoint"):
+        load_trained(tmp_path)
