@@ -7,7 +7,7 @@ import sys
 
 import typer
 
-from . import demo, metrics, train
+from . import demo, metrics, synth, train
 
 app = typer.Typer(
     name="lisa",
@@ -26,7 +26,7 @@ def _root() -> None:
 
 
 # Each verb lives in its own module with a ``register(app)`` function.
-for _module in (demo, train, metrics):
+for _module in (demo, synth, train, metrics):
     _module.register(app)
 
 
