@@ -105,7 +105,7 @@ def _vector(value: Any, name: str, shape: tuple[int | None, ...]) -> torch.Tenso
     except (TypeError, ValueError, RuntimeError):
         raise ValueError(f"{name} must be numbers of shape {list(shape)}") from None
     if tensor.dim() != len(shape) or any(
-        want is not None and got != want for got, want in zip(tensor.shape, shape)
+        want is not None and got != want for got, want in zip(tensor.shape, shape, strict=False)
     ):
         raise ValueError(f"{name} must have shape {list(shape)}, got {list(tensor.shape)}")
     if not torch.isfinite(tensor).all():

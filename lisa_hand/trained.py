@@ -146,7 +146,7 @@ def _from_run(path: Path) -> TrainedModel:
 def _tensor(data: dict, key: str, path: Path, shape: tuple[int | None, ...]) -> torch.Tensor:
     value = data.get(key)
     if not isinstance(value, torch.Tensor) or value.dim() != len(shape) or any(
-        want is not None and got != want for got, want in zip(value.shape, shape)
+        want is not None and got != want for got, want in zip(value.shape, shape, strict=False)
     ):
         raise ValueError(f"{path}: {key!r} is missing or has the wrong shape (expected "
                          f"{list(shape)})")

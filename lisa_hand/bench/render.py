@@ -1,11 +1,16 @@
 """Render benchmark: a whole 1024x667 image of a hand, fast path against uniform sampling.
 
-``python -m lisa_hand.bench render [--field NAME] [--resolution WxH] [--threads N] [--json FILE]``
+``python -m lisa_hand.bench render [--field NAME] [--model PATH] [--resolution WxH] [--json FILE]``
 
 The scene is a posed hand (:func:`lisa_hand.bench.field.bench_pose`) seen palm-on from 0.6 m
 through a 40 degree lens (the hand spans about 450 of the 667 rows, as in InterHand2.6M's
-1024x667 views). Three fields (``--field``):
+1024x667 views). The fields (``--field``; the default ``auto`` is ``trained`` when a trained
+model exists, the shipped one or ``--model``, else ``lisa-capsules``; the output says which):
 
+* ``trained``: a trained LISA model (``--model``, default the shipped
+  ``lisa_hand/assets/lisa_pretrained.pt``) as ``lisa render`` renders it
+  (:mod:`lisa_hand.inference`: the model's mean codes and colour calibration, its ``beta``,
+  Lipschitz allowance 1.5), on the average skeleton;
 * ``lisa-capsules`` (default): the union of the skeleton's bone capsules (a hand-shaped surface
   that covers the fingers, as a trained LISA's does) plus a 0.5 mm perturbation and 40 % of the
   colour from the LISA model, which runs on every query: LISA's cost on a realistic surface.
@@ -56,6 +61,8 @@ __all__ = [
     "BenchScene",
     "lisa_scene",
     "capsule_scene",
+    "trained_scene",
+    "SCENES",
     "make_scene",
     "run_render_benchmark",
     "main",
@@ -82,6 +89,7 @@ class BenchScene:
     center: [3] metres and radius (metres) of a sphere holding the surface.
     lipschitz: bound on the SDF's overestimation (1 for an exact SDF).
     description: one line for the log.
+    beta: the field's own Laplace scale, metres (a trained model's), or None.
     """
 
     field_fn: Callable
@@ -91,6 +99,7 @@ class BenchScene:
     radius: float
     lipschitz: float
     description: str
+    beta: float | None = None
 
 
 def _posed_segments(pose: torch.Tensor, rest_joints: torch.Tensor, tip_extension: float):
@@ -263,11 +272,51 @@ def lisa_capsule_scene(width: int, height: int, seed: int = 0) -> BenchScene:
     )
 
 
-SCENES = ("lisa-capsules", "lisa", "capsules")
+def trained_scene(
+    width: int, height: int, seed: int = 0, model_path: str | None = None
+) -> BenchScene:
+    """A trained model (``model_path``, default the shipped one) as ``lisa render`` renders it:
+    the benchmark pose on the average skeleton, the model's mean codes, calibrated colours."""
+    from ..inference import hand_bounds, hand_render_config, hand_state
+    from ..skeleton import forward_kinematics
+    from .mesh import bench_hand
+
+    if model_path is None:
+        from ..trained import default_model_path
+
+        if not default_model_path().is_file():
+            raise FileNotFoundError(f"{default_model_path()}: no shipped model; pass --model")
+        model_path = str(default_model_path())
+    model, params, description = bench_hand(model_path, seed)
+    hand = hand_state(model, params)
+    center, radius = hand_bounds(params, model.config)
+    root = forward_kinematics(params.pose[None], params.rest_joints[None]).transforms[0, 0, :3, :3]
+    return BenchScene(
+        field_fn=hand.field_fn(),
+        sdf_fn=hand.sdf_fn(),
+        camera=_palm_camera(center, root, width, height),
+        center=center,
+        radius=radius,
+        lipschitz=hand_render_config(model).lipschitz,
+        description=description + " (lisa render's fields)",
+        beta=float(model.beta),
+    )
 
 
-def make_scene(kind: str, width: int, height: int, seed: int = 0) -> BenchScene:
-    """One of :data:`SCENES` (see the module docstring)."""
+SCENES = ("auto", "trained", "lisa-capsules", "lisa", "capsules")
+
+
+def make_scene(
+    kind: str, width: int, height: int, seed: int = 0, model_path: str | None = None
+) -> BenchScene:
+    """One of :data:`SCENES` (see the module docstring); ``model_path``: the trained model."""
+    if kind == "auto":
+        from ..trained import default_model_path
+
+        trained = model_path is not None or default_model_path().is_file()
+        kind = "trained" if trained else "lisa-capsules"
+    if kind == "trained":
+        return trained_scene(width, height, seed, model_path)
     if kind == "lisa-capsules":
         return lisa_capsule_scene(width, height, seed)
     if kind == "lisa":
@@ -304,21 +353,28 @@ def _fast(scene: BenchScene, config: ImageRenderConfig, density: LaplaceDensity)
 
 
 def run_render_benchmark(
-    field: str = "lisa-capsules",
+    field: str = "auto",
     width: int = 1024,
     height: int = 667,
     *,
-    beta: float = 1e-3,
+    beta: float | None = None,
     reference_samples: int = 128,
     variants: bool = False,
     dense_pixels: int = 2000,
     seed: int = 0,
     save_dir: str | None = None,
+    model_path: str | None = None,
     log: Callable[[str], None] = print,
 ) -> dict:
-    """Render the scene with the fast path and the uniform reference; return the numbers."""
+    """Render the scene with the fast path and the uniform reference; return the numbers.
+
+    beta: Laplace scale, metres (None: a trained model's own, else 1 mm).
+    model_path: the trained model of the 'trained' and 'auto' fields.
+    """
     torch.manual_seed(seed)
-    scene = make_scene(field, width, height, seed)
+    scene = make_scene(field, width, height, seed, model_path)
+    if beta is None:
+        beta = scene.beta if scene.beta is not None else 1e-3
     density = LaplaceDensity(beta_init=beta, beta_min=0.0)
     background = (0.0, 0.0, 0.0)
     log(
@@ -327,6 +383,7 @@ def run_render_benchmark(
     )
     results: dict = {
         "field": field,
+        "field_description": scene.description,
         "width": width,
         "height": height,
         "resolution": f"{width}x{height}",
@@ -520,11 +577,18 @@ def main(argv: list[str] | None = None) -> dict:
         "--field",
         choices=SCENES,
         default=SCENES[0],
-        help="lisa-capsules: the capsule hand at LISA's cost (default); lisa: the LISA model "
-        "alone (geometric init); capsules: the analytic hand alone",
+        help="auto (default): trained if a trained model exists, else lisa-capsules; trained: "
+        "a trained model as 'lisa render' renders it; lisa-capsules: the capsule hand at "
+        "LISA's cost; lisa: the LISA model alone (geometric init); capsules: the analytic hand",
+    )
+    parser.add_argument(
+        "--model", default=None, help="trained model for --field trained/auto (default: shipped)"
     )
     parser.add_argument("--resolution", default="1024x667", help="WxH pixels")
-    parser.add_argument("--beta", type=float, default=1e-3, help="Laplace scale, metres")
+    parser.add_argument(
+        "--beta", type=float, default=None,
+        help="Laplace scale, metres (default: a trained model's own, else 0.001)",
+    )  # fmt: skip
     parser.add_argument("--threads", type=int, default=None, help="torch.set_num_threads")
     parser.add_argument(
         "--variants",
@@ -551,7 +615,7 @@ def main(argv: list[str] | None = None) -> dict:
         if args.threads < 1:
             raise ValueError(f"--threads must be >= 1, got {args.threads}")
         torch.set_num_threads(args.threads)
-    if not args.beta > 0:
+    if args.beta is not None and not args.beta > 0:
         raise ValueError(f"--beta must be > 0 (metres), got {args.beta}")
     results = run_render_benchmark(
         args.field,
@@ -562,6 +626,7 @@ def main(argv: list[str] | None = None) -> dict:
         dense_pixels=args.dense_pixels,
         seed=args.seed,
         save_dir=args.save_images,
+        model_path=args.model,
     )
     if args.json is not None:
         from ..io_utils import write_json

@@ -7,7 +7,7 @@ import sys
 
 import typer
 
-from . import demo, metrics, synth, train
+from . import animate, blend, demo, mesh, metrics, render, synth, train
 
 app = typer.Typer(
     name="lisa",
@@ -26,7 +26,7 @@ def _root() -> None:
 
 
 # Each verb lives in its own module with a ``register(app)`` function.
-for _module in (demo, synth, train, metrics):
+for _module in (demo, synth, train, mesh, render, animate, blend, metrics):
     _module.register(app)
 
 
