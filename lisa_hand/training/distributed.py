@@ -166,6 +166,9 @@ def cleanup(ctx: DistContext) -> None:
     import torch.distributed as dist
 
     if ctx.owns_group and dist.is_available() and dist.is_initialized():
+        # Every rank must be done with its collectives before any tears the group down: a gloo
+        # peer that closes its sockets early makes the other rank abort at exit.
+        barrier(ctx)
         dist.destroy_process_group()
 
 

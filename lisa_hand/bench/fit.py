@@ -1,0 +1,411 @@
+"""Point-cloud fitting benchmark: time for a fit to reach V2S 1 mm, against the paper's loop.
+
+``python -m lisa_hand.bench fit [--json FILE] [--model CKPT] [--points N] [--seed S]``
+
+The target is the model itself (self-consistency, so 1 mm is reachable): the hand of a
+training subject's shape code, random template betas, the 'relaxed' finger pose, a random global
+rotation and translation, meshed at 128^3 (:func:`lisa_hand.inference.mesh_hand`) and scanned
+(:func:`lisa_hand.data.scans.simulate_scan`, ``--points`` points, ``--noise-mm`` normal noise).
+Without a trained model (``--model`` or the shipped one) the model is a geometric
+initialisation on the template's skeleton (a blob hand; its shape code does nothing).
+
+Accuracy along the way is the mean ``|G(x)|`` of the current fit over 4000 scan points, the
+vertex-to-surface distance from the scan to the fitted surface when ``G`` is a distance (checked
+at the end against the true V2S of the 128^3 meshes, both ways).
+
+* ``seconds``: :func:`lisa_hand.fitting.points.fit_points` with its defaults (candidate
+  orientations, articulated proxy, then the field on 512 random points per iteration with
+  culled bones, a few candidates pruned to one), from the start until the accuracy first
+  reaches ``--target-mm`` (evaluated after the run from per-iteration snapshots, so the check
+  costs the fit nothing).
+* ``reference_seconds``: the same initialisation (its time included), then the paper's plain
+  loop: ``torch.optim.Adam`` on the 48-D pose, translation and shape code, the loss
+  ``mean_i |G(x_i)| + w |beta+|^2`` over ALL points every iteration, every point through every
+  bone (``cull=False``), one candidate. Its loss is the accuracy itself. It stops at the target
+  or after ``--reference-budget`` seconds (``reference_reached`` says which).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+__all__ = ["WEBXR_POSES", "FitBenchmark", "pose_webxr_hand", "run_webxr_fits",
+           "run_fit_benchmark", "main"]
+
+_EVAL_POINTS = 4000
+
+
+@dataclass
+class FitBenchmark:
+    """Numbers of one run (JSON via :meth:`to_dict`); times in seconds, distances in mm."""
+
+    model: str
+    device: str
+    threads: int
+    num_points: int
+    noise_mm: float
+    target_mm: float
+    seconds: float | None
+    """Optimised fit: time until the accuracy reached ``target_mm`` (None: never)."""
+    reference_seconds: float | None
+    """Paper loop (same start): time until the target, or the budget when not reached."""
+    reference_reached: bool
+    speedup: float | None
+    init_seconds: float
+    """Initialisation shared by both (proxy, candidate orientations, articulated proxy)."""
+    fit_seconds: float
+    """The optimised fit's whole run."""
+    accuracy_mm: float
+    """Final mean |G| over the evaluation points (optimised fit)."""
+    reference_accuracy_mm: float
+    """The reference's last mean |G| over all points."""
+    reference_iterations: int
+    reference_seconds_per_iteration: float
+    fit_seconds_per_iteration: float
+    """Field stage of the optimised fit, per iteration."""
+    v2s_scan_to_recon_mm: float
+    v2s_recon_to_scan_mm: float
+    v2v_scan_to_recon_mm: float
+    v2v_recon_to_scan_mm: float
+    reference_v2s_scan_to_recon_mm: float
+    reference_v2s_recon_to_scan_mm: float
+    rotation_error_deg: float
+    stage_seconds: dict
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _bench_model(path, device):
+    from ..fields.config import FieldConfig
+    from ..handmodel.template import load_template
+    from ..model import LisaModel
+    from ..trained import TrainedModel, default_model_path, load_trained
+
+    if path is not None or default_model_path().is_file():
+        return load_trained(path, device), str(path or default_model_path())
+    template = load_template().to(dtype=torch.float32)
+    rest = template.rest_joints(torch.zeros(1, template.num_betas))[0]
+    field = LisaModel(FieldConfig(use_color=False), init_rest_joints=rest).eval()
+    shape_dim = field.config.shape_dim
+    model = TrainedModel(field=field, shape_codes=torch.zeros(4, shape_dim), color_codes=None,
+                         subject_ids=["s0", "s1", "s2", "s3"], beta=0.002, gain=torch.ones(3),
+                         bias=torch.zeros(3), source="geometric-init")
+    return model.to(device), "geometric-init (no trained model: a blob hand)"
+
+
+def _target(model, seed: int):
+    """The true hand: HandParams of a training subject in a random placement."""
+    from ..handmodel.poses import named_pose
+    from ..handmodel.template import load_template
+    from ..params import HandParams
+
+    generator = torch.Generator().manual_seed(seed)
+    template = load_template().to(dtype=torch.float32)
+    betas = 0.7 * torch.randn(template.num_betas, generator=generator)
+    pose = named_pose("relaxed").clone()
+    # A uniform random rotation: a uniform unit quaternion (w, v) as axis-angle.
+    quaternion = torch.randn(4, generator=generator, dtype=torch.float64)
+    quaternion = quaternion * torch.sign(quaternion[0]) / quaternion.norm()
+    sin_half = quaternion[1:].norm()
+    pose[:3] = (2.0 * torch.atan2(sin_half, quaternion[0]) * quaternion[1:] / sin_half).float()
+    subject = int(torch.randint(model.shape_codes.shape[0], (1,), generator=generator))
+    return HandParams(
+        pose=pose,
+        translation=0.1 * torch.randn(3, generator=generator),
+        rest_joints=template.rest_joints(betas[None])[0],
+        shape_code=model.shape_codes[subject].cpu(),
+        color_code=None if model.color_codes is None else model.color_codes[subject].cpu(),
+        betas=betas,
+    )
+
+
+def _mean_abs_sdf(model, params, points: torch.Tensor) -> float:
+    from ..inference import hand_state
+
+    with torch.no_grad():
+        return float(hand_state(model, params).sdf_fn()(points).abs().mean())
+
+
+def _reference_loop(model, start, points: torch.Tensor, target_m: float, budget: float,
+                    shape_weight: float):
+    """The paper's loop (see the module docstring). -> (params, seconds, reached, iters, acc)"""
+    field = model.field
+    device, dtype = field.device, field.dtype
+    pose = start.pose[None].to(device, dtype).clone().requires_grad_(True)
+    translation = start.translation[None].to(device, dtype).clone().requires_grad_(True)
+    code = start.shape_code[None].to(device, dtype).clone().requires_grad_(True)
+    rest = start.rest_joints[None].to(device, dtype)
+    color = None
+    if field.color_mlp is not None:
+        color = model.mean_color_code()[None].to(device, dtype)
+    optimizer = torch.optim.Adam([
+        {"params": [pose], "lr": 0.01},
+        {"params": [translation], "lr": 0.001},
+        {"params": [code], "lr": 0.01},
+    ])
+    for weight in field.parameters():
+        weight.requires_grad_(False)
+    begin = time.perf_counter()
+    iterations, accuracy, reached = 0, math.inf, False
+    while time.perf_counter() - begin < budget:
+        state = field.prepare(pose, translation, rest, code, color)
+        data = field.field(state, points[None], with_color=False, cull=False).sdf.abs().mean()
+        accuracy = float(data.detach())
+        iterations += 1
+        if accuracy <= target_m:
+            reached = True
+            break
+        loss = data + shape_weight * code.square().sum()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    seconds = time.perf_counter() - begin
+    for weight in field.parameters():
+        weight.requires_grad_(True)
+    params = start.with_pose(pose[0].detach().cpu(), translation[0].detach().cpu())
+    params.shape_code = code[0].detach().cpu()
+    return params, seconds, reached, iterations, accuracy
+
+
+def run_fit_benchmark(model_path=None, *, num_points: int = 20000, noise_mm: float = 0.0,
+                      target_mm: float = 1.0, seed: int = 0, device: str = "cpu",
+                      threads: int = 1, reference_budget: float = 120.0) -> FitBenchmark:
+    """Run both fits on one target (see the module docstring)."""
+    from ..data.scans import ScanConfig, simulate_scan
+    from ..fitting.points import FitPointsConfig, fit_points
+    from ..geometry import axis_angle_to_matrix
+    from ..inference import MeshConfig, mesh_hand
+    from ..metrics import mesh_distances
+
+    torch.set_num_threads(threads)
+    model, model_name = _bench_model(model_path, device)
+    truth = _target(model, seed)
+    plain = MeshConfig(colors=False, skin_weights=False)
+    gt_mesh = mesh_hand(model, truth, 128, plain)
+    scan = simulate_scan(gt_mesh.vertices, gt_mesh.faces,
+                         ScanConfig(num_points=num_points, noise_normal_std=noise_mm * 1e-3),
+                         seed=seed)
+    points = torch.from_numpy(scan.points).to(device=model.field.device, dtype=model.field.dtype)
+    pick = np.random.default_rng(seed).permutation(len(points))[:_EVAL_POINTS]
+    eval_points = points[torch.from_numpy(pick).to(points.device)]
+
+    config = FitPointsConfig(cpu_threads=threads)
+    snapshots: list[tuple[str, float, object]] = []
+
+    def record(step) -> None:
+        if step.stage == "field" or (step.stage == "pose"
+                                     and step.iteration == step.num_iterations - 1):
+            snapshots.append((step.stage, step.seconds, step.params()))
+
+    fit = fit_points(model, scan.points, None, config, callback=record)
+    init_seconds = sum(fit.stage_seconds.get(k, 0.0) for k in ("proxy", "align", "pose"))
+    seconds = None
+    for stage, when, params in snapshots:
+        if stage == "field" and _mean_abs_sdf(model, params, eval_points) <= target_mm * 1e-3:
+            seconds = when
+            break
+    accuracy = _mean_abs_sdf(model, fit.params, eval_points)
+
+    start = next(params for stage, _, params in snapshots if stage == "pose")
+    reference, loop_seconds, reached, iterations, reference_accuracy = _reference_loop(
+        model, start, points, target_mm * 1e-3, reference_budget, config.shape_weight)
+    reference_seconds = init_seconds + loop_seconds
+
+    recon = mesh_hand(model, fit.params, 128, plain)
+    distances = mesh_distances(recon.vertices, recon.faces, gt_mesh.vertices, gt_mesh.faces)
+    reference_mesh = mesh_hand(model, reference, 128, plain)
+    reference_distances = mesh_distances(reference_mesh.vertices, reference_mesh.faces,
+                                         gt_mesh.vertices, gt_mesh.faces)
+    rotation = axis_angle_to_matrix(fit.params.pose[:3].double())
+    true_rotation = axis_angle_to_matrix(truth.pose[:3].double())
+    cosine = (torch.trace(rotation.T @ true_rotation) - 1.0) / 2.0
+    field_iterations = max(config.iterations, 1)
+    return FitBenchmark(
+        model=model_name,
+        device=str(device),
+        threads=threads,
+        num_points=num_points,
+        noise_mm=noise_mm,
+        target_mm=target_mm,
+        seconds=seconds,
+        reference_seconds=reference_seconds,
+        reference_reached=reached,
+        speedup=None if seconds is None else reference_seconds / seconds,
+        init_seconds=init_seconds,
+        fit_seconds=fit.seconds,
+        accuracy_mm=accuracy * 1e3,
+        reference_accuracy_mm=reference_accuracy * 1e3,
+        reference_iterations=iterations,
+        reference_seconds_per_iteration=loop_seconds / max(iterations, 1),
+        fit_seconds_per_iteration=fit.stage_seconds["field"] / field_iterations,
+        v2s_scan_to_recon_mm=distances.v2s_scan_to_recon_mm,
+        v2s_recon_to_scan_mm=distances.v2s_recon_to_scan_mm,
+        v2v_scan_to_recon_mm=distances.v2v_scan_to_recon_mm,
+        v2v_recon_to_scan_mm=distances.v2v_recon_to_scan_mm,
+        reference_v2s_scan_to_recon_mm=reference_distances.v2s_scan_to_recon_mm,
+        reference_v2s_recon_to_scan_mm=reference_distances.v2s_recon_to_scan_mm,
+        rotation_error_deg=math.degrees(math.acos(max(-1.0, min(1.0, float(cosine))))),
+        stage_seconds=dict(fit.stage_seconds),
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# A hand the project did not make: the artist-made WebXR hand, posed with its own rig
+
+WEBXR_POSES = {
+    "rest": {},
+    "bent_index": {"index-finger": (0.9, 1.2, 0.7)},
+    "fist": {**{finger: (1.3, 1.5, 0.9) for finger in ("index-finger", "middle-finger",
+                                                        "ring-finger", "pinky-finger")},
+             "thumb": (0.3, 0.5, 0.5)},
+}
+"""Flexion (radians) of each finger's three joints (MCP, PIP, DIP; thumb CMC, MCP, IP)."""
+
+
+def pose_webxr_hand(path: str | Path, pose: str = "rest") -> tuple[np.ndarray, np.ndarray]:
+    """The WebXR hand (``right_hand.npz``: millimetres, 25 OpenXR joints, its own skinning
+    weights) posed by linear blend skinning, in metres.
+
+    Each finger joint of :data:`WEBXR_POSES` turns about the axis ``bone x palm normal`` (palm
+    normal ``thumb x fingers``, the MANO right-hand convention), so positive angles curl the
+    finger towards the palm. -> (vertices [V, 3] metres, faces [F, 3]).
+    """
+    from ..geometry import axis_angle_to_matrix
+
+    if pose not in WEBXR_POSES:
+        raise ValueError(f"unknown WebXR pose {pose!r}: one of {', '.join(WEBXR_POSES)}")
+    with np.load(path, allow_pickle=False) as data:
+        vertices = data["vertices"] * 1e-3
+        faces, weights = data["faces"], data["weights"]
+        joints = data["joints"].astype(np.float64) * 1e-3
+        parents, names = data["parents"], [str(n) for n in data["joint_names"]]
+    index = {name: number for number, name in enumerate(names)}
+    fingers = joints[index["middle-finger-phalanx-proximal"]] - joints[0]
+    fingers /= np.linalg.norm(fingers)
+    thumb = joints[index["thumb-phalanx-proximal"]] - joints[0]
+    thumb -= fingers * (thumb @ fingers)
+    palm_normal = np.cross(thumb / np.linalg.norm(thumb), fingers)
+    local = np.tile(np.eye(4), (len(names), 1, 1))
+    for finger, angles in WEBXR_POSES[pose].items():
+        chain = (["thumb-metacarpal", "thumb-phalanx-proximal", "thumb-phalanx-distal"]
+                 if finger == "thumb" else
+                 [f"{finger}-phalanx-{part}" for part in ("proximal", "intermediate", "distal")])
+        ends = chain[1:] + [f"{finger}-tip"]
+        for joint_name, end_name, angle in zip(chain, ends, angles, strict=True):
+            joint, end = index[joint_name], index[end_name]
+            axis = np.cross(joints[end] - joints[joint], palm_normal)
+            axis_angle = torch.from_numpy(angle * axis / np.linalg.norm(axis))
+            rotation = axis_angle_to_matrix(axis_angle).numpy()
+            local[joint, :3, :3] = rotation
+            local[joint, :3, 3] = joints[joint] - rotation @ joints[joint]
+    world = np.empty_like(local)
+    for joint in range(len(names)):  # parents come first in the OpenXR order
+        world[joint] = local[joint] if parents[joint] < 0 else world[parents[joint]] @ local[joint]
+    blended = np.einsum("vj,jab->vab", weights, world)
+    posed = np.einsum("vab,vb->va", blended[:, :3, :3], vertices) + blended[:, :3, 3]
+    return posed, faces
+
+
+def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int = 0,
+                   threads: int = 1) -> list[dict]:
+    """Fit ``model`` to the WebXR hand in each pose of :data:`WEBXR_POSES`, from a full scan
+    and from a one-view partial scan (noise 0.3 mm), each in a random placement.
+
+    -> one dict per fit: pose, scan kind, seconds, the four distances (mm, fitted 128^3 mesh
+    against the posed WebXR mesh; its short forearm stub, which LISA does not model, counts in
+    the scan -> recon directions).
+    """
+    from ..data.scans import ScanConfig, simulate_scan
+    from ..fitting.points import FitPointsConfig, fit_points
+    from ..geometry import axis_angle_to_matrix
+    from ..inference import MeshConfig, mesh_hand
+    from ..metrics import mesh_distances
+
+    generator = torch.Generator().manual_seed(seed)
+    rows = []
+    for pose in WEBXR_POSES:
+        vertices, faces = pose_webxr_hand(path, pose)
+        turn = 3.0 * torch.rand(3, generator=generator, dtype=torch.float64)
+        rotation = axis_angle_to_matrix(turn)
+        placed = (vertices - vertices.mean(0)) @ rotation.numpy().T + 0.3 * np.array([0, 0, 1.0])
+        for partial in (False, True):
+            scan = simulate_scan(placed, faces, ScanConfig(num_points=num_points, partial=partial,
+                                                           noise_normal_std=3e-4), seed=seed)
+            fit = fit_points(model, scan.points, None, FitPointsConfig(cpu_threads=threads,
+                                                                       seed=seed))
+            mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False,
+                                                                skin_weights=False))
+            distances = mesh_distances(mesh.vertices, mesh.faces, placed, faces)
+            rows.append({"pose": pose, "scan": "partial" if partial else "full",
+                         "seconds": fit.seconds, **distances.to_dict()})
+    return rows
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m lisa_hand.bench fit [--json FILE] [--model CKPT] ...``"""
+    parser = argparse.ArgumentParser(prog="python -m lisa_hand.bench fit",
+                                     description=__doc__.split("\n")[0])
+    parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
+    parser.add_argument("--model", default=None,
+                        help="trained model (default: the shipped one, else a geometric init)")
+    parser.add_argument("--points", type=int, default=20000, help="scan points")
+    parser.add_argument("--noise-mm", type=float, default=0.0, help="scan noise along normals")
+    parser.add_argument("--target-mm", type=float, default=1.0, help="accuracy to reach")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (CPU)")
+    parser.add_argument("--reference-budget", type=float, default=120.0,
+                        help="seconds the reference loop may run")
+    parser.add_argument("--webxr", type=Path, default=None, metavar="NPZ",
+                        help="also fit the WebXR hand (right_hand.npz) in three poses")
+    args = parser.parse_args(argv)
+    if args.points < 100:
+        raise ValueError(f"--points must be >= 100, got {args.points}")
+    result = run_fit_benchmark(args.model, num_points=args.points, noise_mm=args.noise_mm,
+                               target_mm=args.target_mm, seed=args.seed, device=args.device,
+                               threads=args.threads, reference_budget=args.reference_budget)
+
+    def shown(value):
+        return "not reached" if value is None else f"{value:.2f} s"
+
+    print(f"model: {result.model}; {result.num_points} points, noise {result.noise_mm} mm, "
+          f"{result.device}, {result.threads} thread(s)")
+    print(f"optimised fit: {shown(result.seconds)} to reach {result.target_mm} mm "
+          f"(init {result.init_seconds:.2f} s, whole fit {result.fit_seconds:.2f} s, "
+          f"final {result.accuracy_mm:.3f} mm, {1e3 * result.fit_seconds_per_iteration:.1f} "
+          "ms per field iteration)")
+    reference = shown(result.reference_seconds) if result.reference_reached else \
+        f"not reached in {result.reference_seconds:.1f} s"
+    print(f"paper loop (same init): {reference} ({result.reference_iterations} iterations, "
+          f"{1e3 * result.reference_seconds_per_iteration:.0f} ms each, last "
+          f"{result.reference_accuracy_mm:.3f} mm)")
+    if result.speedup is not None:
+        bound = "" if result.reference_reached else ">= "
+        print(f"speed-up: {bound}{result.speedup:.1f}x")
+    print(f"V2S scan->recon {result.v2s_scan_to_recon_mm:.3f} mm, recon->scan "
+          f"{result.v2s_recon_to_scan_mm:.3f} mm; V2V {result.v2v_scan_to_recon_mm:.3f} / "
+          f"{result.v2v_recon_to_scan_mm:.3f} mm; rotation error "
+          f"{result.rotation_error_deg:.2f} deg")
+    numbers = result.to_dict()
+    if args.webxr is not None:
+        model, _ = _bench_model(args.model, args.device)
+        rows = run_webxr_fits(model, args.webxr, seed=args.seed, threads=args.threads)
+        numbers["webxr"] = rows
+        print("WebXR hand (mm; V2S recon->scan, scan->recon; V2V recon->scan, scan->recon):")
+        for row in rows:
+            print(f"  {row['pose']:>10} {row['scan']:>7}: {row['v2s_recon_to_scan_mm']:6.2f} "
+                  f"{row['v2s_scan_to_recon_mm']:6.2f}  {row['v2v_recon_to_scan_mm']:6.2f} "
+                  f"{row['v2v_scan_to_recon_mm']:6.2f}  ({row['seconds']:.1f} s)")
+    if args.json is not None:
+        args.json.parent.mkdir(parents=True, exist_ok=True)
+        args.json.write_text(json.dumps(numbers, indent=2))
+        print(f"wrote {args.json}")

@@ -1,0 +1,109 @@
+"""``lisa fit-images``: fit LISA to 1..N calibrated views (paper Section 4.3), write the hand."""
+
+from __future__ import annotations
+
+import math
+from enum import Enum
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+
+class Units(str, Enum):
+    """Length unit of the ground-truth file."""
+
+    auto = "auto"
+    m = "m"
+    mm = "mm"
+
+
+class Side(str, Enum):
+    """Which hand the images show."""
+
+    right = "right"
+    left = "left"
+
+
+def fit_images(
+    frame: Annotated[Path, typer.Argument(
+        metavar="DIR",
+        help="Frame folder: cameras.json, images/NAME.png, and optionally masks/NAME.png and "
+             "keypoints.json (the layout 'lisa synth' writes).")],
+    out: Annotated[Path, typer.Option(
+        "--out", help="Output folder: params.json, mesh.ply and metrics.json.")],
+    views: Annotated[str | None, typer.Option(
+        "--views", help="Comma-separated camera names to use, e.g. cam000 or "
+                        "cam000,cam002,cam004,cam006 (default: all).")] = None,
+    model: Annotated[Path | None, typer.Option(
+        "--model", help="Trained model: exported file, run folder or checkpoint "
+                        "(default: the shipped model).")] = None,
+    gt: Annotated[Path | None, typer.Option(
+        "--gt", help="Ground-truth mesh (or points), e.g. the frame's mesh.ply: adds V2V and "
+                     "V2S distances (mm), both ways, to metrics.json.")] = None,
+    units: Annotated[Units, typer.Option(
+        "--units", help="Unit of GT: m, mm, or auto (over 2 units across is mm).")] = Units.auto,
+    keypoint_iters: Annotated[int | None, typer.Option(
+        "--keypoint-iters", min=0,
+        help="Iterations of the pose stage (default 400; the paper uses 1000).")] = None,
+    color_iters: Annotated[int | None, typer.Option(
+        "--color-iters", min=0,
+        help="Iterations of the pose, shape and colour stage (default 300; the paper uses "
+             "5000; 0 skips it).")] = None,
+    rays: Annotated[int | None, typer.Option(
+        "--rays", min=1, help="Rays rendered per colour iteration (default 512).")] = None,
+    side: Annotated[Side, typer.Option("--side", help="right or left hand.")] = Side.right,
+    res: Annotated[int, typer.Option(
+        "--res", min=16, max=1024, help="Marching-cubes samples per axis of the mesh.")] = 128,
+    device: Annotated[str, typer.Option(
+        "--device", help="auto (CUDA when available), cpu, cuda or cuda:N.")] = "auto",
+    threads: Annotated[int, typer.Option(
+        "--threads", min=0, help="CPU threads of torch during the fit (0: torch's default; "
+                                 "1 is fastest on a busy machine).")] = 1,
+    seed: Annotated[int, typer.Option(help="Seed of the restarts and of the rays.")] = 0,
+    psnr: Annotated[bool, typer.Option(
+        "--psnr/--no-psnr", help="Re-render the input views for the PSNR in metrics.json.")
+    ] = True,
+    progress: Annotated[bool, typer.Option(help="Show progress bars.")] = True,
+) -> None:
+    """Fit the LISA hand to the calibrated views of DIR: the pose from the 2D keypoints and
+    masks, then pose, shape and colour with volume rendering; write OUT/params.json,
+    OUT/mesh.ply and OUT/metrics.json."""
+    from ..fitting.images import FitImagesConfig, fit_image_folder
+
+    names = None
+    if views is not None:
+        names = [name.strip() for name in views.split(",") if name.strip()]
+        if not names:
+            raise ValueError(f"--views {views!r}: no camera name given")
+    overrides: dict = {"seed": seed, "side": side.value,
+                       "num_threads": threads if threads > 0 else None}
+    for key, value in (("keypoint_iters", keypoint_iters), ("color_iters", color_iters),
+                       ("num_rays", rays)):
+        if value is not None:
+            overrides[key] = value
+    config = FitImagesConfig(**overrides)
+    report = fit_image_folder(frame, out, views=names, model_path=model, gt_path=gt,
+                              units=units.value, resolution=res, config=config, device=device,
+                              psnr=psnr, progress=progress, log=typer.echo)
+    fit, metrics = report.fit, report.metrics
+
+    def shown(value, unit: str) -> str:
+        return "n/a" if value is None or (isinstance(value, float) and math.isnan(value)) \
+            else f"{value:.3f} {unit}"
+
+    typer.echo(f"fitted {len(metrics['views'])} view(s) in {fit.seconds:.1f} s "
+               f"(keypoints {fit.stage_seconds['keypoints']:.1f} s, colour "
+               f"{fit.stage_seconds['color']:.1f} s): keypoint error "
+               f"{shown(metrics['keypoint_error_px'], 'px')}")
+    for key in ("psnr_db", "psnr_mask_db", "v2v_recon_to_scan_mm", "v2s_recon_to_scan_mm",
+                "v2v_scan_to_recon_mm", "v2s_scan_to_recon_mm"):
+        if key in metrics:
+            unit = "dB" if key.startswith("psnr") else "mm"
+            typer.echo(f"  {key}: {shown(metrics[key], unit)}")
+    for path in report.written:
+        typer.echo(f"wrote {path}")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("fit-images")(fit_images)

@@ -1,0 +1,426 @@
+"""Point-cloud files for fitting: reading (PLY, OBJ, XYZ, NPY, NPZ) and checking them.
+
+:func:`read_point_cloud` returns what a file holds, as it is stored; :func:`prepare_point_cloud`
+turns that into what the fitter accepts (finite points in metres, at most ``max_points``) and
+says in plain words what it changed, so that the command line can print it.
+
+Formats (normals are optional everywhere):
+
+* ``.ply``: the vertex element's ``x y z`` and, when present, ``nx ny nz`` (ASCII or binary);
+  faces, colours and other properties are ignored (a mesh's vertices are its points).
+* ``.obj``: the ``v`` lines (first three numbers); the ``vn`` lines are the normals when there
+  is one per vertex (point-cloud exports), else they are ignored.
+* ``.xyz``: text, one point a line, ``x y z`` or ``x y z nx ny nz``; ``#`` starts a comment.
+* ``.npy``: an ``[N, 3]`` or ``[N, 6]`` (points, normals) array.
+* ``.npz``: ``points`` (or ``vertices``) ``[N, 3]`` and optional ``normals`` ``[N, 3]`` (the
+  ``scan.npz`` files of ``lisa synth``).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "POINT_CLOUD_SUFFIXES",
+    "UNITS",
+    "PointCloud",
+    "FitPointsReport",
+    "read_point_cloud",
+    "prepare_point_cloud",
+    "fit_point_file",
+]
+
+POINT_CLOUD_SUFFIXES = (".ply", ".obj", ".xyz", ".npy", ".npz")
+"""File extensions :func:`read_point_cloud` understands."""
+
+UNITS = ("auto", "m", "mm")
+"""Length units of an input cloud: metres, millimetres, or guessed from its size."""
+
+_MM_TO_M = 1e-3
+
+
+def read_point_cloud(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
+    """Read a point cloud as stored (see the module docstring for the formats).
+
+    -> (points [N, 3] float64 in the file's units, normals [N, 3] float64 or None). Values are
+    not checked beyond their shape (NaN stays NaN; see :func:`prepare_point_cloud`).
+    Raises FileNotFoundError for a missing file and ValueError naming the file for an unknown
+    extension, a corrupt file or an empty cloud.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in POINT_CLOUD_SUFFIXES:
+        raise ValueError(f"{path}: unsupported point-cloud file type {path.suffix!r} (expected "
+                         f"one of {', '.join(POINT_CLOUD_SUFFIXES)})")
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    reader = {".ply": _read_ply, ".obj": _read_obj, ".xyz": _read_xyz, ".npy": _read_npy,
+              ".npz": _read_npz}[suffix]
+    try:
+        points, normals = reader(path)
+    except (OSError, EOFError, ValueError, TypeError, IndexError, KeyError,
+            UnicodeDecodeError) as exc:
+        message = str(exc)
+        if message.startswith(str(path)):
+            raise ValueError(message) from None
+        raise ValueError(f"{path}: cannot read this {suffix[1:].upper()} file "
+                         f"({type(exc).__name__}: {message})") from None
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"{path}: points must have shape [N, 3], got {list(points.shape)}")
+    if points.shape[0] == 0:
+        raise ValueError(f"{path}: the point cloud is empty (no points)")
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64)
+        if normals.shape != points.shape:
+            raise ValueError(f"{path}: normals have shape {list(normals.shape)}, the points "
+                             f"{list(points.shape)}")
+    return np.ascontiguousarray(points), (None if normals is None
+                                          else np.ascontiguousarray(normals))
+
+
+def _columns(array: np.ndarray, path: Path, what: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """[N, 3] points or [N, 6] points and normals from one array."""
+    array = np.asarray(array)
+    if array.ndim != 2 or array.shape[1] not in (3, 6):
+        raise ValueError(f"{path}: {what} must have shape [N, 3] or [N, 6] (points, normals), "
+                         f"got {list(array.shape)}")
+    if not np.issubdtype(array.dtype, np.number):
+        raise ValueError(f"{path}: {what} must be numbers, got dtype {array.dtype}")
+    return array[:, :3], (array[:, 3:6] if array.shape[1] == 6 else None)
+
+
+def _read_npy(path: Path):
+    return _columns(np.load(path, allow_pickle=False), path, "the array")
+
+
+def _read_xyz(path: Path):
+    table = np.loadtxt(path, ndmin=2, comments="#")
+    if table.size == 0:
+        return np.zeros((0, 3)), None
+    return _columns(table, path, "the table")
+
+
+def _read_npz(path: Path):
+    with np.load(path, allow_pickle=False) as archive:
+        key = next((k for k in ("points", "vertices") if k in archive.files), None)
+        if key is None:
+            raise ValueError(f"{path}: expected an array named 'points' or 'vertices', found "
+                             f"{archive.files}")
+        points = archive[key]
+        if points.ndim != 2 or points.shape[1] != 3:
+            raise ValueError(f"{path}: '{key}' must have shape [N, 3], got {list(points.shape)}")
+        normals = archive["normals"] if "normals" in archive.files else None
+    return points, normals
+
+
+def _read_obj(path: Path):
+    vertices, normals = [], []
+    with open(path, encoding="utf-8") as handle:
+        for line in handle:
+            if line.startswith("v "):
+                vertices.append(line.split()[1:4])
+            elif line.startswith("vn "):
+                normals.append(line.split()[1:4])
+    if any(len(row) < 3 for row in vertices):
+        raise ValueError(f"{path}: a 'v' line has fewer than 3 coordinates")
+    points = np.array(vertices, dtype=np.float64).reshape(-1, 3)
+    if normals and len(normals) == len(vertices) and all(len(row) == 3 for row in normals):
+        return points, np.array(normals, dtype=np.float64)
+    return points, None
+
+
+def _read_ply(path: Path):
+    # The PLY header and body parsers of the mesh reader (they also read the normals' columns).
+    from ..data.meshio import _parse_ply_header, _read_ply_ascii, _read_ply_binary
+
+    data = path.read_bytes()
+    end = data.find(b"end_header")
+    if not data.startswith(b"ply") or end < 0:
+        raise ValueError(f"{path}: not a PLY file (no 'ply' magic or no 'end_header')")
+    body_start = data.index(b"\n", end) + 1
+    header = data[:end].decode("ascii", errors="replace").splitlines()
+    fmt, elements = _parse_ply_header(path, header)
+    # Only the vertex element is needed: drop what follows it (faces, edges, custom elements).
+    names = [name for name, _, _ in elements]
+    if "vertex" not in names:
+        raise ValueError(f"{path}: PLY has no vertex element")
+    elements = elements[: names.index("vertex") + 1]
+    if fmt == "ascii":
+        tables = _read_ply_ascii(path, data[body_start:], elements)
+    else:
+        order = "<" if "little" in fmt else ">"
+        needed = body_start + sum(
+            count * np.dtype([(p[0], order + p[1]) for p in props]).itemsize
+            for _, count, props in elements if all(p[2] is None for p in props))
+        if len(data) < needed:
+            raise ValueError(f"{path}: PLY file is truncated ({len(data)} of at least {needed} "
+                             "bytes)")
+        tables = _read_ply_binary(path, data, body_start, elements, order)
+    vertex = tables["vertex"]
+    columns = vertex.dtype.names
+    missing = [axis for axis in "xyz" if axis not in columns]
+    if missing:
+        raise ValueError(f"{path}: PLY vertex element lacks properties {missing}")
+    points = np.stack([vertex[axis] for axis in "xyz"], axis=1)
+    normals = None
+    if all(name in columns for name in ("nx", "ny", "nz")):
+        normals = np.stack([vertex[name] for name in ("nx", "ny", "nz")], axis=1)
+    return points, normals
+
+
+@dataclass
+class PointCloud:
+    """A cloud ready for fitting (:func:`prepare_point_cloud`)."""
+
+    points: np.ndarray
+    """[N, 3] float64 metres, finite."""
+    normals: np.ndarray | None
+    """[N, 3] float64 unit outward normals, or None."""
+    unit: str
+    """The unit the input was read in: "m" or "mm"."""
+    unit_detected: bool
+    """True when ``unit`` was guessed (``units="auto"``)."""
+    num_input: int
+    """Points in the input, before anything was dropped."""
+    notes: list[str] = field(default_factory=list)
+    """What was changed, one sentence each (dropped points, unit conversion, subsampling)."""
+
+
+def prepare_point_cloud(
+    points: np.ndarray,
+    normals: np.ndarray | None = None,
+    *,
+    units: str = "auto",
+    max_points: int = 5_000_000,
+    min_points: int = 20,
+    seed: int = 0,
+    name: str = "points",
+) -> PointCloud:
+    """Check a cloud and bring it to metres.
+
+    points: [N, 3] in ``units``; normals: [N, 3] or None (they need not be unit length).
+    units: "m", "mm" or "auto" (:func:`lisa_hand.metrics.detect_length_unit`: a bounding box
+        over 2 units across is millimetres). With "m", a cloud that looks like millimetres is an
+        error (it would fit nothing).
+    max_points: a larger cloud is randomly subsampled to this many points (the fitter draws a
+        few hundred points per iteration; more only costs memory).
+    min_points: fewer finite points than this is an error.
+    name: how errors call the cloud (the file path, for the command line).
+
+    Documented fallbacks (each adds a sentence to ``notes``): points with NaN or inf
+    coordinates are dropped (depth sensors write NaN for missing pixels); normals are dropped
+    when any kept one is not finite or has zero length.
+    """
+    from ..metrics import detect_length_unit
+
+    if units not in UNITS:
+        raise ValueError(f"units must be one of {UNITS}, got {units!r}")
+    points = np.asarray(points, dtype=np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"{name}: points must have shape [N, 3], got {list(points.shape)}")
+    num_input = points.shape[0]
+    if num_input == 0:
+        raise ValueError(f"{name}: the point cloud is empty (no points)")
+    if normals is not None:
+        normals = np.asarray(normals, dtype=np.float64)
+        if normals.shape != points.shape:
+            raise ValueError(f"{name}: normals must have the points' shape {list(points.shape)},"
+                             f" got {list(normals.shape)}")
+    notes: list[str] = []
+    finite = np.isfinite(points).all(axis=1)
+    if not finite.all():
+        kept = int(finite.sum())
+        if kept < min_points:
+            raise ValueError(f"{name}: only {kept} of {num_input} points have finite "
+                             f"coordinates (NaN or inf), fewer than the {min_points} needed")
+        points = points[finite]
+        normals = None if normals is None else normals[finite]
+        notes.append(f"dropped {num_input - kept} of {num_input} points with NaN or inf "
+                     "coordinates")
+    if points.shape[0] < min_points:
+        raise ValueError(f"{name}: {points.shape[0]} points, fewer than the {min_points} "
+                         "needed to fit a hand")
+    if normals is not None:
+        lengths = np.linalg.norm(normals, axis=1)
+        if not (np.isfinite(lengths).all() and (lengths > 1e-12).all()):
+            notes.append("ignored the normals: some are NaN, inf or zero")
+            normals = None
+        else:
+            normals = normals / lengths[:, None]
+
+    detected = detect_length_unit(points)
+    unit = detected if units == "auto" else units
+    diagonal = float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+    if units == "m" and detected == "mm":
+        raise ValueError(f"{name}: the cloud is {diagonal:.4g} units across, which looks like "
+                         "millimetres (a hand is about 0.2 m); pass --units mm (units='mm') or "
+                         "convert it to metres")
+    if unit == "mm":
+        points = points * _MM_TO_M
+        if units == "auto":
+            notes.append(f"the cloud is {diagonal:.4g} units across: read as millimetres and "
+                         "converted to metres (pass --units m or mm to choose)")
+    size = diagonal * (_MM_TO_M if unit == "mm" else 1.0)
+    if size > 2.0:
+        raise ValueError(f"{name}: the cloud is {size:.3g} m across, too large for a hand "
+                         "(crop it to the hand, or check --units)")
+    if size < 0.02:
+        read_as = "read as millimetres; " if unit == "mm" else ""
+        raise ValueError(f"{name}: the cloud is {size * 1e3:.3g} mm across ({read_as}after "
+                         "conversion to metres), too small for a hand (a hand is about 200 mm)")
+
+    if points.shape[0] > max_points:
+        rng = np.random.default_rng(seed)
+        keep = np.sort(rng.choice(points.shape[0], size=max_points, replace=False))
+        notes.append(f"randomly subsampled {points.shape[0]} points to {max_points}")
+        points = points[keep]
+        normals = None if normals is None else normals[keep]
+    return PointCloud(points=np.ascontiguousarray(points), normals=normals, unit=unit,
+                      unit_detected=units == "auto", num_input=num_input, notes=notes)
+
+
+# ---------------------------------------------------------------------------------------------
+# From a file to a fitted hand on disk (``lisa fit-points``)
+
+
+@dataclass
+class FitPointsReport:
+    """What :func:`fit_point_file` did.
+
+    cloud: the cloud as fitted (metres) and what was changed on reading it.
+    fit: the :class:`lisa_hand.fitting.points.FitResult`.
+    mesh: the fitted surface (:class:`lisa_hand.meshing.Mesh`, colours and skinning weights).
+    metrics: the four distances (mm) to the ground truth (``MeshDistances.to_dict`` keys; None
+        where undefined), or None without one.
+    written: the files written, in order.
+    """
+
+    cloud: PointCloud
+    fit: Any
+    mesh: Any
+    metrics: dict[str, float | None] | None
+    written: list[Path]
+
+
+def _check_output_folder(out: Path) -> None:
+    """Fail before the (long) fit if ``out`` cannot become a writable folder."""
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"{out}: --out must be a folder, and this is a file")
+    existing = out
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
+        raise PermissionError(f"{out}: cannot write here ({existing} is not a writable folder)")
+
+
+def _read_ground_truth(path: Path, units: str):
+    """-> (vertices [V, 3] metres, faces [F, 3] or None, unit, a note or None)."""
+    from ..metrics import detect_length_unit, load_mesh
+
+    data = load_mesh(path)
+    detected = detect_length_unit(data.vertices)
+    unit = detected if units == "auto" else units
+    if units == "m" and detected == "mm":
+        raise ValueError(f"{path}: the ground truth looks like millimetres (over 2 units "
+                         "across); pass --units mm or convert it")
+    note = None
+    if unit == "mm" and units == "auto":
+        note = f"{path}: ground truth over 2 units across, read as millimetres"
+    scale = _MM_TO_M if unit == "mm" else 1.0
+    return data.vertices * scale, data.faces, unit, note
+
+
+def fit_point_file(
+    points_path: str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    model_path: str | os.PathLike | None = None,
+    gt_path: str | os.PathLike | None = None,
+    units: str = "auto",
+    resolution: int = 128,
+    config=None,
+    device: str = "auto",
+    progress: bool = False,
+    log: Callable[[str], None] | None = None,
+) -> FitPointsReport:
+    """Read a cloud, fit the model, write ``params.json``, ``mesh.ply`` (skinning weights, and
+    vertex colours from the mean colour code when the model has colour) and (with ``gt_path``)
+    ``metrics.json`` into ``out_dir``.
+
+    Every input is checked before the fit (the cloud, the ground truth, the model, the output
+    folder), and the files are written into a hidden folder beside ``out_dir`` and moved in
+    only once all of them exist: a failure leaves nothing half-written.
+
+    points_path: the cloud (:func:`read_point_cloud`); units: of the cloud and the ground truth
+        ("auto", "m", "mm", see :func:`prepare_point_cloud`). model_path: a trained model
+        (:func:`lisa_hand.trained.load_trained`; None: the shipped one). gt_path: a mesh or
+        points (:func:`lisa_hand.metrics.load_mesh`). resolution: marching-cubes samples a side.
+    config: :class:`lisa_hand.fitting.points.FitPointsConfig`. device: "auto", "cpu", "cuda".
+    log: called with one line per note (unit conversion, dropped points).
+    """
+    import math
+    import shutil
+    import tempfile
+
+    from ..data.meshio import save_mesh
+    from ..inference import MeshConfig, mesh_hand
+    from ..metrics import mesh_distances
+    from ..params import write_params
+    from ..trained import load_trained
+    from ..training.distributed import resolve_device
+    from .points import FitPointsConfig, fit_points
+
+    log = log or (lambda line: None)
+    points_path, out_dir = Path(points_path), Path(out_dir)
+    config = FitPointsConfig() if config is None else config
+    raw_points, raw_normals = read_point_cloud(points_path)
+    cloud = prepare_point_cloud(raw_points, raw_normals, units=units, seed=config.seed,
+                                min_points=config.min_points, name=str(points_path))
+    for note in cloud.notes:
+        log(f"{points_path}: {note}")
+    ground_truth = None
+    if gt_path is not None:
+        ground_truth = _read_ground_truth(Path(gt_path), units)
+        if ground_truth[3] is not None:
+            log(ground_truth[3])
+    _check_output_folder(out_dir)
+    torch_device = resolve_device(device)
+    model = load_trained(model_path, torch_device)
+
+    fit = fit_points(model, cloud.points, cloud.normals, config, progress=progress)
+    params = fit.params
+    params.model = "default" if model_path is None else str(Path(model_path).resolve())
+    params.extra["input"] = {"path": str(points_path), "unit": cloud.unit,
+                             "num_input_points": cloud.num_input, "notes": cloud.notes}
+    mesh = mesh_hand(model, params, resolution, MeshConfig(colors=model.has_color))
+    metrics = None
+    if ground_truth is not None:
+        distances = mesh_distances(mesh.vertices, mesh.faces, ground_truth[0], ground_truth[1])
+        metrics = {key: (None if math.isnan(value) else value)
+                   for key, value in distances.to_dict().items()}
+
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
+    try:
+        files = [write_params(staging / "params.json", params),
+                 save_mesh(staging / "mesh.ply", mesh)]
+        if metrics is not None:
+            from ..io_utils import write_json
+
+            files.append(write_json(staging / "metrics.json", metrics))
+        out_dir.mkdir(parents=True, exist_ok=True)
+        written = []
+        for file in files:
+            target = out_dir / file.name
+            os.replace(file, target)
+            written.append(target)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return FitPointsReport(cloud=cloud, fit=fit, mesh=mesh, metrics=metrics, written=written)

@@ -1,0 +1,121 @@
+"""``lisa fit-points``: the three output files, and one-line errors for bad input."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from lisa_hand.cli import fit_points as fit_points_cli
+from lisa_hand.cli import main as cli_main
+from lisa_hand.data.meshio import load_mesh, save_mesh
+from lisa_hand.data.scans import ScanConfig
+from lisa_hand.params import read_params
+from lisa_hand.trained import export_trained
+from tests.fitting.test_points import scan_of, surface, tiny_model, true_hand
+
+FAST_ARGS = ["--iterations", "15", "--restarts", "1", "--res", "40", "--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def lisa():
+    """``lisa_hand.cli.main.main`` with the fit-points verb (registered here until main.py
+    lists it), returning the exit status."""
+    names = [command.name for command in cli_main.app.registered_commands]
+    if "fit-points" not in names:
+        fit_points_cli.register(cli_main.app)
+
+    def run(argv: list[str]) -> int:
+        with pytest.raises(SystemExit) as info:
+            cli_main.main(argv)
+        return info.value.code
+
+    return run
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A tiny colour model, a scan of its own surface (with normals) and the true mesh."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    root = tmp_path_factory.mktemp("fit_points")
+    model = tiny_model(color=True)
+    truth = true_hand(model, seed=2)
+    points, normals, _ = scan_of(model, truth, ScanConfig(num_points=600), seed=2)
+    export_trained(model, root / "tiny.pt")
+    np.savez(root / "scan.npz", points=points, normals=normals)
+    save_mesh(root / "truth.ply", surface(model, truth))
+    torch.set_num_threads(previous)
+    return root, points
+
+
+def test_writes_params_mesh_and_metrics(lisa, files, capsys):
+    root, points = files
+    out = root / "out"
+    assert lisa(["fit-points", str(root / "scan.npz"), "--out", str(out), "--model",
+                 str(root / "tiny.pt"), "--gt", str(root / "truth.ply"), *FAST_ARGS]) == 0
+    printed = capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["mesh.ply", "metrics.json", "params.json"]
+    assert f"fitted {len(points)} points" in printed and "wrote" in printed
+    params = read_params(out / "params.json")
+    assert params.side == "right" and params.betas is not None and params.betas.shape == (10,)
+    assert params.color_code is not None and params.color_code.shape == (8,)
+    assert params.model.endswith("tiny.pt")
+    assert params.extra["fit"]["num_points"] == len(points)
+    assert params.extra["input"]["unit"] == "m"
+    mesh = load_mesh(out / "mesh.ply")
+    assert mesh.num_vertices > 100 and mesh.colors is not None
+    assert mesh.skin_weights is not None and mesh.skin_weights.shape[1] == 16
+    assert np.allclose(mesh.skin_weights.sum(1), 1.0, atol=1e-4)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert list(metrics) == ["v2v_recon_to_scan_mm", "v2s_recon_to_scan_mm",
+                             "v2v_scan_to_recon_mm", "v2s_scan_to_recon_mm"]
+    assert all(0.0 < value < 20.0 for value in metrics.values())
+    assert not [p for p in root.iterdir() if p.name.startswith(".out.")]  # no staging left
+
+
+def test_millimetre_cloud_is_converted(lisa, files, capsys):
+    root, points = files
+    np.save(root / "scan_mm.npy", 1000.0 * points)
+    out = root / "out_mm"
+    assert lisa(["fit-points", str(root / "scan_mm.npy"), "--out", str(out), "--model",
+                 str(root / "tiny.pt"), *FAST_ARGS]) == 0
+    printed = capsys.readouterr().out
+    assert "read as millimetres" in printed
+    assert sorted(p.name for p in out.iterdir()) == ["mesh.ply", "params.json"]
+    translation = read_params(out / "params.json").translation.numpy()
+    assert np.linalg.norm(translation - points.mean(0)) < 0.1  # metres, not millimetres
+
+
+def test_bad_inputs_give_one_line_errors(lisa, files, capsys):
+    root, points = files
+    np.save(root / "empty.npy", np.zeros((0, 3)))
+    np.save(root / "nan.npy", np.full((50, 3), np.nan))
+    np.save(root / "mm.npy", 1000.0 * points)
+    (root / "corrupt.pt").write_bytes(b"\x00garbage" * 100)
+    cases = [
+        (["empty.npy"], "empty.npy: the point cloud is empty"),
+        (["nan.npy"], "nan.npy: only 0 of 50 points have finite coordinates"),
+        (["mm.npy", "--units", "m"], "mm.npy: the cloud is"),
+        (["missing.xyz"], "missing.xyz: no such file"),
+        (["scan.npz", "--model", "corrupt.pt"], "corrupt.pt: cannot read this model file"),
+        (["scan.npz", "--model", "nothing.pt"], "nothing.pt: no such model file"),
+        (["scan.npz", "--gt", "nothing.ply"], "nothing.ply: no such file"),
+    ]
+    for arguments, message in cases:
+        out = root / "failed"
+        argv = ["fit-points", str(root / arguments[0]), "--out", str(out), *FAST_ARGS]
+        extra = [str(root / a) if a.endswith((".pt", ".ply")) else a for a in arguments[1:]]
+        if "--model" not in arguments:
+            extra += ["--model", str(root / "tiny.pt")]
+        assert lisa(argv + extra) == 2
+        error = capsys.readouterr().err.strip()
+        assert error.startswith("lisa: error: ") and message in error, (arguments, error)
+        assert "\n" not in error and "Traceback" not in error
+        assert not out.exists()  # nothing half-written
+    # A millimetre cloud with --units m names the problem and the fix.
+    assert lisa(["fit-points", str(root / "mm.npy"), "--out", str(root / "failed"), "--units",
+                 "m", "--model", str(root / "tiny.pt"), *FAST_ARGS]) == 2
+    assert "looks like millimetres" in capsys.readouterr().err
