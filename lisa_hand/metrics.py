@@ -1,5 +1,8 @@
 """Evaluation metrics: mesh distances (LISA, Table 1) and image metrics (PSNR, SSIM, LPIPS).
 
+``lisa metrics RECON GT`` prints :func:`compare_mesh_files` for two meshes (or point sets) and
+:func:`image_metrics` for two images.
+
 Pure functions: numpy arrays or torch tensors in, Python numbers out. Everything is computed in
 float64 on the CPU (evaluation, not a training hot path).
 """
@@ -29,6 +32,8 @@ __all__ = [
     "ssim",
     "lpips_distance",
     "lpips_unavailable_reason",
+    "ImageMetrics",
+    "image_metrics",
 ]
 
 # A hand's bounding-box diagonal is ~0.15-0.3 m; in millimetres it is ~150-300. Anything over
@@ -453,3 +458,61 @@ def lpips_distance(pred: Any, target: Any, net: str = "alex") -> float | None:
 
     with torch.no_grad():
         return float(model(to_tensor(pred_array), to_tensor(target_array)).item())
+
+
+# ---------------------------------------------------------------------------------------------
+# All image metrics at once
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ImageMetrics:
+    """PSNR, SSIM and LPIPS of one rendered image against its ground truth (:func:`image_metrics`).
+
+    A field is NaN where it is undefined: the masked metrics without a mask, LPIPS when its
+    weights are not installed (``lpips_message`` then says why, in one line).
+    """
+
+    psnr_db: float
+    """PSNR over the whole image, dB (``inf`` for identical images)."""
+    ssim: float
+    """Mean SSIM over the whole image (unitless, at most 1)."""
+    psnr_mask_db: float
+    """PSNR inside the mask, dB (NaN without a mask)."""
+    ssim_mask: float
+    """Mean SSIM map inside the mask (NaN without a mask)."""
+    lpips: float
+    """LPIPS over the whole image (lower is more similar; NaN when unavailable)."""
+    lpips_message: str
+    """Why LPIPS is NaN, one line (:func:`lpips_unavailable_reason`); "" when it was computed."""
+
+    def to_dict(self) -> dict[str, float | None]:
+        """The five metrics by field name, NaN as None (JSON's null); no message."""
+        return {key: (None if isinstance(value, float) and math.isnan(value) else value)
+                for key, value in asdict(self).items() if key != "lpips_message"}
+
+
+def image_metrics(pred: Any, target: Any, mask: Any | None = None,
+                  lpips_net: str = "alex") -> ImageMetrics:
+    """:func:`psnr` and :func:`ssim` of the whole image and inside ``mask``, and
+    :func:`lpips_distance` of the whole image (never downloads anything).
+
+    pred, target: [H, W, 3] floats in [0, 1] or uint8, H and W >= 11; mask: [H, W] bool or None.
+    """
+    pred_array, target_array, mask_array = _check_pair(pred, target, mask)
+    if mask_array is None:
+        psnr_mask_db = ssim_mask = math.nan
+    else:
+        psnr_mask_db = psnr(pred_array, target_array, mask_array)
+        ssim_mask = ssim(pred_array, target_array, mask_array)
+    value = lpips_distance(pred_array, target_array, net=lpips_net)
+    message = "" if value is not None else (lpips_unavailable_reason(lpips_net)
+                                            or "LPIPS unavailable")
+    return ImageMetrics(
+        psnr_db=psnr(pred_array, target_array),
+        ssim=ssim(pred_array, target_array),
+        psnr_mask_db=psnr_mask_db,
+        ssim_mask=ssim_mask,
+        lpips=math.nan if value is None else value,
+        lpips_message=message,
+    )

@@ -260,7 +260,7 @@ def export_trained(
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m lisa_hand.trained RUN --out FILE [--half] [--geometry RUN]``."""
+    """``python -m lisa_hand.trained RUN --out FILE [--half]``."""
     import argparse
 
     parser = argparse.ArgumentParser(

@@ -8,6 +8,7 @@ import trimesh
 from lisa_hand.metrics import (
     MeshDistances,
     detect_length_unit,
+    image_metrics,
     load_mesh,
     lpips_distance,
     lpips_unavailable_reason,
@@ -220,3 +221,28 @@ def test_lpips_reports_availability():
         assert value == pytest.approx(0.0, abs=1e-6)
         assert lpips_distance(image, _images(seed=5)) > 0.01
     assert "unknown LPIPS network" in lpips_unavailable_reason(net="resnet")
+
+
+def test_image_metrics_combines_psnr_ssim_and_lpips():
+    target = _images()
+    offset = 0.05
+    mask = np.zeros(target.shape[:2], dtype=bool)
+    mask[4:12, 5:20] = True
+    pred = target + offset
+    pred[~mask] += 0.2
+    result = image_metrics(pred, target, mask)
+    assert result.psnr_db == pytest.approx(psnr(pred, target), rel=1e-12)
+    assert result.psnr_mask_db == pytest.approx(-20.0 * math.log10(offset), rel=1e-9)
+    assert result.ssim == pytest.approx(ssim(pred, target), rel=1e-12)
+    assert result.ssim_mask == pytest.approx(ssim(pred, target, mask=mask), rel=1e-12)
+    reason = lpips_unavailable_reason()
+    if reason:  # no weights: NaN and the one-line reason, never a download
+        assert math.isnan(result.lpips) and result.lpips_message == reason
+        assert result.to_dict()["lpips"] is None
+    else:
+        assert result.lpips > 0.0 and result.lpips_message == ""
+    unmasked = image_metrics(pred, target)
+    assert math.isnan(unmasked.psnr_mask_db) and math.isnan(unmasked.ssim_mask)
+    assert list(unmasked.to_dict()) == ["psnr_db", "ssim", "psnr_mask_db", "ssim_mask", "lpips"]
+    with pytest.raises(ValueError, match="mask must have shape"):
+        image_metrics(pred, target, mask[:, :10])

@@ -7,7 +7,7 @@ import sys
 
 import typer
 
-from . import animate, blend, demo, mesh, metrics, render, synth, train
+from . import animate, blend, demo, fit_images, fit_points, mesh, metrics, render, synth, train
 
 app = typer.Typer(
     name="lisa",
@@ -18,6 +18,9 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # Plain click help: docstrings are re-wrapped to the terminal instead of keeping their
+    # source line breaks.
+    rich_markup_mode=None,
 )
 
 @app.callback()
@@ -26,7 +29,8 @@ def _root() -> None:
 
 
 # Each verb lives in its own module with a ``register(app)`` function.
-for _module in (demo, synth, train, mesh, render, animate, blend, metrics):
+for _module in (demo, synth, train, fit_points, fit_images, mesh, render, animate, blend,
+                metrics):
     _module.register(app)
 
 

@@ -8,7 +8,9 @@ from typing import Annotated
 import typer
 
 ParamsArg = Annotated[Path, typer.Argument(
-    metavar="PARAMS", help="The hand: a params.json written by 'lisa fit' or 'lisa blend'.")]
+    metavar="PARAMS",
+    help="The hand: a params.json written by 'lisa fit-points', 'lisa fit-images' or "
+         "'lisa blend'.")]
 ModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model (exported file, or a 'lisa train' / 'lisa train-prior' run); "
                     "default: the one PARAMS names (the shipped model for 'default').")]

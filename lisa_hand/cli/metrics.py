@@ -1,4 +1,5 @@
-"""``lisa metrics``: V2V and V2S distances between a reconstruction and a ground-truth scan."""
+"""``lisa metrics``: V2V and V2S distances between a reconstruction and a ground-truth scan, or
+PSNR, SSIM and LPIPS between a rendered image and a ground-truth image."""
 
 from __future__ import annotations
 
@@ -18,6 +19,8 @@ class Units(str, Enum):
     auto = "auto"
 
 
+_IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+
 _LABELS = {
     "v2v_recon_to_scan_mm": "V2V recon -> scan",
     "v2s_recon_to_scan_mm": "V2S recon -> scan",
@@ -26,25 +29,85 @@ _LABELS = {
 }
 
 
+_IMAGE_LABELS = {
+    "psnr_db": "PSNR (dB)",
+    "ssim": "SSIM",
+    "psnr_mask_db": "PSNR in mask (dB)",
+    "ssim_mask": "SSIM in mask",
+    "lpips": "LPIPS",
+}
+
+
+def _image_metrics(recon: Path, gt: Path, mask: Path | None, json_path: Path | None) -> None:
+    """PSNR, SSIM (whole image and inside the mask) and LPIPS of two images."""
+    from ..data.layout import read_image, read_mask
+    from ..io_utils import write_json
+    from ..metrics import image_metrics
+
+    pred, target = read_image(recon), read_image(gt)
+    if pred.shape != target.shape:
+        raise ValueError(f"{recon} is {pred.shape[1]}x{pred.shape[0]} pixels but {gt} is "
+                         f"{target.shape[1]}x{target.shape[0]}: images must be the same size")
+    mask_array = None if mask is None else read_mask(mask)
+    if mask_array is not None and mask_array.shape != pred.shape[:2]:
+        raise ValueError(f"--mask {mask} is {mask_array.shape[1]}x{mask_array.shape[0]} pixels, "
+                         f"the images {pred.shape[1]}x{pred.shape[0]}")
+    result = image_metrics(pred, target, mask_array)
+    values = result.to_dict()
+    width = max(len(label) for label in _IMAGE_LABELS.values())
+    typer.echo(f"{'metric':<{width}}  {'value':>9}")
+    for key, label in _IMAGE_LABELS.items():
+        value = values[key]
+        if value is None and key != "lpips":
+            continue  # the masked metrics without --mask
+        shown = "n/a" if value is None else f"{value:.4f}"
+        typer.echo(f"{label:<{width}}  {shown:>9}")
+    if result.lpips_message:
+        typer.echo(result.lpips_message)
+    if json_path is not None:
+        # JSON has no infinity: the PSNR of identical images is written as null too.
+        write_json(json_path, {key: (None if value == math.inf else value)
+                               for key, value in values.items()})
+        typer.echo(f"wrote {json_path}")
+
+
 def metrics(
     recon: Annotated[Path, typer.Argument(
-        metavar="RECON", help="Reconstructed mesh (PLY/OBJ/GLB/STL) or points.")],
+        metavar="RECON",
+        help="Reconstructed mesh (PLY/OBJ/GLB/STL) or points; or a rendered image (PNG/JPEG).")],
     gt: Annotated[Path, typer.Argument(
         metavar="GT",
-        help="Ground-truth scan: a mesh, or points (.npy/.npz/.xyz, PLY without faces).")],
+        help="Ground-truth scan: a mesh, or points (.npy/.npz/.xyz, PLY without faces); or the "
+             "ground-truth image when RECON is an image.")],
     json_path: Annotated[Path | None, typer.Option(
-        "--json", help="Also write the four distances (mm) to this JSON file.")] = None,
+        "--json", help="Also write the metrics (distances in mm) to this JSON file.")] = None,
     units: Annotated[Units, typer.Option(
         "--units",
-        help="Units of both files: m, mm, or auto (a bounding-box diagonal over 2 means mm).",
+        help="Units of both mesh files: m, mm, or auto (a bounding-box diagonal over 2 means mm).",
     )] = Units.auto,
+    mask: Annotated[Path | None, typer.Option(
+        "--mask", metavar="PNG",
+        help="Images only: foreground mask (nonzero = hand) for PSNR and SSIM inside it.")] = None,
 ) -> None:
-    """Print the V2V and V2S distances (mm) between RECON and GT, both directions (LISA Table 1).
+    """Print the V2V and V2S distances (mm) between RECON and GT, both directions (LISA Table 1);
+    for two images, PSNR and SSIM (whole image, and inside --mask) and LPIPS.
 
-    Undefined distances (V2S towards a point set) print as n/a and are null in the JSON.
+    Undefined distances (V2S towards a point set) print as n/a and are null in the JSON. LPIPS
+    needs the 'lpips' package and its weights on disk; without them it prints one line saying
+    what is missing (nothing is ever downloaded).
     """
     from ..io_utils import write_json
     from ..metrics import compare_mesh_files
+
+    is_image = [path.suffix.lower() in _IMAGE_SUFFIXES for path in (recon, gt)]
+    if any(is_image) and not all(is_image):
+        raise ValueError(f"{recon} and {gt}: compare two meshes/point sets or two images, "
+                         f"not one of each")
+    if all(is_image):
+        _image_metrics(recon, gt, mask, json_path)
+        return
+    if mask is not None:
+        raise ValueError(f"--mask {mask} applies to images only; {recon} and {gt} are meshes")
 
     result = compare_mesh_files(recon, gt, units=units.value)
     for path, unit, detected in ((recon, result.recon_unit, result.recon_unit_detected),

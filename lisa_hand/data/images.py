@@ -13,7 +13,9 @@ smooth union of 20 tapered capsules, and its 99k-vertex, 197k-face marching-cube
 takes 0.3 s in all (BVH build 0.04 s, casting, shading, a textured albedo), sphere tracing
 (torch float32, one thread, 0.05 mm tolerance) 4.4 s; the two agree to a mask IoU of 0.995 and a
 median depth difference of 0.07 mm (the mesh's marching-cubes error). The dataset writer uses
-:func:`render_views`.
+:func:`render_views`. On the open hand itself (123k-vertex mesh, relaxed pose, 8 views at
+512x334, one thread): Embree 0.36 s with vertex colours, sphere tracing
+:meth:`lisa_hand.handmodel.PosedHand.sdf` 6.1 s, mask IoU 0.996.
 
 Shading is Lambertian plus ambient (:class:`ShadingConfig`), per pixel::
 

@@ -81,6 +81,12 @@ class FramePaths:
     """The files of one frame folder (see the module docstring)."""
 
     root: Path
+    """The frame folder (``DATA/s000/f000``); a ``str`` or any path-like is converted."""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.root, (str, os.PathLike)):
+            raise TypeError(f"FramePaths.root must be a path, got {type(self.root).__name__}")
+        object.__setattr__(self, "root", Path(self.root))
 
     @property
     def params(self) -> Path:

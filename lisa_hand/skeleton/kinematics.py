@@ -47,6 +47,8 @@ def check_pose(pose: torch.Tensor, name: str = "pose") -> torch.Tensor:
     """
     if not isinstance(pose, torch.Tensor):
         raise TypeError(f"{name} must be a torch.Tensor, got {type(pose).__name__}")
+    if not pose.is_floating_point():
+        raise TypeError(f"{name} must be a floating-point tensor (radians), got dtype {pose.dtype}")
     if pose.dim() == 2 and pose.shape[-1] == POSE_DIM:
         pose = pose.reshape(pose.shape[0], NUM_JOINTS, 3)
     if pose.dim() != 3 or pose.shape[1:] != (NUM_JOINTS, 3):
@@ -75,9 +77,16 @@ def forward_kinematics(
     """
     pose = check_pose(pose)
     batch = pose.shape[0]
+    if not isinstance(rest_joints, torch.Tensor):
+        raise TypeError(f"rest_joints must be a torch.Tensor, got {type(rest_joints).__name__}")
     if rest_joints.shape[-2:] != (NUM_JOINTS, 3) or rest_joints.dim() not in (2, 3):
         raise ValueError(
             f"rest_joints must be [16, 3] or [B, 16, 3], got {tuple(rest_joints.shape)}"
+        )
+    if rest_joints.dim() == 3 and rest_joints.shape[0] not in (1, batch):
+        raise ValueError(
+            f"rest_joints has batch size {rest_joints.shape[0]} but pose has {batch} "
+            "(pass [16, 3], [1, 16, 3] or [B, 16, 3])"
         )
     rest_joints = rest_joints.to(pose.dtype).expand(batch, NUM_JOINTS, 3)
     rotmats = axis_angle_to_matrix(pose)  # [B, 16, 3, 3]
@@ -91,6 +100,10 @@ def forward_kinematics(
         frames.append(frames[PARENTS[j]] @ local[:, j])
     bone_frames = torch.stack(frames, dim=1)
     if translation is not None:
+        if not isinstance(translation, torch.Tensor):
+            raise TypeError(
+                f"translation must be a torch.Tensor or None, got {type(translation).__name__}"
+            )
         if translation.shape != (batch, 3):
             raise ValueError(
                 f"translation must be [B, 3] with B={batch}, got {tuple(translation.shape)}"
@@ -119,16 +132,26 @@ def linear_blend_skinning(
     transforms: [B, J, 4, 4] rest-to-posed bone transforms (:attr:`Kinematics.transforms`).
     -> [B, V, 3] posed points.
     """
+    if transforms.dim() != 4 or transforms.shape[-2:] != (4, 4):
+        raise ValueError(f"transforms must be [B, J, 4, 4], got {tuple(transforms.shape)}")
+    if points_rest.dim() not in (2, 3) or points_rest.shape[-1] != 3:
+        raise ValueError(f"points_rest must be [V, 3] or [B, V, 3], got {tuple(points_rest.shape)}")
+    if weights.dim() not in (2, 3):
+        raise ValueError(f"weights must be [V, J] or [B, V, J], got {tuple(weights.shape)}")
     batch = transforms.shape[0]
-    if points_rest.dim() == 2:
-        points_rest = points_rest.expand(batch, *points_rest.shape)
+    for name, value in (("points_rest", points_rest), ("weights", weights)):
+        if value.dim() == 3 and value.shape[0] not in (1, batch):
+            raise ValueError(
+                f"{name} has batch size {value.shape[0]} but transforms has {batch}: "
+                f"{name} {tuple(value.shape)}, transforms {tuple(transforms.shape)}"
+            )
+    points_rest = points_rest.expand(batch, *points_rest.shape[-2:])
     if weights.shape[-1] != transforms.shape[1] or weights.shape[-2] != points_rest.shape[1]:
         raise ValueError(
             f"weights {tuple(weights.shape)} do not match points {tuple(points_rest.shape)} and "
             f"transforms {tuple(transforms.shape)}"
         )
-    if weights.dim() == 2:
-        weights = weights.expand(batch, *weights.shape)
+    weights = weights.expand(batch, *weights.shape[-2:])
     blended = torch.einsum("bvj,bjrc->bvrc", weights.to(transforms.dtype), transforms[..., :3, :])
     return (blended[..., :3] @ points_rest.to(transforms.dtype)[..., None])[..., 0] + blended[
         ..., 3
@@ -160,5 +183,10 @@ def mirror_pose(pose: torch.Tensor) -> torch.Tensor:
     pose: [..., 48] or [..., 16, 3] -> same shape
     """
     shape = pose.shape
+    if pose.dim() == 0 or shape[-1] % 3 != 0:
+        raise ValueError(
+            f"pose must be [..., 3k] axis-angle values (e.g. [..., 48] or [..., 16, 3]), got "
+            f"{tuple(shape)}"
+        )
     flipped = pose.reshape(*shape[:-1], -1, 3) * pose.new_tensor([1.0, -1.0, -1.0])
     return flipped.reshape(shape)

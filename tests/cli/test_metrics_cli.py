@@ -7,6 +7,8 @@ import typer
 from typer.testing import CliRunner
 
 from lisa_hand.cli.metrics import register
+from lisa_hand.data.layout import write_image, write_mask
+from lisa_hand.metrics import lpips_unavailable_reason
 
 
 @pytest.fixture()
@@ -82,3 +84,59 @@ def test_metrics_missing_file_is_an_error(app, tmp_path):
     assert result.exit_code != 0
     assert isinstance(result.exception, FileNotFoundError)
     assert "nope.ply" in str(result.exception)
+
+
+@pytest.fixture()
+def images(tmp_path):
+    rng = np.random.default_rng(0)
+    target = rng.integers(0, 256, size=(32, 40, 3), dtype=np.uint8)
+    mask = np.zeros((32, 40), dtype=bool)
+    mask[8:24, 10:30] = True
+    pred = target.astype(np.int64)
+    pred[mask] += np.where(pred[mask] < 128, 10, -10)  # |error| = 10/255 inside the mask
+    pred[~mask] = 255 - pred[~mask]  # large errors outside it
+    write_image(tmp_path / "target.png", target)
+    write_image(tmp_path / "pred.png", pred.astype(np.uint8))
+    write_mask(tmp_path / "mask.png", mask)
+    return tmp_path
+
+
+def test_metrics_on_images_prints_psnr_ssim_and_lpips_or_one_line(app, images):
+    out = images / "image_metrics.json"
+    result = CliRunner().invoke(app, [
+        "metrics", str(images / "pred.png"), str(images / "target.png"),
+        "--mask", str(images / "mask.png"), "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    values = json.loads(out.read_text())
+    assert list(values) == ["psnr_db", "ssim", "psnr_mask_db", "ssim_mask", "lpips"]
+    assert values["psnr_mask_db"] == pytest.approx(20.0 * np.log10(255.0 / 10.0), rel=1e-6)
+    assert values["psnr_db"] < values["psnr_mask_db"] - 5.0
+    assert f"{values['psnr_mask_db']:.4f}" in result.output and "SSIM in mask" in result.output
+    reason = lpips_unavailable_reason()
+    if reason:
+        assert values["lpips"] is None
+        lines = [line for line in result.output.splitlines() if "LPIPS unavailable" in line]
+        assert lines == [reason]
+    else:
+        assert values["lpips"] > 0.0
+    # Without a mask: no masked rows.
+    plain = CliRunner().invoke(app, ["metrics", str(images / "pred.png"),
+                                     str(images / "target.png")])
+    assert plain.exit_code == 0, plain.output
+    assert "PSNR (dB)" in plain.output and "in mask" not in plain.output
+
+
+def test_metrics_rejects_mixed_inputs_and_bad_masks(app, images, spheres):
+    tmp_path, _, _ = spheres
+    mixed = CliRunner().invoke(app, ["metrics", str(images / "pred.png"),
+                                     str(tmp_path / "scan.ply")])
+    assert isinstance(mixed.exception, ValueError) and "not one of each" in str(mixed.exception)
+    write_mask(images / "small.png", np.ones((8, 8), dtype=bool))
+    small = CliRunner().invoke(app, ["metrics", str(images / "pred.png"),
+                                     str(images / "target.png"), "--mask",
+                                     str(images / "small.png")])
+    assert isinstance(small.exception, ValueError) and "small.png" in str(small.exception)
+    meshes = CliRunner().invoke(app, ["metrics", str(tmp_path / "recon.ply"),
+                                      str(tmp_path / "scan.ply"), "--mask",
+                                      str(images / "mask.png")])
+    assert isinstance(meshes.exception, ValueError) and "images only" in str(meshes.exception)

@@ -351,3 +351,12 @@ def test_preview_tiles(tmp_path):
         assert 0.05 < (tile.min(-1) < 0.95).mean() < 0.9  # a hand on a white tile
     with pytest.raises(ValueError, match="png"):
         write_preview(tmp_path / "p.jpg", config)
+
+
+def test_frame_paths_accept_strings(tiny):
+    # docs/data_formats.md builds one from an f-string.
+    paths = FramePaths(f"{tiny}/s000/f000")
+    assert paths.root == tiny / "s000" / "f000" and paths.params.is_file()
+    assert read_image(paths.image("cam000")).shape == (48, 64, 3)
+    with pytest.raises(TypeError, match="FramePaths.root"):
+        FramePaths(3)

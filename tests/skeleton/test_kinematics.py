@@ -230,6 +230,29 @@ def test_lbs_shape_mismatch_raises():
     kin = forward_kinematics(torch.zeros(1, 48), _straight_hand(torch.float32))
     with pytest.raises(ValueError, match=r"weights \(10, 15\) do not match points \(1, 10, 3\)"):
         linear_blend_skinning(torch.zeros(10, 3), torch.zeros(10, 15), kin.transforms)
+    weights = torch.full((10, 16), 1.0 / 16)
+    with pytest.raises(
+        ValueError, match=r"points_rest must be \[V, 3\] or \[B, V, 3\], got \(10, 2\)"
+    ):
+        linear_blend_skinning(torch.zeros(10, 2), weights, kin.transforms)
+    with pytest.raises(ValueError, match=r"transforms must be \[B, J, 4, 4\], got \(16, 4, 4\)"):
+        linear_blend_skinning(torch.zeros(10, 3), weights, kin.transforms[0])
+    with pytest.raises(ValueError, match=r"weights must be \[V, J\] or \[B, V, J\], got \(160,\)"):
+        linear_blend_skinning(torch.zeros(10, 3), weights.reshape(-1), kin.transforms)
+    with pytest.raises(ValueError, match="points_rest has batch size 3 but transforms has 1"):
+        linear_blend_skinning(torch.zeros(3, 10, 3), weights, kin.transforms)
+
+
+def test_lbs_broadcasts_single_batch_points_and_weights():
+    pose, rest, translation = _random_case(batch=3, seed=9)
+    kin = forward_kinematics(pose, rest, translation)
+    gen = torch.Generator().manual_seed(9)
+    weights = torch.softmax(torch.randn(7, 16, generator=gen, dtype=F64), dim=-1)
+    points = torch.randn(7, 3, generator=gen, dtype=F64)
+    expected = linear_blend_skinning(points, weights, kin.transforms)
+    got = linear_blend_skinning(points[None], weights[None], kin.transforms)
+    assert got.shape == (3, 7, 3)
+    torch.testing.assert_close(got, expected, atol=0, rtol=0)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -259,6 +282,8 @@ def test_mirror_pose_conjugates_rotations():
     torch.testing.assert_close(mirrored, mirror @ rotmats @ mirror)
     assert mirror_pose(pose.reshape(4, 16, 3)).shape == (4, 16, 3)
     torch.testing.assert_close(mirror_pose(mirror_pose(pose)), pose)
+    with pytest.raises(ValueError, match=r"pose must be \[\.\.\., 3k\].*got \(2, 47\)"):
+        mirror_pose(torch.zeros(2, 47))
 
 
 def test_check_pose_accepts_both_layouts_and_rejects_bad_input():
@@ -272,6 +297,8 @@ def test_check_pose_accepts_both_layouts_and_rejects_bad_input():
         forward_kinematics(bad, _straight_hand(torch.float32))
     with pytest.raises(TypeError, match="pose must be a torch.Tensor, got ndarray"):
         check_pose(np.zeros((1, 48)))
+    with pytest.raises(TypeError, match=r"pose must be a floating-point tensor.*torch\.int64"):
+        forward_kinematics(torch.zeros(1, 48, dtype=torch.long), _straight_hand())
 
 
 def test_fk_rejects_bad_rest_joints_and_translation():
@@ -280,6 +307,12 @@ def test_fk_rejects_bad_rest_joints_and_translation():
         ValueError, match=r"rest_joints must be \[16, 3\] or \[B, 16, 3\], got \(15, 3\)"
     ):
         forward_kinematics(pose, torch.zeros(15, 3))
+    with pytest.raises(TypeError, match="rest_joints must be a torch.Tensor, got ndarray"):
+        forward_kinematics(pose, np.zeros((16, 3)))
+    with pytest.raises(ValueError, match="rest_joints has batch size 3 but pose has 2"):
+        forward_kinematics(pose, torch.zeros(3, 16, 3))
+    with pytest.raises(TypeError, match="translation must be a torch.Tensor or None, got ndarray"):
+        forward_kinematics(pose, torch.zeros(16, 3), np.zeros((2, 3)))
     with pytest.raises(ValueError, match=r"translation must be \[B, 3\] with B=2, got \(3,\)"):
         forward_kinematics(pose, torch.zeros(16, 3), torch.zeros(3))
     with pytest.raises(ValueError, match="translation contains NaN or inf"):
