@@ -1,4 +1,4 @@
-"""The LISA hand field ``G(x, pose, shape, color) -> (sdf, rgb)`` (paper Section 4.1, Eq. 5-8).
+"""The LISA hand field ``G(x, pose, shape, color) -> (sdf, rgb)`` (paper Section 4.1, Eq. 6-9).
 
 The one place that combines bone frames, per-bone predictions and skinning weights:
 
@@ -9,7 +9,7 @@ The one place that combines bone frames, per-bone predictions and skinning weigh
    ``G^c_j(PE(x_j), pose_j, beta+, gamma) -> c_j`` (the SDF never sees the colour code, so shape
    and colour stay disentangled). All 16 bones are one stacked module.
 3. Skinning weights ``w`` from an MLP on ``concat(x_1..x_16, s_1..s_16)`` and a softmax; then
-   ``s = sum_j w_j s_j`` and ``c = sum_j w_j c_j`` (Eq. 8). NASA, NARF and a single MLP (the
+   ``s = sum_j w_j s_j`` and ``c = sum_j w_j c_j`` (Eq. 9). NASA, NARF and a single MLP (the
    VolSDF baseline) are other compositions of the same parts (:class:`FieldConfig`).
 
 Bone regions are part of the definition, so that culled evaluation is exact: bone ``j`` owns a

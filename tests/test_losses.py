@@ -1,3 +1,4 @@
+import pytest
 import torch
 
 from lisa_hand.losses import (
@@ -37,3 +38,15 @@ def test_robust_surface_loss_bounds_outliers():
     robust = robust_surface_loss(with_outlier, scale=1e-3)
     assert robust.item() < 0.02  # one outlier adds at most 1/100
     assert surface_loss(with_outlier).item() > 0.09  # L1 is dominated by it
+
+
+def test_paired_losses_refuse_shapes_that_would_broadcast():
+    rays = torch.zeros(4, 3)
+    with pytest.raises(ValueError, match=r"rgb_pred and rgb_true .* \[4, 3\] and \[4, 1, 3\]"):
+        color_loss(rays, rays[:, None])
+    with pytest.raises(ValueError, match="weights_pred and weights_true"):
+        skinning_loss(torch.zeros(2, 5, 16), torch.zeros(5, 16))
+    with pytest.raises(ValueError, match=r"sdf_grad and normals .* \[\.\.\., 3\]"):
+        normal_loss(torch.zeros(4, 2), torch.zeros(4, 2))
+    with pytest.raises(TypeError, match="rgb_true must be a torch.Tensor"):
+        color_loss(rays, rays.numpy())

@@ -1,4 +1,4 @@
-"""Combining per-bone predictions into one SDF and colour (paper Eq. 8 and the baselines).
+"""Combining per-bone predictions into one SDF and colour (paper Eq. 9 and the baselines).
 
 All compositions are restricted to the bones whose region contains the point (``active``); a
 point in no region takes its nearest bone (``fallback``) with weight one:
@@ -7,7 +7,7 @@ point in no region takes its nearest bone (``fallback``) with weight one:
 * NASA: per-bone selection, one-hot on the active bone with the smallest SDF (the analogue of
   NASA's maximum occupancy) — no learned blend.
 
-Then ``s = sum_j w_j s_j`` and ``c = sum_j w_j c_j`` (paper Eq. 8).
+Then ``s = sum_j w_j s_j`` and ``c = sum_j w_j c_j`` (paper Eq. 9).
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def nasa_selection(
 
 
 def blend(weights: torch.Tensor, values: torch.Tensor) -> torch.Tensor:
-    """``sum_j w_j v_j`` (paper Eq. 8).
+    """``sum_j w_j v_j`` (paper Eq. 9).
 
     weights: [..., J]; values: [..., J] or [..., J, C] -> [...] or [..., C]
     """

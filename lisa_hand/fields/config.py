@@ -15,10 +15,10 @@ PRECISIONS = ("float32", "mixed", "bfloat16")
 
 @dataclass(frozen=True)
 class FieldConfig:
-    """Architecture of the field ``G(x, pose, shape, color) -> (sdf, rgb)`` (paper Eq. 5-8).
+    """Architecture of the field ``G(x, pose, shape, color) -> (sdf, rgb)`` (paper Eq. 6-9).
 
     The four compositions share everything except how per-bone predictions become one value:
-    'lisa' (skinning MLP on all unposed points and all per-bone SDFs, paper Eq. 8), 'nasa' (each
+    'lisa' (skinning MLP on all unposed points and all per-bone SDFs, paper Eq. 9), 'nasa' (each
     point takes the bone with the smallest SDF and that bone's colour), 'narf' (skinning MLP on
     the unposed points only) and 'single' (the VolSDF baseline: one MLP, no per-bone reasoning).
     """

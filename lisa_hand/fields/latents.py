@@ -2,7 +2,7 @@
 
 LISA assigns one shape code and one colour code per person, 128-D each, initialised from a
 zero-mean Gaussian with spherical covariance and optimised jointly with the networks (Park et al.,
-DeepSDF, CVPR 2019), under the norm prior ``L_reg = ||beta+||_2 + ||gamma||_2`` (paper Eq. 13).
+DeepSDF, CVPR 2019), under the norm prior ``L_reg = ||beta+||_2 + ||gamma||_2`` (paper Eq. 16).
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ class LatentTable(nn.Module):
         return self.weight[self._check(indices)]
 
     def prior_loss(self, indices: torch.Tensor | None = None) -> torch.Tensor:
-        """Mean L2 norm ``||z||_2`` of the selected codes (all codes when None); paper Eq. 13.
+        """Mean L2 norm ``||z||_2`` of the selected codes (all codes when None); paper Eq. 16.
 
         indices: [...] long, or None -> scalar
         """

@@ -34,10 +34,10 @@ colour calibration (:func:`lisa_hand.training.images.calibrate`) and minimises
 
     L = lambda_col L_col + lambda_reg L_reg + lambda_joints L_joints' + lambda_mask L_mask
 
-* ``L_col``: L1 colour loss of the rays (Eq. 10). Pixels outside a view's mask are background:
+* ``L_col``: L1 colour loss of the rays (Eq. 13). Pixels outside a view's mask are background:
   black, as in the training images (:func:`fit_target`; an image that is black outside its mask
   already is used as it is, soft edges included).
-* ``L_reg = |beta+|_2 + |gamma|_2`` (Eq. 13).
+* ``L_reg = |beta+|_2 + |gamma|_2`` (Eq. 16).
 * ``L_joints'``: stage 1's keypoint L1 (pixels) with its pose and shape priors (no silhouette
   terms: the geometry is now LISA's).
 * ``L_mask`` (NOT in the paper; ``lambda_mask = 0`` turns it off): binary cross-entropy between
@@ -392,9 +392,9 @@ class FitImagesConfig:
     lambda_betas: float = 0.5
     """Weight of the mean squared template betas."""
     lambda_col: float = 1.0
-    """Stage 2: weight of L_col (L1 over RGB per ray, Eq. 10)."""
+    """Stage 2: weight of L_col (L1 over RGB per ray, Eq. 13)."""
     lambda_reg: float = 1e-3
-    """Stage 2: weight of L_reg = |beta+|_2 + |gamma|_2 (Eq. 13)."""
+    """Stage 2: weight of L_reg = |beta+|_2 + |gamma|_2 (Eq. 16)."""
     lambda_joints: float = 1e-2
     """Stage 2: weight of the keypoint loss (pixels) and its priors (the joint loss)."""
     lambda_mask: float = 0.0
@@ -1275,7 +1275,7 @@ def fit_color(
             history["kp_px"].append(float(_keypoint_px(pixels.detach(), data)[0]))
             if bar is not None:
                 bar.update(1)
-                bar.set_postfix(col=f"{float(terms['col']):.4f}")
+                bar.set_postfix(col=f"{history['col'][-1]:.4f}")
     if bar is not None:
         bar.close()
     with torch.no_grad():

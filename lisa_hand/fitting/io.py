@@ -309,34 +309,6 @@ class FitPointsReport:
     written: list[Path]
 
 
-def _check_output_folder(out: Path) -> None:
-    """Fail before the (long) fit if ``out`` cannot become a writable folder."""
-    if out.exists() and not out.is_dir():
-        raise NotADirectoryError(f"{out}: --out must be a folder, and this is a file")
-    existing = out
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir() or not os.access(existing, os.W_OK | os.X_OK):
-        raise PermissionError(f"{out}: cannot write here ({existing} is not a writable folder)")
-
-
-def _read_ground_truth(path: Path, units: str):
-    """-> (vertices [V, 3] metres, faces [F, 3] or None, unit, a note or None)."""
-    from ..metrics import detect_length_unit, load_mesh
-
-    data = load_mesh(path)
-    detected = detect_length_unit(data.vertices)
-    unit = detected if units == "auto" else units
-    if units == "m" and detected == "mm":
-        raise ValueError(f"{path}: the ground truth looks like millimetres (over 2 units "
-                         "across); pass --units mm or convert it")
-    note = None
-    if unit == "mm" and units == "auto":
-        note = f"{path}: ground truth over 2 units across, read as millimetres"
-    scale = _MM_TO_M if unit == "mm" else 1.0
-    return data.vertices * scale, data.faces, unit, note
-
-
 def fit_point_file(
     points_path: str | os.PathLike,
     out_dir: str | os.PathLike,
@@ -355,8 +327,9 @@ def fit_point_file(
     ``metrics.json`` into ``out_dir``.
 
     Every input is checked before the fit (the cloud, the ground truth, the model, the output
-    folder), and the files are written into a hidden folder beside ``out_dir`` and moved in
-    only once all of them exist: a failure leaves nothing half-written.
+    folder), and the files are written all or nothing
+    (:func:`lisa_hand.fitting.outputs.write_fit_outputs`): a failure leaves nothing
+    half-written.
 
     points_path: the cloud (:func:`read_point_cloud`); units: of the cloud and the ground truth
         ("auto", "m", "mm", see :func:`prepare_point_cloud`). model_path: a trained model
@@ -365,16 +338,15 @@ def fit_point_file(
     config: :class:`lisa_hand.fitting.points.FitPointsConfig`. device: "auto", "cpu", "cuda".
     log: called with one line per note (unit conversion, dropped points).
     """
-    import math
-    import shutil
-    import tempfile
-
-    from ..data.meshio import save_mesh
     from ..inference import MeshConfig, mesh_hand
-    from ..metrics import mesh_distances
-    from ..params import write_params
     from ..trained import load_trained
     from ..training.distributed import resolve_device
+    from .outputs import (
+        check_output_folder,
+        ground_truth_metrics,
+        read_ground_truth,
+        write_fit_outputs,
+    )
     from .points import FitPointsConfig, fit_points
 
     log = log or (lambda line: None)
@@ -385,14 +357,13 @@ def fit_point_file(
                                 min_points=config.min_points, name=str(points_path))
     for note in cloud.notes:
         log(f"{points_path}: {note}")
-    ground_truth = None
+    truth = None
     if gt_path is not None:
-        ground_truth = _read_ground_truth(Path(gt_path), units)
-        if ground_truth[3] is not None:
-            log(ground_truth[3])
-    _check_output_folder(out_dir)
-    torch_device = resolve_device(device)
-    model = load_trained(model_path, torch_device)
+        truth = read_ground_truth(gt_path, units)
+        if truth.note is not None:
+            log(truth.note)
+    check_output_folder(out_dir)
+    model = load_trained(model_path, resolve_device(device))
 
     fit = fit_points(model, cloud.points, cloud.normals, config, progress=progress)
     params = fit.params
@@ -400,27 +371,6 @@ def fit_point_file(
     params.extra["input"] = {"path": str(points_path), "unit": cloud.unit,
                              "num_input_points": cloud.num_input, "notes": cloud.notes}
     mesh = mesh_hand(model, params, resolution, MeshConfig(colors=model.has_color))
-    metrics = None
-    if ground_truth is not None:
-        distances = mesh_distances(mesh.vertices, mesh.faces, ground_truth[0], ground_truth[1])
-        metrics = {key: (None if math.isnan(value) else value)
-                   for key, value in distances.to_dict().items()}
-
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", dir=out_dir.parent))
-    try:
-        files = [write_params(staging / "params.json", params),
-                 save_mesh(staging / "mesh.ply", mesh)]
-        if metrics is not None:
-            from ..io_utils import write_json
-
-            files.append(write_json(staging / "metrics.json", metrics))
-        out_dir.mkdir(parents=True, exist_ok=True)
-        written = []
-        for file in files:
-            target = out_dir / file.name
-            os.replace(file, target)
-            written.append(target)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
+    metrics = None if truth is None else ground_truth_metrics(mesh, truth)
+    written = write_fit_outputs(out_dir, params, mesh, metrics)
     return FitPointsReport(cloud=cloud, fit=fit, mesh=mesh, metrics=metrics, written=written)

@@ -1,6 +1,6 @@
 """What a fit writes: ``params.json``, ``mesh.ply`` and ``metrics.json``, all or nothing.
 
-Shared by the fitting commands (``lisa fit-images``; ``lisa fit-points`` can use it too):
+Shared by the fitting commands (``lisa fit-points`` and ``lisa fit-images``):
 
 * :func:`check_output_folder` fails before a long fit when ``--out`` cannot be written;
 * :func:`read_ground_truth` reads a ``--gt`` mesh or point set (errors name the file) and

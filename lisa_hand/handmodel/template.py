@@ -2,7 +2,7 @@
 
 MANO (Romero et al. 2017) gives LISA a low-resolution hand mesh of fixed topology with linear
 blend skinning weights, a joint regressor and a linear shape space. LISA uses it for the
-skeleton it is conditioned on, for the pseudo ground truth of its skinning loss (paper Eq. 12:
+skeleton it is conditioned on, for the pseudo ground truth of its skinning loss (paper Eq. 15:
 the weights of the nearest posed MANO vertex) and as the "MANO" baseline. This module builds the
 same kind of model from the open hand (:mod:`lisa_hand.handmodel`), so that everything runs
 without MANO's licensed file; with the real file, :func:`template_from_mano` puts MANO in the
@@ -303,7 +303,7 @@ class MeshTemplate:
     def skinning_weights_at(
         self, points: torch.Tensor, posed_vertices: torch.Tensor
     ) -> torch.Tensor:
-        """Skinning weights of the nearest posed template vertex (paper Eq. 12's pseudo ground
+        """Skinning weights of the nearest posed template vertex (paper Eq. 15's pseudo ground
         truth for the skinning network). Not differentiable.
 
         points: [N, 3] metres. posed_vertices: [V, 3] the posed template (same frame), metres.

@@ -427,7 +427,9 @@ def sphere_traced_samples(
     where it first enters the shell, and where it first reaches the surface
     (``sdf <= hit_tolerance * beta``). The band runs from the entry (less one minimum step) to
     ``band_inside * beta`` past that hit; a ray that crosses the shell without hitting the surface
-    gets the band up to its last exit from the shell (``far`` when it ran out of steps inside).
+    gets the band up to its last exit from the shell, or up to ``far`` when it ran out of
+    ``num_steps`` before ``far`` (the rest of the ray is unexplored; a grazing ray that crawls
+    along the shell at the minimum step ends this way, and more steps then sharpen its band).
     ``num_samples`` evenly spaced samples (stratified: one random sample per bin) go in the band
     and ``num_uniform`` uniform samples in ``[near, far]``; rays that never enter the shell get all
     ``num_samples + num_uniform`` samples uniformly (their opacity is negligible; a ray that runs
@@ -481,6 +483,9 @@ def sphere_traced_samples(
         t_cur[active] = t_next
         keep = ~hit_now & (t_next <= far[active])
         active = active[keep]
+    # Rays still marching when the steps ran out (e.g. grazing the shell at the minimum step)
+    # have not seen the rest of the ray: their band runs up to far, not to their last exit.
+    t_leave[active] = far[active]
 
     entered = torch.isfinite(t_enter)
     hit = torch.isfinite(t_hit)

@@ -1,4 +1,4 @@
-"""``lisa train``: LISA from multi-view images (paper Section 4.2, Eq. 10-14).
+"""``lisa train``: LISA from multi-view images (paper Section 4.2, Eq. 13-17).
 
 Learned: the per-bone SDF and colour MLPs and the skinning MLP (:class:`LisaModel`), one shape
 code ``beta+`` and one colour code ``gamma`` per subject (auto-decoder tables), VolSDF's Laplace
@@ -10,20 +10,20 @@ Each step draws ``num_frames`` frames and ``num_rays / num_frames`` camera rays 
 through the mask and a band around it (:meth:`RayFrames.sample_rays`), renders them with VolSDF
 (:func:`lisa_hand.render.render_rays`; samples from ``render.sampler``) and minimises
 
-    L = lambda_col L_col + lambda_eik L_Eik + lambda_w L_w + lambda_reg L_reg     (Eq. 14)
+    L = lambda_col L_col + lambda_eik L_Eik + lambda_w L_w + lambda_reg L_reg     (Eq. 17)
 
-* ``L_col = |c_k - c^_k|_1`` (Eq. 10), with the calibration applied to the hand's colour only
+* ``L_col = |c_k - c^_k|_1`` (Eq. 13), with the calibration applied to the hand's colour only
   (the dataset's backgrounds are black whatever the camera):
   ``c_k = g_cam * c_fg + b_cam * opacity + (1 - opacity) * background``, where ``c_fg`` is the
   rendered colour over a zero background. At inference LISA uses the mean gain and bias
   (:meth:`ImageModel.mean_calibration`).
-* ``L_Eik`` (Eq. 11) on ``eikonal_ray_points`` of the rays' samples and ``eikonal_uniform_points``
+* ``L_Eik`` (Eq. 14) on ``eikonal_ray_points`` of the rays' samples and ``eikonal_uniform_points``
   uniform points per frame (in the box around the bones' regions: outside them the field is an
   analytic stand-in with a unit gradient).
-* ``L_w = |w - w^|_1`` (Eq. 12) at ``skinning_points`` points of each frame's ``scan.npz`` against
+* ``L_w = |w - w^|_1`` (Eq. 15) at ``skinning_points`` points of each frame's ``scan.npz`` against
   its ``template_weights``: the paper's "approximate 3D mesh and its skinning weights" from the
   pseudo-ground-truth template. Only these weights are read from the scans, never the geometry.
-* ``L_reg = |beta+|_2 + |gamma|_2`` (Eq. 13).
+* ``L_reg = |beta+|_2 + |gamma|_2`` (Eq. 16).
 * Optionally (``lambda_mask > 0``; NOT in the paper, off by default) a binary cross-entropy
   between the rendered opacity and the mask.
 

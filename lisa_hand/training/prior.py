@@ -7,13 +7,13 @@ posed 3D scans with
 
     L = lambda_surf L_surf + lambda_normal L_N + lambda_eik L_Eik + lambda_w L_w + lambda_reg L_reg
 
-* ``L_surf = |G(x_surf)|`` at scan points (paper Eq. 16), metres;
-* ``L_N = |grad G(x_surf) - N(x_surf)|_1`` at scan points (Eq. 17);
-* ``L_Eik = (|grad G(x)| - 1)^2`` on the scan points and on off-surface points (Eq. 11; half of
+* ``L_surf = |G(x_surf)|`` at scan points (paper Eq. 19), metres;
+* ``L_N = |grad G(x_surf) - N(x_surf)|_1`` at scan points (Eq. 20);
+* ``L_Eik = (|grad G(x)| - 1)^2`` on the scan points and on off-surface points (Eq. 14; half of
   them near the surface from the scan's SDF samples, half uniform in the scan's bounding box);
 * ``L_w = |w - w^|_1`` against the pseudo-ground-truth skinning weights at the scan points
-  (``template_weights``, Eq. 12);
-* ``L_reg = |beta+|_2`` (Eq. 13, shape code only: the prior has no colour).
+  (``template_weights``, Eq. 15);
+* ``L_reg = |beta+|_2`` (Eq. 16, shape code only: the prior has no colour).
 
 Optionally (``lambda_sdf > 0``; NOT in the paper, off by default) an L1 term between the
 predicted and the true signed distance at the near-surface samples.

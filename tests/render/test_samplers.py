@@ -140,6 +140,43 @@ def test_sphere_traced_opacity_matches_dense_reference():
     assert (out.depth - (t_mid - half))[inner].abs().max() < 5 * beta / math.cos(math.asin(0.9))
 
 
+def test_sphere_traced_band_reaches_far_when_the_steps_run_out():
+    # Two spheres of radius 5 cm on a ray along +z: the ray grazes the first one's shell (6 mm
+    # from its surface, inside the 8 beta = 8 mm shell, no hit), leaves it at the 16th step and
+    # runs out of steps (18) before the second sphere, whose surface it would reach at
+    # t = 0.45 m (29th step). The unexplored rest of the ray must stay in the band, which must
+    # not end at the last exit from the first shell (it did: the second sphere got no sample).
+    beta, radius = 1e-3, 0.05
+    centre_a = torch.tensor([0.0, 0.0, 0.0], dtype=torch.float64)
+    centre_b = torch.tensor([radius + 6e-3, 0.0, 0.3], dtype=torch.float64)
+
+    def two_spheres(points):
+        to_a = (points - centre_a).norm(dim=-1)
+        to_b = (points - centre_b).norm(dim=-1)
+        return torch.minimum(to_a, to_b) - radius
+
+    origins = torch.tensor([[radius + 6e-3, 0.0, -0.2]], dtype=torch.float64)
+    directions = torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64)
+    near, far = torch.tensor([0.0], dtype=torch.float64), torch.tensor([0.6], dtype=torch.float64)
+    t_vals = sphere_traced_samples(
+        two_spheres,
+        origins,
+        directions,
+        near,
+        far,
+        beta,
+        num_samples=64,
+        num_uniform=0,
+        num_steps=18,
+    )
+    t_surface_b = 0.45
+    assert t_vals.max() > t_surface_b + 5 * beta
+    points = origins[:, None] + t_vals[..., None] * directions[:, None]
+    sigma = volsdf_density(two_spheres(points), beta)
+    out = composite(sigma, torch.ones(*t_vals.shape, 1, dtype=torch.float64), t_vals, far)
+    assert out.opacity.item() > 0.99  # the second sphere is opaque
+
+
 def test_distance_lower_bound_hand_cases():
     # Columns: segment [0, 2] with radii (sqrt2, sqrt2) -> height 1; segment 1 with radii
     # (1, 3) -> obtuse at the first end, d* = 1; radii (3, 1) -> d* = 1; radii (1, 1) on a

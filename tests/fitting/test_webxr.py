@@ -1,0 +1,116 @@
+"""Fitting a hand the project did not make: the artist-made WebXR hand (``shared/data/
+webxr_hand``, MIT, Amazon), an OBJ in millimetres, and its own rig (the benchmark's poses).
+
+A tiny untrained model (a blob hand on the template's skeleton) cannot fit its shape, so these
+tests check what does not depend on a trained model: the real file goes through ``lisa
+fit-points``' path (millimetres detected and converted, the three files, finite metrics against
+the artist's mesh) and the global pose estimate points the fingers the right way. The accuracy
+on this hand is measured with the trained model by ``python -m lisa_hand.bench fit --webxr
+.../right_hand.npz``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from lisa_hand.bench.fit import WEBXR_POSES, pose_webxr_hand
+from lisa_hand.fitting.io import fit_point_file, prepare_point_cloud, read_point_cloud
+from lisa_hand.fitting.points import FitPointsConfig
+from lisa_hand.params import read_params
+from lisa_hand.skeleton import forward_kinematics
+from lisa_hand.trained import export_trained
+
+from .test_points import tiny_model
+
+WEBXR = Path(__file__).resolve().parents[3] / "shared" / "data" / "webxr_hand"
+METRICS = ("v2v_recon_to_scan_mm", "v2s_recon_to_scan_mm", "v2v_scan_to_recon_mm",
+           "v2s_scan_to_recon_mm")
+
+pytestmark = pytest.mark.skipif(not (WEBXR / "right_hand.npz").is_file(),
+                                reason=f"the WebXR hand is not in {WEBXR}")
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)  # the CPU is shared: one thread per test process
+    yield
+    torch.set_num_threads(previous)
+
+
+def _joints_mm() -> dict[str, np.ndarray]:
+    """The WebXR bind-pose joints by OpenXR name, millimetres."""
+    with np.load(WEBXR / "right_hand.npz", allow_pickle=False) as data:
+        return {str(name): joint.astype(np.float64)
+                for name, joint in zip(data["joint_names"], data["joints"], strict=True)}
+
+
+def test_the_obj_is_read_as_millimetres():
+    points, normals = read_point_cloud(WEBXR / "right_hand.obj")
+    assert points.shape == (1159, 3) and normals is None
+    cloud = prepare_point_cloud(points, name="right_hand.obj")
+    assert cloud.unit == "mm" and cloud.unit_detected
+    assert any("read as millimetres" in note for note in cloud.notes)
+    np.testing.assert_allclose(cloud.points, points * 1e-3)
+    # Wrist to middle fingertip 177.8 mm (the data's README), in metres now.
+    joints = _joints_mm()
+    reach = np.linalg.norm(joints["middle-finger-tip"] - joints["wrist"]) * 1e-3
+    assert reach == pytest.approx(0.1778, abs=0.002)
+    with pytest.raises(ValueError, match="right_hand.obj: .*looks like millimetres"):
+        prepare_point_cloud(points, units="m", name="right_hand.obj")
+
+
+def test_benchmark_poses_of_the_webxr_rig():
+    obj_points, _ = read_point_cloud(WEBXR / "right_hand.obj")
+    rest, faces = pose_webxr_hand(WEBXR / "right_hand.npz", "rest")
+    np.testing.assert_allclose(rest, obj_points * 1e-3, atol=1e-6)  # the OBJ is the bind pose
+    assert faces.shape == (2314, 3)
+    joints = _joints_mm()
+    wrist = joints["wrist"] * 1e-3
+    tip = joints["index-finger-tip"] * 1e-3
+    # The vertex nearest the index tip moves towards the wrist when the finger bends.
+    nearest = int(np.argmin(np.linalg.norm(rest - tip, axis=1)))
+    for pose in WEBXR_POSES:
+        posed, same_faces = pose_webxr_hand(WEBXR / "right_hand.npz", pose)
+        assert posed.shape == rest.shape and np.array_equal(same_faces, faces)
+        reach = np.linalg.norm(posed[nearest] - wrist)
+        if pose == "rest":
+            assert reach == pytest.approx(np.linalg.norm(rest[nearest] - wrist))
+        else:
+            assert reach < 0.8 * np.linalg.norm(rest[nearest] - wrist), pose
+    with pytest.raises(ValueError, match="unknown WebXR pose"):
+        pose_webxr_hand(WEBXR / "right_hand.npz", "wave")
+
+
+def test_fit_points_on_the_real_obj(tmp_path):
+    model_path, _ = export_trained(tiny_model(), tmp_path / "tiny.pt")
+    out = tmp_path / "fit"
+    notes: list[str] = []
+    config = FitPointsConfig(iterations=60, points_per_iteration=256, fit_betas=False)
+    report = fit_point_file(WEBXR / "right_hand.obj", out, model_path=model_path,
+                            gt_path=WEBXR / "right_hand.obj", resolution=32, config=config,
+                            device="cpu", log=notes.append)
+    # Both the cloud and the ground truth are millimetres, and each says so.
+    assert sum("read as millimetres" in note for note in notes) == 2
+    assert sorted(p.name for p in out.iterdir()) == ["mesh.ply", "metrics.json", "params.json"]
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert list(metrics) == list(METRICS)
+    assert all(math.isfinite(metrics[key]) and 0 < metrics[key] < 100 for key in METRICS)
+    params = read_params(out / "params.json")
+    assert params.extra["input"]["unit"] == "mm"
+    # The global pose from scratch: the fitted wrist -> middle knuckle runs along the artist's
+    # wrist -> middle proximal joint (an untrained blob hand: measured 15 degrees).
+    fitted = forward_kinematics(params.pose[None], params.rest_joints,
+                                params.translation[None]).joints[0].double().numpy()
+    joints = _joints_mm()
+    truth = joints["middle-finger-phalanx-proximal"] - joints["wrist"]
+    along = fitted[4] - fitted[0]  # MANO joints: 0 wrist, 4 middle1
+    cosine = along @ truth / (np.linalg.norm(along) * np.linalg.norm(truth))
+    assert math.degrees(math.acos(min(1.0, cosine))) < 30.0
+    assert report.fit.residual_median_mm < 10.0

@@ -1,0 +1,115 @@
+"""``lisa demo`` end to end on a tiny exported model (the shipped model is not needed): the three
+fits, their files, the table, the turntable and the self-contained report; and its checks of
+bad input before anything is written.
+
+The tiny model is an untrained LISA (geometric initialisation, a blob hand with colour): the
+numbers are not the demo's, only the pipeline is (about 10 s on one CPU thread).
+"""
+
+from __future__ import annotations
+
+import math
+import re
+
+import imageio.v3 as iio
+import pytest
+import torch
+
+from lisa_hand.cli import main as cli_main
+from lisa_hand.demo import DemoConfig, run_demo
+from lisa_hand.trained import export_trained
+from tests.fitting.test_points import tiny_model
+
+METRICS = ("v2v_recon_to_scan_mm", "v2s_recon_to_scan_mm", "v2v_scan_to_recon_mm",
+           "v2s_scan_to_recon_mm")
+
+
+@pytest.fixture(autouse=True)
+def _one_thread():
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)  # the CPU is shared: one thread per test process
+    yield
+    torch.set_num_threads(previous)
+
+
+@pytest.fixture(scope="module")
+def model_file(tmp_path_factory):
+    """A tiny colour model exported as ``lisa demo --model`` takes it."""
+    path, _ = export_trained(tiny_model(color=True), tmp_path_factory.mktemp("demo") / "tiny.pt")
+    return path
+
+
+def tiny_config(model_file, **overrides) -> DemoConfig:
+    """The demo at toy sizes: 48 x 36 images, 5 views (4 fitted, 1 novel), 24^3 meshes, a
+    2-frame turntable of 32 x 32, 5% of the fits' iterations."""
+    values = dict(model=str(model_file), resolution=(48, 36), num_views=5, mesh_resolution=24,
+                  orbit_views=2, orbit_size=32, fit_scale=0.05, device="cpu")
+    values.update(overrides)
+    return DemoConfig(**values)
+
+
+def test_demo_fits_measures_renders_and_reports(model_file, tmp_path):
+    out = tmp_path / "demo"
+    lines: list[str] = []
+    result = run_demo(out, tiny_config(model_file), log=lines.append)
+
+    # Progress: every step is announced, then the table and where the report is.
+    for step in ("1/5 synthesizing", "2/5 fitting to the point cloud", "3/5 fitting to the 1 view",
+                 "4/5 fitting to the 4 views", "5/5 rendering a turntable"):
+        assert any(line.startswith(step) for line in lines), step
+    assert lines[-1].startswith("demo finished in") and str(result.report) in lines[-1]
+
+    # The table: the three fits, the four distances (mm) and the PSNR on the novel view.
+    assert [row["method"] for row in result.rows] == ["LISA, point cloud", "LISA, 1 view",
+                                                      "LISA, 4 views"]
+    for row in result.rows:
+        assert all(math.isfinite(row[key]) and row[key] > 0 for key in METRICS), row
+        assert math.isfinite(row["psnr_db"]) and row["psnr_db"] > 0
+        assert row["seconds"] > 0
+    table = (out / "results.md").read_text()
+    assert table.count("\n| LISA, ") == 3 and table.strip() in "\n".join(lines)
+
+    # Each fit wrote its files (all three, metrics against the true mesh).
+    for folder in ("fit_points", "fit_1view", "fit_4views"):
+        assert sorted(p.name for p in (out / folder).iterdir()) == [
+            "mesh.ply", "metrics.json", "params.json"], folder
+    assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no staging folder left
+
+    # The turntable of the 4-view fit: one frame per orbit view.
+    gif = iio.imread(out / "turntable" / "turntable.gif", index=None)
+    assert gif.shape[:3] == (2, 32, 32)
+
+    # The report is one self-contained file: every picture is embedded, nothing is linked.
+    page = result.report.read_text(encoding="utf-8")
+    sources = re.findall(r"src='([^']*)'", page)
+    assert sources and all(src.startswith("data:image/") for src in sources)
+    assert any(src.startswith("data:image/gif;base64,") for src in sources)
+    assert "href=" not in page and page.count("<tr><td>LISA, ") == 3
+
+
+def test_demo_rejects_bad_input_before_writing(model_file, tmp_path):
+    out = tmp_path / "demo"
+    with pytest.raises(ValueError, match="num_views must be >= 5"):
+        run_demo(out, tiny_config(model_file, num_views=4), log=lambda line: None)
+    with pytest.raises(FileNotFoundError, match="nothing.pt: no such model file"):
+        run_demo(out, tiny_config(tmp_path / "nothing.pt"), log=lambda line: None)
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(b"\x00garbage" * 100)
+    with pytest.raises(ValueError, match="corrupt.pt: cannot read this model file"):
+        run_demo(out, tiny_config(corrupt), log=lambda line: None)
+    assert not out.exists()  # nothing half-written
+
+
+def test_demo_command_reports_a_corrupt_model_in_one_line(tmp_path, capsys):
+    corrupt = tmp_path / "corrupt.pt"
+    corrupt.write_bytes(b"\x00garbage" * 100)
+    out = tmp_path / "demo"
+    with pytest.raises(SystemExit) as info:
+        cli_main.main(["demo", "--out", str(out), "--model", str(corrupt), "--device", "cpu"])
+    assert info.value.code == 2
+    error = capsys.readouterr().err.strip()
+    assert error.startswith("lisa: error: ") and "corrupt.pt: cannot read this model file" in error
+    assert "\n" not in error and not out.exists()
+    with pytest.raises(SystemExit) as info:
+        cli_main.main(["demo", "--out", str(out), "--fit-scale", "0"])
+    assert info.value.code == 2 and "--fit-scale must be > 0" in capsys.readouterr().err
