@@ -139,6 +139,10 @@ class TrainerConfig:
     """Several processes: 'ddp' wraps the model in DistributedDataParallel (the step function
     must call ``ctx.model(...)``, i.e. the wrapper's forward, once per step); 'allreduce'
     averages the gradients after backward, whatever the step function called."""
+    find_unused_parameters: bool = False
+    """'ddp' mode: let a step leave some parameters without a gradient (DDP's
+    ``find_unused_parameters``), as LISA's steps do (culled bones, pose offsets before their
+    refinement starts)."""
 
     def __post_init__(self) -> None:
         self.validate()
@@ -392,7 +396,9 @@ class Trainer:
             # Every rank starts from rank 0's weights (DDP also does this when wrapping).
             broadcast_module(self.model, self.dist)
             use_ddp = self.dist.is_distributed and config.grad_sync == "ddp"
-            self.wrapped = wrap_ddp(self.model, self.dist) if use_ddp else self.model
+            self.wrapped = wrap_ddp(
+                self.model, self.dist,
+                find_unused_parameters=config.find_unused_parameters) if use_ddp else self.model
         except BaseException:
             if self._owns_dist:
                 cleanup(self.dist)

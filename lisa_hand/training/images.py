@@ -100,7 +100,8 @@ def _default_image_field() -> FieldConfig:
 
 def _default_image_trainer() -> TrainerConfig:
     return TrainerConfig(steps=20_000, lr=5e-4, lr_schedule="cosine", checkpoint_every=1000,
-                         print_every=100, grad_sync="allreduce")
+                         print_every=100, grad_sync="ddp",
+                         find_unused_parameters=True)
 
 
 def _default_image_render() -> RenderConfig:
@@ -116,9 +117,9 @@ class ImageTrainConfig:
     """The field's architecture (with colour). With a prior and ``field_from_prior``, the
     geometry fields are replaced by the prior's."""
     trainer: TrainerConfig = dataclasses.field(default_factory=_default_image_trainer)
-    """The training loop. grad_sync must be 'allreduce' (gradients averaged after backward):
-    steps leave some parameters unused (the pose offsets before refinement starts, rarely a
-    bone), which DistributedDataParallel rejects."""
+    """The training loop. Several processes use DistributedDataParallel (grad_sync 'ddp'), which
+    needs find_unused_parameters: steps leave some parameters without a gradient (the pose
+    offsets before refinement starts, rarely a bone); 'allreduce' also works."""
     render: RenderConfig = dataclasses.field(default_factory=_default_image_render)
     """Ray sampling and compositing (VolSDF). Default: the sphere-traced sampler, 48 samples in
     the band around the surface + 16 uniform ones, stratified (jittered) for training."""
@@ -186,10 +187,10 @@ class ImageTrainConfig:
             raise ValueError("field.use_color must be true: training from images needs colour")
         if not isinstance(self.trainer, TrainerConfig):
             raise ValueError(f"trainer must be a TrainerConfig, got {type(self.trainer).__name__}")
-        if self.trainer.grad_sync != "allreduce":
-            raise ValueError("trainer.grad_sync must be 'allreduce' for image training: the pose "
-                             "offsets get no gradient before refinement starts, which "
-                             "DistributedDataParallel ('ddp') rejects")
+        if self.trainer.grad_sync == "ddp" and not self.trainer.find_unused_parameters:
+            raise ValueError("trainer.grad_sync 'ddp' needs trainer.find_unused_parameters=true "
+                             "for image training: the pose offsets get no gradient before "
+                             "refinement starts")
         if not isinstance(self.render, RenderConfig):
             raise ValueError(f"render must be a RenderConfig, got {type(self.render).__name__}")
         if self.split not in SPLITS:

@@ -67,7 +67,8 @@ def _default_prior_field() -> FieldConfig:
 
 def _default_prior_trainer() -> TrainerConfig:
     return TrainerConfig(steps=20_000, lr=5e-4, lr_schedule="cosine", checkpoint_every=1000,
-                         print_every=100, grad_sync="allreduce")
+                         print_every=100, grad_sync="ddp",
+                         find_unused_parameters=True)
 
 
 def _check_positive_int(config: Any, name: str) -> None:
@@ -91,9 +92,9 @@ class PriorConfig:
     """The field's architecture; the prior is geometry only (``use_color`` must be false). The
     image run that starts from this prior takes the geometry part of it."""
     trainer: TrainerConfig = dataclasses.field(default_factory=_default_prior_trainer)
-    """The training loop (steps, learning rate and schedule, checkpoints, device). The default
-    grad_sync 'allreduce' also works when a step leaves some parameters unused (bone culling),
-    which DistributedDataParallel would reject."""
+    """The training loop (steps, learning rate and schedule, checkpoints, device). Several
+    processes use DistributedDataParallel (grad_sync 'ddp') with find_unused_parameters, since a
+    step can leave a culled bone without a gradient; 'allreduce' also works."""
     split: str = "train"
     """Dataset split whose subjects get a shape code and whose scans are fitted."""
     frames_per_step: int = 8

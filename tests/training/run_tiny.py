@@ -29,7 +29,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--grad-sync", default="allreduce")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    trainer = tiny_trainer(steps=args.steps, grad_sync=args.grad_sync)
+    trainer = tiny_trainer(steps=args.steps, grad_sync=args.grad_sync,
+                           find_unused_parameters=args.grad_sync == "ddp")
     dist = init_distributed("cpu")
     try:
         for kind in args.kinds.split(","):

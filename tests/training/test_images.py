@@ -211,7 +211,7 @@ def test_select_frame_and_region_bounds(tiny_data):
         (dict(pose_refine_start=1.5), "pose_refine_start must be in"),
         (dict(lambda_col=-1.0), "lambda_col must be a finite number >= 0"),
         (dict(skinning_points=0), "lambda_w > 0 needs skinning_points"),
-        (dict(trainer=tiny_trainer(grad_sync="ddp")), "grad_sync must be 'allreduce'"),
+        (dict(trainer=tiny_trainer(grad_sync="ddp")), "needs trainer.find_unused_parameters"),
     ],
 )
 def test_bad_config_values(kwargs, message):

@@ -1,4 +1,5 @@
-"""Both trainers under torchrun (2 CPU processes, gloo) give the weights of one process."""
+"""Both trainers under torchrun (2 CPU processes, gloo), with DistributedDataParallel or a manual
+gradient all-reduce, give the weights of one process."""
 
 from __future__ import annotations
 
@@ -21,14 +22,16 @@ REPO = Path(__file__).resolve().parents[2]
 
 
 @pytest.mark.slow
-def test_two_processes_match_one_process(tiny_data, tmp_path):
+@pytest.mark.parametrize("grad_sync", ["ddp", "allreduce"])
+def test_two_processes_match_one_process(tiny_data, tmp_path, grad_sync):
     torchrun = shutil.which("torchrun") or str(Path(sys.executable).with_name("torchrun"))
     env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
     for name in ("RANK", "WORLD_SIZE", "LOCAL_RANK", "MASTER_ADDR", "MASTER_PORT"):
         env.pop(name, None)
     proc = subprocess.run(
         [torchrun, "--standalone", "--nproc_per_node", "2", "-m", "tests.training.run_tiny",
-         "--data", str(tiny_data), "--out", str(tmp_path / "multi"), "--steps", "3"],
+         "--data", str(tiny_data), "--out", str(tmp_path / "multi"), "--steps", "3",
+         "--grad-sync", grad_sync],
         cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
 
