@@ -155,11 +155,14 @@ def test_render_calibration_and_framing(model):
     assert 0.5 < (rows.max() - rows.min() + 1) / 32 < 0.95  # framed: fingers up, margins left
     assert torch.equal(calibrated.rgb[0, 0], torch.zeros(3))  # black background
     # Calibration is affine per sample: rgb = gain * raw + bias * opacity (black background);
-    # up to faint pixels (opacity ~1e-2) whose samples all fall under the renderer's colour
-    # weight threshold and get no colour at all.
+    # up to faint pixels whose samples all fall under the renderer's colour weight threshold
+    # and get no colour at all: there the bias term is missing, |bias| * opacity <= 0.05 * 0.06
+    # (32 samples a ray, each under 1e-2).
     gain, bias = torch.tensor([1.1, 0.9, 1.0]), torch.tensor([0.05, -0.02, 0.0])
     expected = raw.rgb * gain + bias * raw.opacity[..., None]
-    torch.testing.assert_close(calibrated.rgb, expected, atol=2e-3, rtol=0)
+    faint = (calibrated.rgb - expected).abs().amax(dim=-1) > 1e-5
+    assert not faint.any() or float(raw.opacity[faint].max()) < 0.06
+    torch.testing.assert_close(calibrated.rgb, expected, atol=3e-3, rtol=0)
     torch.testing.assert_close(calibrated.rgb[mask], expected[mask], atol=1e-5, rtol=0)
     normals = calibrated.normals[mask]
     torch.testing.assert_close(normals.norm(dim=-1), torch.ones(normals.shape[0]))

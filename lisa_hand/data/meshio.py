@@ -130,14 +130,20 @@ def _write_ply(path: Path, mesh: Mesh) -> None:
         handle.write(faces.tobytes())
 
 
-def _read_ply(path: Path) -> Mesh:
-    data = path.read_bytes()
+def _split_ply(path: Path, data: bytes) -> tuple[int, str, list]:
+    """A PLY file's bytes -> (offset of its body, format, elements of its header)."""
     end = data.find(b"end_header")
     if not data.startswith(b"ply") or end < 0:
         raise ValueError(f"{path}: not a PLY file (no 'ply' magic or no 'end_header')")
     body_start = data.index(b"\n", end) + 1
     header = data[:end].decode("ascii", errors="replace").splitlines()
     fmt, elements = _parse_ply_header(path, header)
+    return body_start, fmt, elements
+
+
+def _read_ply(path: Path) -> Mesh:
+    data = path.read_bytes()
+    body_start, fmt, elements = _split_ply(path, data)
     if fmt == "ascii":
         tables = _read_ply_ascii(path, data[body_start:], elements)
     else:

@@ -1456,12 +1456,12 @@ class ViewRender:
 
 
 def render_fitted_views(model: Any, params: HandParams, views: Sequence[ImageView],
-                        samples: int = 8) -> list[ViewRender]:
+                        samples: int = 32) -> list[ViewRender]:
     """Render the fitted hand into every view with the model's mean colour calibration
     (:func:`lisa_hand.inference.prepare_render`: VolSDF, one occupancy grid for all views),
     over each view's background (black with a mask, else the border's median colour).
 
-    samples: samples per ray in the band around the surface (8: as ``lisa render``). Runs
+    samples: samples per ray in the band around the surface (32: as ``lisa render``). Runs
     under ``torch.no_grad``.
     """
     from ..inference import hand_render_config, prepare_render

@@ -138,15 +138,10 @@ def _read_obj(path: Path):
 
 def _read_ply(path: Path):
     # The PLY header and body parsers of the mesh reader (they also read the normals' columns).
-    from ..data.meshio import _parse_ply_header, _read_ply_ascii, _read_ply_binary
+    from ..data.meshio import _read_ply_ascii, _read_ply_binary, _split_ply
 
     data = path.read_bytes()
-    end = data.find(b"end_header")
-    if not data.startswith(b"ply") or end < 0:
-        raise ValueError(f"{path}: not a PLY file (no 'ply' magic or no 'end_header')")
-    body_start = data.index(b"\n", end) + 1
-    header = data[:end].decode("ascii", errors="replace").splitlines()
-    fmt, elements = _parse_ply_header(path, header)
+    body_start, fmt, elements = _split_ply(path, data)
     # Only the vertex element is needed: drop what follows it (faces, edges, custom elements).
     names = [name for name, _, _ in elements]
     if "vertex" not in names:

@@ -84,7 +84,10 @@ _SQRT3 = math.sqrt(3.0)
 
 
 def _default_volume_render() -> RenderConfig:
-    return RenderConfig(sampler="sphere_traced", num_samples=8, num_samples_extra=0)
+    # 32 samples in the (8 + 16) beta band: 0.75 beta apart. On the shipped model at 384x250,
+    # against 768 uniform samples a ray, the hand pixels reach 46 dB; 8 samples (3 beta apart)
+    # gave 24 dB and 16 gave 32 dB, for 54% and 68% of the time.
+    return RenderConfig(sampler="sphere_traced", num_samples=32, num_samples_extra=0)
 
 
 @dataclass(frozen=True)
