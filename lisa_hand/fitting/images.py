@@ -1569,9 +1569,7 @@ def fit_image_folder(
     device: "auto", "cpu", "cuda" or "cuda:N". psnr: re-render the input views for the PSNR.
     log: called with one line per note (fallbacks, unit guesses).
     """
-    from ..trained import load_trained
-    from ..training.distributed import resolve_device
-    from .outputs import check_output_folder, read_ground_truth
+    from .outputs import prepare_fit
 
     log = log or (lambda line: None)
     config = FitImagesConfig() if config is None else config
@@ -1580,13 +1578,7 @@ def fit_image_folder(
     notes = input_notes(image_views)
     for note in notes:
         log(note)
-    truth = None
-    if gt_path is not None:
-        truth = read_ground_truth(gt_path, units)
-        if truth.note is not None:
-            log(truth.note)
-    check_output_folder(out_dir)
-    model = load_trained(model_path, resolve_device(device))
+    truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
 
     fit = fit_images(model, image_views, config, progress)
     params = fit.params

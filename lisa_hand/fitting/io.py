@@ -334,14 +334,7 @@ def fit_point_file(
     log: called with one line per note (unit conversion, dropped points).
     """
     from ..inference import MeshConfig, mesh_hand
-    from ..trained import load_trained
-    from ..training.distributed import resolve_device
-    from .outputs import (
-        check_output_folder,
-        ground_truth_metrics,
-        read_ground_truth,
-        write_fit_outputs,
-    )
+    from .outputs import ground_truth_metrics, prepare_fit, write_fit_outputs
     from .points import FitPointsConfig, fit_points
 
     log = log or (lambda line: None)
@@ -352,13 +345,7 @@ def fit_point_file(
                                 min_points=config.min_points, name=str(points_path))
     for note in cloud.notes:
         log(f"{points_path}: {note}")
-    truth = None
-    if gt_path is not None:
-        truth = read_ground_truth(gt_path, units)
-        if truth.note is not None:
-            log(truth.note)
-    check_output_folder(out_dir)
-    model = load_trained(model_path, resolve_device(device))
+    truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
 
     fit = fit_points(model, cloud.points, cloud.normals, config, progress=progress)
     params = fit.params

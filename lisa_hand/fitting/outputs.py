@@ -94,6 +94,26 @@ def read_ground_truth(path: str | os.PathLike, units: str = "auto") -> GroundTru
                        faces=data.faces, unit=unit, note=note, path=path)
 
 
+def prepare_fit(
+    out_dir: str | os.PathLike, gt_path: str | os.PathLike | None, units: str,
+    model_path: str | os.PathLike | None, device: str, log,
+) -> tuple[GroundTruth | None, Any]:
+    """What both fit commands check before fitting, in this order so that bad input fails
+    before the slow part: the ground truth (``gt_path``, its unit note logged), the output
+    folder, then the model (:func:`lisa_hand.trained.load_trained` on ``device``).
+    -> (the ground truth or None, the :class:`~lisa_hand.trained.TrainedModel`)."""
+    from ..trained import load_trained
+    from ..training.distributed import resolve_device
+
+    truth = None
+    if gt_path is not None:
+        truth = read_ground_truth(gt_path, units)
+        if truth.note is not None:
+            log(truth.note)
+    check_output_folder(out_dir)
+    return truth, load_trained(model_path, resolve_device(device))
+
+
 def json_safe(value: Any) -> Any:
     """``value`` with every non-finite float (NaN, inf) replaced by None, recursively (JSON has
     no NaN)."""
