@@ -9,13 +9,7 @@ from typing import Annotated
 
 import typer
 
-
-class Units(str, Enum):
-    """Length unit of the ground-truth file."""
-
-    auto = "auto"
-    m = "m"
-    mm = "mm"
+from .options import FitModelOpt, Units
 
 
 class Side(str, Enum):
@@ -35,9 +29,7 @@ def fit_images(
     views: Annotated[str | None, typer.Option(
         "--views", help="Comma-separated camera names to use, e.g. cam000 or "
                         "cam000,cam002,cam004,cam006 (default: all).")] = None,
-    model: Annotated[Path | None, typer.Option(
-        "--model", help="Trained model: exported file, run folder or checkpoint "
-                        "(default: the shipped model).")] = None,
+    model: FitModelOpt = None,
     gt: Annotated[Path | None, typer.Option(
         "--gt", help="Ground-truth mesh (or points), e.g. the frame's mesh.ply: adds V2V and "
                      "V2S distances (mm), both ways, to metrics.json.")] = None,

@@ -2,19 +2,12 @@
 
 from __future__ import annotations
 
-from enum import Enum
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-
-class Units(str, Enum):
-    """Length unit of the input files."""
-
-    auto = "auto"
-    m = "m"
-    mm = "mm"
+from .options import FitModelOpt, Units
 
 
 def fit_points(
@@ -23,9 +16,7 @@ def fit_points(
         help="Point cloud: PLY, OBJ, XYZ, NPY or NPZ (normals optional; a mesh's vertices).")],
     out: Annotated[Path, typer.Option(
         "--out", help="Output folder: params.json, mesh.ply and, with --gt, metrics.json.")],
-    model: Annotated[Path | None, typer.Option(
-        "--model", help="Trained model: exported file, run folder or checkpoint "
-                        "(default: the shipped model).")] = None,
+    model: FitModelOpt = None,
     gt: Annotated[Path | None, typer.Option(
         "--gt", help="Ground-truth mesh (or points): also write V2V and V2S distances (mm), "
                      "both ways.")] = None,

@@ -4,20 +4,12 @@ PSNR, SSIM and LPIPS between a rendered image and a ground-truth image."""
 from __future__ import annotations
 
 import math
-from enum import Enum
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-
-class Units(str, Enum):
-    """Length unit of the input files."""
-
-    m = "m"
-    mm = "mm"
-    auto = "auto"
-
+from .options import Units
 
 _IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
 
