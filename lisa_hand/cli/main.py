@@ -7,7 +7,19 @@ import sys
 
 import typer
 
-from . import animate, blend, demo, fit_images, fit_points, mesh, metrics, render, synth, train
+from . import (
+    animate,
+    blend,
+    demo,
+    evaluate,
+    fit_images,
+    fit_points,
+    mesh,
+    metrics,
+    render,
+    synth,
+    train,
+)
 
 app = typer.Typer(
     name="lisa",
@@ -30,7 +42,7 @@ def _root() -> None:
 
 # Each verb lives in its own module with a ``register(app)`` function.
 for _module in (demo, synth, train, fit_points, fit_images, mesh, render, animate, blend,
-                metrics):
+                metrics, evaluate):
     _module.register(app)
 
 

@@ -1358,6 +1358,7 @@ def fit_images(
     progress: bool = False,
     *,
     template: Any = None,
+    start: PoseFit | None = None,
 ) -> FitImagesResult:
     """Fit LISA to calibrated views: stage 1 then stage 2 (see the module docstring).
 
@@ -1367,6 +1368,8 @@ def fit_images(
     config: :class:`FitImagesConfig` (default: the CPU-friendly defaults).
     progress: show a progress bar per stage.
     template: the mesh template (default: :func:`lisa_hand.handmodel.template.load_template`).
+    start: a stage-1 result of these views (:func:`fit_keypoints`, which depends on the views
+        and the template only) to skip stage 1 and reuse it, e.g. for several models.
     -> :class:`FitImagesResult`; ``params.model`` is ``model.source``. A left hand
     (``config.side``) is fitted as the right hand of the mirrored views (:func:`mirror_view`)
     and returned mirrored back (``params.side == "left"``).
@@ -1384,10 +1387,10 @@ def fit_images(
     if config.side == "left":
         views = [mirror_view(view) for view in views]
     template = _template_on(template, device)
-    start = time.perf_counter()
+    start_time = time.perf_counter()
     with cpu_threads(config.num_threads):
-        pose_fit = fit_keypoints(views, config, template, progress)
-        stage1 = time.perf_counter() - start
+        pose_fit = fit_keypoints(views, config, template, progress) if start is None else start
+        stage1 = time.perf_counter() - start_time
         history = dict(pose_fit.history)
         if config.color_iters > 0:
             fitted, color_history = fit_color(model, views, pose_fit, config, template,
@@ -1400,7 +1403,7 @@ def fit_images(
         fitted = {"pose": pose_fit.pose, "translation": pose_fit.translation,
                   "betas": pose_fit.betas, "shape_code": model.mean_shape_code(),
                   "color_code": model.mean_color_code(), "rest_joints": rest}
-    seconds = time.perf_counter() - start
+    seconds = time.perf_counter() - start_time
     per_view = keypoint_errors(template, views, fitted["pose"], fitted["translation"],
                                fitted["betas"])
     errors = {"keypoints": pose_fit.keypoint_error_px,
