@@ -270,6 +270,7 @@ def plan_jobs(data_dir: Path, models: dict[str, str], config: EvalConfig, out: P
     count) for the images."""
     from ..data.layout import list_frames, read_split
     from ..geometry.cameras import load_cameras
+    from ..training.distributed import resolve_device
 
     subjects = read_split(data_dir).get("test", [])
     if not subjects:
@@ -280,8 +281,6 @@ def plan_jobs(data_dir: Path, models: dict[str, str], config: EvalConfig, out: P
     for subject in frames:
         frames[subject].sort(key=lambda p: p.root.name)
     subjects = [s for s in subjects if s in frames]
-    from ..training.distributed import resolve_device
-
     common = {"resolution": config.resolution, "fit_scale": config.fit_scale,
               "template_vertices": config.template_vertices,
               "device": str(resolve_device(config.device))}
@@ -301,7 +300,8 @@ def plan_jobs(data_dir: Path, models: dict[str, str], config: EvalConfig, out: P
                     jobs.append({"kind": "points", "set": set_name, "frame_name": name,
                                  "method": method, "frame": str(paths.root),
                                  "model": models.get(method),
-                                 "out": str(out / "fits" / "points" / name / method), **common})
+                                 "out": str(out / "fits" / "points" / set_name / name / method),
+                                 **common})
     if "images" in config.tables:
         color_models = {m: p for m, p in models.items() if METHODS[m].color is True}
         for subject in subjects[: config.image_subjects]:
@@ -502,7 +502,7 @@ def make_pictures(out: Path, point_rows: list[dict], image_rows: list[dict], ord
         camera = load_cameras(frame.cameras)[0]
         images, labels = [], []
         for method in order:
-            path = out / "fits" / "points" / name / method / "mesh.ply"
+            path = out / "fits" / "points" / "subjects" / name / method / "mesh.ply"
             if path.is_file():
                 mesh = load_mesh(path)
                 images.append(_mesh_picture(mesh.vertices, mesh.faces, camera))
