@@ -13,7 +13,6 @@ import re
 
 import imageio.v3 as iio
 import pytest
-import torch
 
 from lisa_hand.cli import main as cli_main
 from lisa_hand.demo import DemoConfig, run_demo
@@ -24,12 +23,7 @@ METRICS = ("v2v_recon_to_scan_mm", "v2s_recon_to_scan_mm", "v2v_scan_to_recon_mm
            "v2s_scan_to_recon_mm")
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)  # the CPU is shared: one thread per test process
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")

@@ -19,13 +19,7 @@ from lisa_hand.evaluation.quick import quick_config, quick_models
 from lisa_hand.evaluation.tables import DISTANCES, build_results, markdown_tables, run_eval
 from lisa_hand.trained import load_trained
 
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)  # the CPU is shared: one thread per test process
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")

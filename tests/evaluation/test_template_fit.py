@@ -18,13 +18,7 @@ from lisa_hand.handmodel.poses import named_pose
 from lisa_hand.handmodel.template import load_template
 from lisa_hand.metrics import mesh_distances
 
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def test_fit_recovers_a_template_hand():

@@ -31,12 +31,7 @@ TINY_FIELD = dict(sdf_hidden=32, sdf_depth=2, skinning_hidden=32, skinning_depth
                   color_hidden=16, color_depth=1, pe_frequencies=4, shape_dim=8, color_dim=8)
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)  # the CPU is shared: one thread per test process
-    yield
-    torch.set_num_threads(previous)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def template_rest_joints() -> torch.Tensor:

@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import torch
 
 from lisa_hand.bench.fit import WEBXR_POSES, pose_webxr_hand
 from lisa_hand.fitting.io import fit_point_file, prepare_point_cloud, read_point_cloud
@@ -32,16 +31,9 @@ WEBXR = Path(__file__).resolve().parents[3] / "shared" / "data" / "webxr_hand"
 METRICS = ("v2v_recon_to_scan_mm", "v2s_recon_to_scan_mm", "v2v_scan_to_recon_mm",
            "v2s_scan_to_recon_mm")
 
-pytestmark = pytest.mark.skipif(not (WEBXR / "right_hand.npz").is_file(),
-                                reason=f"the WebXR hand is not in {WEBXR}")
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)  # the CPU is shared: one thread per test process
-    yield
-    torch.set_num_threads(previous)
+pytestmark = [pytest.mark.skipif(not (WEBXR / "right_hand.npz").is_file(),
+                                 reason=f"the WebXR hand is not in {WEBXR}"),
+              pytest.mark.usefixtures("one_thread")]
 
 
 def _joints_mm() -> dict[str, np.ndarray]:
