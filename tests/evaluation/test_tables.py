@@ -149,3 +149,21 @@ def test_eval_command_checks_its_input(quick, tmp_path, capsys):
     assert "DATA is required" in error("--out", tmp_path / "e")
     assert "not a dataset folder" in error(tmp_path, "--out", tmp_path / "e")
     assert "views must be" in error(data, "--out", tmp_path / "e", "--views", "3")
+
+
+def test_eval_quick_command_needs_nothing(tmp_path, capsys):
+    """``lisa eval --quick`` with no data and no models: it makes both, then the tables."""
+    out = tmp_path / "quick_eval"
+    with pytest.raises(SystemExit) as info:
+        cli_main.main(["eval", "--quick", "--out", str(out)])
+    assert info.value.code == 0
+    printed = capsys.readouterr().out
+    results = json.loads((out / "results.json").read_text())
+    assert set(results["models"]) == {"volsdf", "nasa", "narf", "lisa_im", "lisa_geom",
+                                      "lisa_full"}
+    assert results["config"]["resolution"] == 48 and results["config"]["views"] == [1, 4]
+    for table in results["table1"].values():
+        for row in table.values():
+            assert all(0.01 < row[key] < 100.0 for key in DISTANCES)
+    assert "### Table 3" in printed and "eval finished in" in printed
+    assert (out / "quick" / "data" / "split.json").is_file()
