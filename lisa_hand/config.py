@@ -33,6 +33,7 @@ from typing import Any, TypeVar
 from .io_utils import read_json, write_json
 
 __all__ = [
+    "check_int_fields",
     "config_to_dict",
     "config_from_dict",
     "apply_overrides",
@@ -442,3 +443,12 @@ def save_config(path: str | os.PathLike, cfg: Any) -> Path:
 def load_config(cls: type[T], path: str | os.PathLike) -> T:
     """Read a config written by ``save_config``; errors name the file and the key."""
     return config_from_dict(cls, read_json(path), source=str(path))
+
+
+def check_int_fields(config: Any, names: Iterable[str], minimum: int) -> None:
+    """Raise ValueError naming the first of ``config``'s fields ``names`` that is not an int
+    (bools excluded) of at least ``minimum``; for the ``__post_init__`` of typed configs."""
+    for name in names:
+        value = getattr(config, name)
+        if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
+            raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")

@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from ..config import check_int_fields
 from ..io_utils import read_json, write_json
 from .methods import METHODS, check_model_method
 
@@ -81,11 +82,8 @@ class EvalConfig:
     """Where the models run: 'cpu', 'cuda', 'cuda:N' or 'auto' (CUDA when available)."""
 
     def __post_init__(self) -> None:
-        for name in ("num_poses", "image_subjects", "resolution", "workers",
-                     "template_vertices", "render_samples"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+        check_int_fields(self, ("num_poses", "image_subjects", "resolution", "workers",
+                                "template_vertices", "render_samples"), 1)
         if self.num_subjects is not None and self.num_subjects < 1:
             raise ValueError(f"num_subjects must be >= 1 or None, got {self.num_subjects!r}")
         if not self.views or any(v not in VIEW_COUNTS for v in self.views):

@@ -30,6 +30,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..config import check_int_fields
+
 __all__ = ["TemplateFitConfig", "TemplateFit", "fit_template_points", "subdivide_to",
            "template_mesh"]
 
@@ -75,15 +77,9 @@ class TemplateFitConfig:
     seed: int = 0
 
     def __post_init__(self) -> None:
-        for name in ("rigid_iters", "iters", "seed"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ValueError(f"{name} must be an int >= 0, got {value!r}")
-        for name in ("keep", "surface_points", "cloud_points", "rigid_surface_points",
-                     "rigid_cloud_points"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+        check_int_fields(self, ("rigid_iters", "iters", "seed"), 0)
+        check_int_fields(self, ("keep", "surface_points", "cloud_points",
+                                "rigid_surface_points", "rigid_cloud_points"), 1)
         if not self.init_poses:
             raise ValueError("init_poses must name at least one pose")
         if not self.robust_scale_mm > 0:
