@@ -1,6 +1,6 @@
 """LISA-open: Learning Implicit Shape and Appearance of hands (Corona et al., CVPR 2022).
 
-The pipeline, one folder a layer: ``geometry`` -> ``skeleton`` -> ``handmodel``/``data`` ->
+The pipeline, one folder a layer: ``utils`` -> ``geometry`` -> ``skeleton`` -> ``handmodel``/``data`` ->
 ``fields`` -> ``render`` -> ``training`` -> ``fitting``/``meshing`` -> ``evaluation`` -> ``cli``.
 """
 

@@ -45,9 +45,9 @@ import torch
 from .fields.bones import SEGMENT_BONES, bone_segments
 from .fields.config import FieldConfig
 from .geometry.cameras import Camera
-from .meshing import Mesh, MeshExtraction, colors_to_uint8, extract_mesh_with_stats
-from .model import FrameState
-from .params import HandParams, read_params
+from .geometry.meshing import Mesh, MeshExtraction, colors_to_uint8, extract_mesh_with_stats
+from .model.lisa import FrameState
+from .model.trained import TrainedModel, load_trained
 from .render.density import LaplaceDensity
 from .render.image import (
     ImageOutput,
@@ -64,7 +64,7 @@ from .skeleton import (
     mirror_points,
     mirror_pose,
 )
-from .trained import TrainedModel, load_trained
+from .skeleton.params import HandParams, read_params
 
 __all__ = [
     "GEOMETRY_ONLY_GREY",
@@ -835,7 +835,7 @@ def read_pose_sequence(path: str | os.PathLike) -> PoseSequence:
     axis-angle radians, MANO order) or 45 (the 15 finger joints; the global rotation of the hand
     being animated is kept); translations are 3 numbers (metres) per pose. Errors name the
     file."""
-    from .io_utils import read_json
+    from .utils.io import read_json
 
     path = Path(path)
     data = read_json(path)
@@ -951,9 +951,9 @@ def animate_hand(
     """
     from .data.meshio import MESH_SUFFIXES, save_mesh
     from .geometry.cameras import save_cameras
-    from .io_utils import write_json
     from .render.image import image_to_uint8
     from .render.turntable import save_gif
+    from .utils.io import write_json
 
     start = time.perf_counter()
     log = log or (lambda message: None)
@@ -1004,7 +1004,7 @@ def animate_hand(
     if frames:
         import imageio.v3 as iio
 
-        from .io_utils import atomic_path
+        from .utils.io import atomic_path
 
         render_config = hand_render_config(model) if render_config is None else render_config
         scenes = [prepare_render(model, frame, render_config) for frame in frame_params]

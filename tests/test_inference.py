@@ -18,11 +18,11 @@ from lisa_hand.bench.field import BENCH_REST_JOINTS
 from lisa_hand.fields import FieldConfig
 from lisa_hand.handmodel.poses import named_pose
 from lisa_hand.metrics import mesh_distances
-from lisa_hand.model import LisaModel
-from lisa_hand.params import HandParams
+from lisa_hand.model.lisa import LisaModel
+from lisa_hand.model.trained import TrainedModel
 from lisa_hand.render.image import ImageRenderConfig
 from lisa_hand.skeleton import forward_kinematics, mirror_points, mirror_pose
-from lisa_hand.trained import TrainedModel
+from lisa_hand.skeleton.params import HandParams
 
 TINY_FIELD = dict(sdf_hidden=32, sdf_depth=2, skinning_hidden=32, skinning_depth=1,
                   color_hidden=16, color_depth=1, pe_frequencies=4, shape_dim=8, color_dim=8,

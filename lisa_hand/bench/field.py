@@ -38,7 +38,7 @@ from torch import nn
 from ..fields import FieldConfig, bone_segments, capsule_distance, masked_softmax, pose_features
 from ..fields.bones import SEGMENT_BONES, bone_centres
 from ..fields.encoding import positional_encoding
-from ..model import FieldOutput, FrameState, LisaModel
+from ..model.lisa import FieldOutput, FrameState, LisaModel
 from ..skeleton import NUM_JOINTS
 
 __all__ = [

@@ -87,8 +87,8 @@ class FitBenchmark:
 def _bench_model(path, device):
     from ..fields.config import FieldConfig
     from ..handmodel.template import load_template
-    from ..model import LisaModel
-    from ..trained import TrainedModel, default_model_path, load_trained
+    from ..model.lisa import LisaModel
+    from ..model.trained import TrainedModel, default_model_path, load_trained
 
     if path is not None or default_model_path().is_file():
         return load_trained(path, device), str(path or default_model_path())
@@ -106,7 +106,7 @@ def _target(model, seed: int):
     """The true hand: HandParams of a training subject in a random placement."""
     from ..handmodel.poses import named_pose
     from ..handmodel.template import load_template
-    from ..params import HandParams
+    from ..skeleton.params import HandParams
 
     generator = torch.Generator().manual_seed(seed)
     template = load_template().to(dtype=torch.float32)

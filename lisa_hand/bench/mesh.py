@@ -43,9 +43,9 @@ def bench_hand(model_path: str | None = None, seed: int = 0):
     geometric-init ``LisaModel()``.
     """
     from ..fields import FieldConfig
-    from ..model import LisaModel
-    from ..params import HandParams
-    from ..trained import DEFAULT_BETA, TrainedModel, default_model_path, load_trained
+    from ..model.lisa import LisaModel
+    from ..model.trained import DEFAULT_BETA, TrainedModel, default_model_path, load_trained
+    from ..skeleton.params import HandParams
     from .field import BENCH_REST_JOINTS, bench_pose
 
     torch.manual_seed(seed)  # the untrained model's random layers
@@ -231,7 +231,7 @@ def main(argv: list[str] | None = None) -> dict:
     )
     results["benchmark_seconds"] = time.perf_counter() - start
     if args.json is not None:
-        from ..io_utils import write_json
+        from ..utils.io import write_json
 
         write_json(args.json, results)
         print(f"wrote {args.json}")

@@ -158,7 +158,7 @@ def lisa_scene(
     lipschitz: allowance for the learned SDF overestimating distances.
     """
     from ..fields import FieldConfig
-    from ..model import LisaModel
+    from ..model.lisa import LisaModel
     from .field import BENCH_REST_JOINTS, bench_pose
 
     generator = torch.Generator().manual_seed(seed)
@@ -282,7 +282,7 @@ def trained_scene(
     from .mesh import bench_hand
 
     if model_path is None:
-        from ..trained import default_model_path
+        from ..model.trained import default_model_path
 
         if not default_model_path().is_file():
             raise FileNotFoundError(f"{default_model_path()}: no shipped model; pass --model")
@@ -311,7 +311,7 @@ def make_scene(
 ) -> BenchScene:
     """One of :data:`SCENES` (see the module docstring); ``model_path``: the trained model."""
     if kind == "auto":
-        from ..trained import default_model_path
+        from ..model.trained import default_model_path
 
         trained = model_path is not None or default_model_path().is_file()
         kind = "trained" if trained else "lisa-capsules"
@@ -548,7 +548,7 @@ def _dense_check(
 def _save_images(save_dir: str, images: dict, width: int, height: int) -> None:
     import imageio.v3 as iio
 
-    from ..io_utils import atomic_path
+    from ..utils.io import atomic_path
 
     folder = Path(save_dir)
     folder.mkdir(parents=True, exist_ok=True)
@@ -629,7 +629,7 @@ def main(argv: list[str] | None = None) -> dict:
         model_path=args.model,
     )
     if args.json is not None:
-        from ..io_utils import write_json
+        from ..utils.io import write_json
 
         write_json(args.json, json.loads(json.dumps(results, default=float)))
         print(f"wrote {args.json}")

@@ -77,7 +77,7 @@ def animate(
         resolve_poses,
         scale_camera,
     )
-    from ..training.distributed import resolve_device
+    from ..utils.device import resolve_device
 
     if (poses is None) == (motion is None):
         raise ValueError("give exactly one of --poses SEQ.json and --motion NAME")

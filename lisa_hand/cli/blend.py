@@ -37,7 +37,7 @@ def blend(
     hands must be fitted with the same model; 'lisa mesh', 'lisa render' and 'lisa animate' take
     the result."""
     from ..inference import blend_params
-    from ..params import read_params, write_params
+    from ..skeleton.params import read_params, write_params
 
     shape_weight = _weight(shape, "--shape")
     color_weight = _weight(color, "--color")

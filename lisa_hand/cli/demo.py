@@ -24,7 +24,7 @@ def demo(
     point cloud, from 1 view and from 4 views, mesh the fits, render novel views and a
     turntable, print V2V, V2S (mm) and PSNR, and write OUT/report.html. A few minutes on 2 CPU
     cores."""
-    from ..demo import DemoConfig, run_demo
+    from ..evaluation.demo import DemoConfig, run_demo
 
     if not fit_scale > 0:
         raise ValueError(f"--fit-scale must be > 0, got {fit_scale}")

@@ -43,7 +43,7 @@ def mesh(
     correspondences across poses and subjects)."""
     from ..data.meshio import MESH_SUFFIXES, save_mesh
     from ..inference import MeshConfig, load_hand, mesh_hand_with_stats
-    from ..training.distributed import resolve_device
+    from ..utils.device import resolve_device
 
     suffix = out.suffix.lower()
     if suffix not in MESH_SUFFIXES:

@@ -33,8 +33,8 @@ _IMAGE_LABELS = {
 def _image_metrics(recon: Path, gt: Path, mask: Path | None, json_path: Path | None) -> None:
     """PSNR, SSIM (whole image and inside the mask) and LPIPS of two images."""
     from ..data.layout import read_image, read_mask
-    from ..io_utils import write_json
     from ..metrics import image_metrics
+    from ..utils.io import write_json
 
     pred, target = read_image(recon), read_image(gt)
     if pred.shape != target.shape:
@@ -88,8 +88,8 @@ def metrics(
     needs the 'lpips' package and its weights on disk; without them it prints one line saying
     what is missing (nothing is ever downloaded).
     """
-    from ..io_utils import write_json
     from ..metrics import compare_mesh_files
+    from ..utils.io import write_json
 
     is_image = [path.suffix.lower() in _IMAGE_SUFFIXES for path in (recon, gt)]
     if any(is_image) and not all(is_image):

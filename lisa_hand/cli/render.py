@@ -71,7 +71,7 @@ def render(
         render_to_folder,
         scale_camera,
     )
-    from ..training.distributed import resolve_device
+    from ..utils.device import resolve_device
 
     if (camera is None) == (orbit is None):
         raise ValueError("give exactly one of --camera CAM.json and --orbit N")

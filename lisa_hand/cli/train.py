@@ -57,7 +57,7 @@ ResumeOpt = Annotated[bool, typer.Option(
 
 def _resolve(config_cls, config_path: Path | None, overrides: list[str] | None,
              steps: int | None, device: str | None):
-    from ..config import apply_overrides, load_config
+    from ..utils.config import apply_overrides, load_config
 
     config = load_config(config_cls, config_path) if config_path is not None else config_cls()
     items = list(overrides or [])

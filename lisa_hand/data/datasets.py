@@ -32,8 +32,8 @@ import numpy as np
 import torch
 
 from ..geometry.cameras import load_cameras
-from ..io_utils import read_json
 from ..skeleton import NUM_JOINTS, POSE_DIM
+from ..utils.io import read_json
 from .layout import FramePaths, read_image, read_mask, read_npz, read_split
 
 __all__ = [

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io_utils import atomic_path, read_json
+from ..utils.io import atomic_path, read_json
 
 __all__ = [
     "FORMAT_NAME",

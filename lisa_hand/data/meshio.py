@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..io_utils import atomic_path
-from ..meshing import Mesh, colors_to_uint8
+from ..geometry.meshing import Mesh, colors_to_uint8
+from ..utils.io import atomic_path
 
 __all__ = ["save_mesh", "load_mesh", "MESH_SUFFIXES"]
 

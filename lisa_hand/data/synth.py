@@ -70,8 +70,8 @@ import numpy as np
 import torch
 
 from ..geometry.cameras import Camera, make_rig, save_cameras
-from ..io_utils import ensure_writable_dir, write_json
 from ..skeleton import KEYPOINT_NAMES
+from ..utils.io import ensure_writable_dir, write_json
 from .images import (
     GainBias,
     GainBiasConfig,

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..data.layout import list_frames, read_split
-from ..io_utils import write_json
+from ..utils.io import write_json
 
 __all__ = ["PointFitSummary", "evaluate_point_fits", "main"]
 

@@ -40,8 +40,8 @@ from typing import Any
 
 import numpy as np
 
-from ..config import check_int_fields
-from ..io_utils import read_json, write_json
+from ..utils.config import check_int_fields
+from ..utils.io import read_json, write_json
 from .methods import METHODS, check_model_method
 
 __all__ = ["EvalConfig", "EvalResult", "run_eval", "plan_jobs", "build_results", "markdown_tables",
@@ -111,7 +111,7 @@ _MODELS: dict[str, Any] = {}
 
 
 def _model(path: str, device: str):
-    from ..trained import load_trained
+    from ..model.trained import load_trained
 
     key = f"{path}@{device}"
     if key not in _MODELS:
@@ -140,7 +140,7 @@ def _distances(vertices, faces, truth_path: Path) -> dict[str, float]:
 def _write_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
     import trimesh
 
-    from ..io_utils import atomic_path
+    from ..utils.io import atomic_path
 
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
@@ -268,7 +268,7 @@ def plan_jobs(data_dir: Path, models: dict[str, str], config: EvalConfig, out: P
     count) for the images."""
     from ..data.layout import list_frames, read_split
     from ..geometry.cameras import load_cameras
-    from ..training.distributed import resolve_device
+    from ..utils.device import resolve_device
 
     subjects = read_split(data_dir).get("test", [])
     if not subjects:
@@ -547,7 +547,7 @@ def run_eval(
     """Evaluate ``models`` ({method: model path}, see :mod:`lisa_hand.evaluation.methods`; the
     MANO-like template is always in) on the held-out subjects of ``data_dir``; write
     ``results.json``, ``results.md`` and ``pictures/`` into ``out_dir``."""
-    from ..trained import load_trained
+    from ..model.trained import load_trained
 
     config = EvalConfig() if config is None else config
     data_dir, out = Path(data_dir), Path(out_dir)

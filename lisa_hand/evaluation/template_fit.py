@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..config import check_int_fields
+from ..utils.config import check_int_fields
 
 __all__ = ["TemplateFitConfig", "TemplateFit", "fit_template_points", "subdivide_to",
            "template_mesh"]

@@ -87,12 +87,13 @@ import torch.nn.functional as F
 from ..data.layout import FramePaths, read_image, read_mask
 from ..geometry.cameras import Camera, load_cameras
 from ..geometry.rotations import axis_angle_to_matrix, matrix_to_axis_angle
-from ..io_utils import read_json
-from ..losses import color_loss, latent_loss
-from ..params import HandParams
+from ..model.losses import color_loss, latent_loss
 from ..render import LaplaceDensity, RenderConfig, render_rays
 from ..render.image import ray_box_bounds
 from ..skeleton import FINGER_JOINTS, FINGER_NAMES, KEYPOINT_NAMES, NUM_KEYPOINTS
+from ..skeleton.params import HandParams
+from ..utils.io import read_json
+from ..utils.threads import cpu_threads
 
 __all__ = [
     "ImageView",
@@ -1135,19 +1136,6 @@ class _RayPool:
         return {"origins": self.centre[view], "directions": directions, "target": target,
                 "background": self.background[view], "in_mask": in_mask,
                 "has_mask": has_mask}
-
-
-@contextlib.contextmanager
-def cpu_threads(num_threads: int | None) -> Iterator[None]:
-    """Run the block with ``torch.set_num_threads(num_threads)`` (None: unchanged), then
-    restore the previous setting."""
-    previous = torch.get_num_threads()
-    if num_threads is not None:
-        torch.set_num_threads(num_threads)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(previous)
 
 
 @contextlib.contextmanager

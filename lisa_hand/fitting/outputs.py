@@ -21,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from ..meshing import Mesh
-from ..params import HandParams
+from ..geometry.meshing import Mesh
+from ..skeleton.params import HandParams
 
 __all__ = [
     "GroundTruth",
@@ -102,8 +102,8 @@ def prepare_fit(
     before the slow part: the ground truth (``gt_path``, its unit note logged), the output
     folder, then the model (:func:`lisa_hand.trained.load_trained` on ``device``).
     -> (the ground truth or None, the :class:`~lisa_hand.trained.TrainedModel`)."""
-    from ..trained import load_trained
-    from ..training.distributed import resolve_device
+    from ..model.trained import load_trained
+    from ..utils.device import resolve_device
 
     truth = None
     if gt_path is not None:
@@ -149,8 +149,8 @@ def write_fit_outputs(
     -> the written paths, in that order.
     """
     from ..data.meshio import save_mesh
-    from ..io_utils import write_json
-    from ..params import write_params
+    from ..skeleton.params import write_params
+    from ..utils.io import write_json
 
     out_dir = check_output_folder(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)

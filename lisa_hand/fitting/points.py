@@ -64,8 +64,8 @@ import numpy as np
 import torch
 
 from ..geometry import axis_angle_to_matrix, matrix_to_axis_angle
-from ..params import HandParams
 from ..skeleton import NUM_JOINTS, POSE_DIM, forward_kinematics, linear_blend_skinning
+from ..skeleton.params import HandParams
 
 __all__ = [
     "ROBUST_LOSSES",
@@ -588,7 +588,7 @@ class _CloudDistance:
 
 
 def _check_model(model) -> None:
-    from ..trained import TrainedModel
+    from ..model.trained import TrainedModel
 
     if not isinstance(model, TrainedModel):
         raise TypeError(f"model must be a lisa_hand.trained.TrainedModel, got "
@@ -689,7 +689,7 @@ class _Fitter:
     @torch.no_grad()
     def build_proxy(self) -> None:
         """Surface points of the model at rest (mean shape code) and their skinning weights."""
-        from ..meshing import extract_mesh
+        from ..geometry.meshing import extract_mesh
 
         config = self.config
         field_model = self.field

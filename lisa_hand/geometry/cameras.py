@@ -23,7 +23,7 @@ from typing import Any
 
 import torch
 
-from ..io_utils import read_json, write_json
+from ..utils.io import read_json, write_json
 
 __all__ = [
     "Camera",

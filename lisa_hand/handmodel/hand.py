@@ -293,7 +293,7 @@ class PosedHand:
         colors: attach per-vertex albedo; skin_weights: attach per-vertex ownership weights.
         -> :class:`lisa_hand.meshing.Mesh` (world frame, float32 vertices, outward faces).
         """
-        from ..meshing import Mesh, colors_to_uint8, extract_mesh
+        from ..geometry.meshing import Mesh, colors_to_uint8, extract_mesh
 
         if voxel_size is not None and resolution is not None:
             raise ValueError("give voxel_size or resolution, not both")

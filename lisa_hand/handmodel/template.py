@@ -64,7 +64,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 import torch
 
-from ..io_utils import atomic_path
 from ..skeleton.kinematics import (
     check_pose,
     forward_kinematics,
@@ -79,6 +78,7 @@ from ..skeleton.tree import (
     PARENTS,
     joints_to_keypoints,
 )
+from ..utils.io import atomic_path
 
 if TYPE_CHECKING:
     from ..skeleton.mano import ManoData, ManoLayer

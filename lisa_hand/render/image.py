@@ -46,7 +46,7 @@ from pathlib import Path
 import torch
 
 from ..geometry.cameras import Camera, pixel_rays
-from ..io_utils import atomic_path
+from ..utils.io import atomic_path
 from .bounds import ray_sphere_bounds
 from .composite import composite
 from .density import LaplaceDensity

@@ -17,7 +17,7 @@ from pathlib import Path
 import torch
 
 from ..geometry.cameras import Camera, intrinsics_from_fov, look_at
-from ..io_utils import atomic_path
+from ..utils.io import atomic_path
 from .density import LaplaceDensity
 from .image import (
     ImageOutput,

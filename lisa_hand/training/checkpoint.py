@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..io_utils import atomic_path
+from ..utils.io import atomic_path
 
 __all__ = [
     "CHECKPOINT_FORMAT",

@@ -26,6 +26,8 @@ from typing import Any
 import torch
 from torch import nn
 
+from ..utils.device import resolve_device
+
 __all__ = [
     "DistContext",
     "resolve_device",
@@ -81,33 +83,6 @@ def _env_int(name: str, default: int) -> int:
     except ValueError:
         raise ValueError(f"environment variable {name} must be an integer, got {value!r}") \
             from None
-
-
-def resolve_device(name: str = "auto", local_rank: int = 0) -> torch.device:
-    """Turn a device setting into a ``torch.device``.
-
-    ``"auto"``: ``cuda:<local_rank>`` when CUDA is available, else ``cpu``. ``"cuda"`` picks
-    ``cuda:<local_rank>``; an explicit ``"cuda:1"`` is kept. Asking for CUDA without it raises.
-    """
-    if not isinstance(name, str):
-        raise TypeError(f"device must be a string like 'auto', 'cpu' or 'cuda', got {name!r}")
-    if name == "auto":
-        name = "cuda" if torch.cuda.is_available() else "cpu"
-    try:
-        device = torch.device(name)
-    except RuntimeError:
-        raise ValueError(f"device {name!r} is not a valid device ('auto', 'cpu', 'cuda', "
-                         "'cuda:1', ...)") from None
-    if device.type == "cuda":
-        if not torch.cuda.is_available():
-            raise ValueError(f"device {name!r} asked for, but CUDA is not available here "
-                             "(use device=auto or device=cpu)")
-        index = local_rank if device.index is None else device.index
-        if index >= torch.cuda.device_count():
-            raise ValueError(f"device cuda:{index} asked for, but only "
-                             f"{torch.cuda.device_count()} CUDA device(s) are visible")
-        device = torch.device("cuda", index)
-    return device
 
 
 def init_distributed(

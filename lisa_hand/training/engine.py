@@ -47,8 +47,8 @@ import numpy as np
 import torch
 from torch import nn
 
-from ..config import config_to_dict, save_config
-from ..io_utils import atomic_path, ensure_writable_dir
+from ..utils.config import config_to_dict, save_config
+from ..utils.io import atomic_path, ensure_writable_dir
 from .checkpoint import (
     LAST_CHECKPOINT,
     Checkpoint,

@@ -45,14 +45,14 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ..config import config_from_dict
 from ..data.datasets import SPLITS, RayBatch, RayFrames, ScanFrames
 from ..fields.config import FieldConfig
 from ..fields.latents import LatentTable
-from ..losses import color_loss, eikonal_loss, latent_loss, skinning_loss
-from ..model import FrameState, LisaModel
+from ..model.lisa import FrameState, LisaModel
+from ..model.losses import color_loss, eikonal_loss, latent_loss, skinning_loss
 from ..render import LaplaceDensity, RenderConfig, apply_gain_bias, ray_sphere_bounds, render_rays
 from ..skeleton import NUM_JOINTS, POSE_DIM
+from ..utils.config import config_from_dict
 from .distributed import DistContext, shard_slice, unwrap
 from .engine import StepContext, Trainer, TrainerConfig, TrainResult
 from .prior import (

@@ -37,12 +37,12 @@ from typing import Any
 import torch
 from torch import nn
 
-from ..config import config_from_dict
 from ..data.datasets import SPLITS, ScanBatch, ScanFrames
 from ..fields.config import FieldConfig
 from ..fields.latents import LatentTable
-from ..losses import eikonal_loss, latent_loss, normal_loss, skinning_loss, surface_loss
-from ..model import LisaModel
+from ..model.lisa import LisaModel
+from ..model.losses import eikonal_loss, latent_loss, normal_loss, skinning_loss, surface_loss
+from ..utils.config import config_from_dict
 from .checkpoint import LAST_CHECKPOINT, Checkpoint, load_checkpoint
 from .distributed import DistContext, global_mean, shard_slice, unwrap
 from .engine import StepContext, Trainer, TrainerConfig, TrainResult

@@ -14,8 +14,8 @@ from lisa_hand.cli import fit_images, main
 from lisa_hand.data.layout import write_image
 from lisa_hand.data.meshio import load_mesh, save_mesh
 from lisa_hand.inference import mesh_hand
-from lisa_hand.params import read_params
-from lisa_hand.trained import export_trained
+from lisa_hand.model.trained import export_trained
+from lisa_hand.skeleton.params import read_params
 from tests.fitting.test_images import render_frame, tiny_model, true_hand, write_frame
 
 FAST = ["--keypoint-iters", "60", "--color-iters", "4", "--rays", "64", "--res", "32",

@@ -12,8 +12,8 @@ from lisa_hand.cli import fit_points as fit_points_cli
 from lisa_hand.cli import main as cli_main
 from lisa_hand.data.meshio import load_mesh, save_mesh
 from lisa_hand.data.scans import ScanConfig
-from lisa_hand.params import read_params
-from lisa_hand.trained import export_trained
+from lisa_hand.model.trained import export_trained
+from lisa_hand.skeleton.params import read_params
 from tests.fitting.test_points import scan_of, surface, tiny_model, true_hand
 
 FAST_ARGS = ["--iterations", "15", "--restarts", "1", "--res", "40", "--no-progress"]

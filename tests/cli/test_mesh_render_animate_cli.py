@@ -17,9 +17,9 @@ from lisa_hand.cli import animate, blend, main, mesh, render
 from lisa_hand.data.meshio import load_mesh
 from lisa_hand.fields import FieldConfig
 from lisa_hand.metrics import mesh_distances
-from lisa_hand.model import LisaModel
-from lisa_hand.params import HandParams, read_params, write_params
-from lisa_hand.trained import TrainedModel, export_trained
+from lisa_hand.model.lisa import LisaModel
+from lisa_hand.model.trained import TrainedModel, export_trained
+from lisa_hand.skeleton.params import HandParams, read_params, write_params
 
 VERBS = (mesh, render, animate, blend)
 TINY_FIELD = dict(sdf_hidden=32, sdf_depth=2, skinning_hidden=32, skinning_depth=1,

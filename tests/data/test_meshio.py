@@ -9,7 +9,7 @@ import pytest
 
 from lisa_hand.data import meshio
 from lisa_hand.data.meshio import load_mesh, save_mesh
-from lisa_hand.meshing import Mesh
+from lisa_hand.geometry.meshing import Mesh
 
 
 def random_mesh(with_colors=True, num_weights=16, seed=0) -> Mesh:

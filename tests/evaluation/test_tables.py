@@ -17,7 +17,7 @@ from lisa_hand.cli import main as cli_main
 from lisa_hand.evaluation.methods import METHODS, check_model_method
 from lisa_hand.evaluation.quick import quick_config, quick_models
 from lisa_hand.evaluation.tables import DISTANCES, build_results, markdown_tables, run_eval
-from lisa_hand.trained import load_trained
+from lisa_hand.model.trained import load_trained
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 

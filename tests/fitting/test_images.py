@@ -38,12 +38,12 @@ from lisa_hand.fitting.images import (
 from lisa_hand.geometry import axis_angle_to_matrix
 from lisa_hand.geometry.cameras import Camera, make_rig, save_cameras
 from lisa_hand.handmodel.poses import sample_pose
-from lisa_hand.io_utils import write_json
-from lisa_hand.model import LisaModel
-from lisa_hand.params import HandParams
+from lisa_hand.model.lisa import LisaModel
+from lisa_hand.model.trained import TrainedModel
 from lisa_hand.render import RenderConfig
 from lisa_hand.skeleton import KEYPOINT_NAMES, mirror_points
-from lisa_hand.trained import TrainedModel
+from lisa_hand.skeleton.params import HandParams
+from lisa_hand.utils.io import write_json
 
 TINY_FIELD = dict(sdf_hidden=32, sdf_depth=2, skinning_hidden=32, skinning_depth=1,
                   color_hidden=16, color_depth=1, pe_frequencies=4, shape_dim=8, color_dim=8)
@@ -364,7 +364,7 @@ def test_config_validation_and_thread_setting():
 
 def test_outputs_are_written_all_or_nothing(scene, tmp_path):
     from lisa_hand.fitting.outputs import json_safe, write_fit_outputs
-    from lisa_hand.meshing import Mesh
+    from lisa_hand.geometry.meshing import Mesh
 
     assert json_safe({"a": math.nan, "b": [1.0, math.inf], "c": "x"}) == {
         "a": None, "b": [1.0, None], "c": "x"}

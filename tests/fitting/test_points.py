@@ -22,10 +22,10 @@ from lisa_hand.fitting.points import (
     robust_loss,
 )
 from lisa_hand.geometry import axis_angle_to_matrix
-from lisa_hand.meshing import extract_mesh
-from lisa_hand.model import LisaModel
-from lisa_hand.params import HandParams
-from lisa_hand.trained import TrainedModel
+from lisa_hand.geometry.meshing import extract_mesh
+from lisa_hand.model.lisa import LisaModel
+from lisa_hand.model.trained import TrainedModel
+from lisa_hand.skeleton.params import HandParams
 
 TINY_FIELD = dict(sdf_hidden=32, sdf_depth=2, skinning_hidden=32, skinning_depth=1,
                   color_hidden=16, color_depth=1, pe_frequencies=4, shape_dim=8, color_dim=8)

@@ -21,9 +21,9 @@ import pytest
 from lisa_hand.bench.fit import WEBXR_POSES, pose_webxr_hand
 from lisa_hand.fitting.io import fit_point_file, prepare_point_cloud, read_point_cloud
 from lisa_hand.fitting.points import FitPointsConfig
-from lisa_hand.params import read_params
+from lisa_hand.model.trained import export_trained
 from lisa_hand.skeleton import forward_kinematics
-from lisa_hand.trained import export_trained
+from lisa_hand.skeleton.params import read_params
 
 from .test_points import tiny_model
 

@@ -12,7 +12,6 @@ import signal
 import pytest
 import torch
 
-from lisa_hand.config import load_config
 from lisa_hand.training.checkpoint import NonFiniteError, load_checkpoint
 from lisa_hand.training.engine import (
     CONFIG_FILE,
@@ -22,6 +21,7 @@ from lisa_hand.training.engine import (
     lr_factor,
     train,
 )
+from lisa_hand.utils.config import load_config
 
 from .toy import GLOBAL_BATCH, REG_WEIGHT, make_model, make_step_fn, target_fn
 

@@ -13,7 +13,7 @@ import torch
 
 from lisa_hand.data.datasets import RayFrames, read_frame_table
 from lisa_hand.fields.config import FieldConfig
-from lisa_hand.model import LisaModel
+from lisa_hand.model.lisa import LisaModel
 from lisa_hand.skeleton import forward_kinematics
 from lisa_hand.training.checkpoint import load_checkpoint
 from lisa_hand.training.images import (

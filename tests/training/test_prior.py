@@ -10,7 +10,6 @@ import signal
 import pytest
 import torch
 
-from lisa_hand.config import apply_overrides, load_config
 from lisa_hand.fields.config import FieldConfig
 from lisa_hand.training.checkpoint import load_checkpoint
 from lisa_hand.training.distributed import DistContext
@@ -21,6 +20,7 @@ from lisa_hand.training.prior import (
     load_prior,
     train_prior,
 )
+from lisa_hand.utils.config import apply_overrides, load_config
 
 from .conftest import tiny_prior_config, tiny_trainer
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from lisa_hand.trained import DEFAULT_BETA, export_trained, load_trained
+from lisa_hand.model.trained import DEFAULT_BETA, export_trained, load_trained
 from lisa_hand.training.images import train_images
 from lisa_hand.training.prior import train_prior
 

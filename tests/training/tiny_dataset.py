@@ -36,9 +36,9 @@ from lisa_hand.data.layout import (
 from lisa_hand.data.scans import ScanConfig, sdf_samples, simulate_scan
 from lisa_hand.fields.bones import SEGMENT_BONES, bone_segments, segment_distances
 from lisa_hand.geometry.cameras import make_rig, save_cameras
-from lisa_hand.io_utils import write_json
-from lisa_hand.meshing import extract_mesh
+from lisa_hand.geometry.meshing import extract_mesh
 from lisa_hand.skeleton import NUM_JOINTS, forward_kinematics
+from lisa_hand.utils.io import write_json
 
 __all__ = [
     "TinyDatasetConfig",

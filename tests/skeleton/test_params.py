@@ -7,7 +7,7 @@ import json
 import pytest
 import torch
 
-from lisa_hand.params import HandParams, read_params, write_params
+from lisa_hand.skeleton.params import HandParams, read_params, write_params
 
 
 def _params(**kwargs) -> HandParams:

@@ -24,8 +24,9 @@ from typing import Any
 
 import torch
 
-from .io_utils import read_json, write_json
-from .skeleton import NUM_JOINTS, POSE_DIM, check_side
+from ..utils.io import read_json, write_json
+from .kinematics import check_side
+from .tree import NUM_JOINTS, POSE_DIM
 
 __all__ = ["PARAMS_FORMAT", "HandParams", "read_params", "write_params"]
 

@@ -22,9 +22,9 @@ from typing import Any
 
 import torch
 
-from .fields.config import FieldConfig
-from .io_utils import atomic_path
-from .model import LisaModel
+from ..fields.config import FieldConfig
+from ..utils.io import atomic_path
+from .lisa import LisaModel
 
 __all__ = [
     "TRAINED_FORMAT",
@@ -105,9 +105,9 @@ def default_model_path() -> Path:
 
 
 def _from_run(path: Path) -> TrainedModel:
-    from .training.checkpoint import LAST_CHECKPOINT, load_checkpoint
-    from .training.images import IMAGE_KIND, load_image_model
-    from .training.prior import PRIOR_KIND, load_prior
+    from ..training.checkpoint import LAST_CHECKPOINT, load_checkpoint
+    from ..training.images import IMAGE_KIND, load_image_model
+    from ..training.prior import PRIOR_KIND, load_prior
 
     ckpt_path = path / LAST_CHECKPOINT if path.is_dir() else path
     if not ckpt_path.is_file():

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from lisa_hand.meshing import (
+from lisa_hand.geometry.meshing import (
     Mesh,
     colors_to_uint8,
     extract_mesh,

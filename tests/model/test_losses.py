@@ -1,7 +1,7 @@
 import pytest
 import torch
 
-from lisa_hand.losses import (
+from lisa_hand.model.losses import (
     color_loss,
     eikonal_loss,
     latent_loss,

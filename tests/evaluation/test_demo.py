@@ -15,8 +15,8 @@ import imageio.v3 as iio
 import pytest
 
 from lisa_hand.cli import main as cli_main
-from lisa_hand.demo import DemoConfig, run_demo
-from lisa_hand.trained import export_trained
+from lisa_hand.evaluation.demo import DemoConfig, run_demo
+from lisa_hand.model.trained import export_trained
 from tests.fitting.test_points import tiny_model
 
 METRICS = ("v2v_recon_to_scan_mm", "v2s_recon_to_scan_mm", "v2v_scan_to_recon_mm",

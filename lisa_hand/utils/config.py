@@ -30,7 +30,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path, PurePath
 from typing import Any, TypeVar
 
-from .io_utils import read_json, write_json
+from .io import read_json, write_json
 
 __all__ = [
     "check_int_fields",

@@ -9,8 +9,8 @@ import torch
 import torch.nn.functional as F
 
 from lisa_hand.fields import FieldConfig, LatentTable, unpose_points
-from lisa_hand.losses import eikonal_loss
-from lisa_hand.model import FieldOutput, LisaModel, build_model
+from lisa_hand.model.lisa import FieldOutput, LisaModel, build_model
+from lisa_hand.model.losses import eikonal_loss
 from lisa_hand.skeleton import forward_kinematics
 from tests.fields.helpers import frame_inputs, perturb_, rest_joints, sample_points, tiny_config
 

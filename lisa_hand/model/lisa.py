@@ -36,7 +36,7 @@ from dataclasses import dataclass
 import torch
 from torch import nn
 
-from .fields.bones import (
+from ..fields.bones import (
     PALM_CHILDREN,
     SEGMENT_BONES,
     bone_axes,
@@ -44,12 +44,12 @@ from .fields.bones import (
     bone_segments,
     segment_distances,
 )
-from .fields.composition import blend, masked_softmax, nasa_selection, one_hot_weights
-from .fields.config import FieldConfig
-from .fields.encoding import encoding_dim, positional_encoding
-from .fields.mlp import StackedMLP, geometric_init_, soft_min_init_
-from .fields.pose import local_pose_mask, pose_feature_dim, pose_features
-from .skeleton import NUM_JOINTS, POSE_DIM, Kinematics, check_pose, forward_kinematics
+from ..fields.composition import blend, masked_softmax, nasa_selection, one_hot_weights
+from ..fields.config import FieldConfig
+from ..fields.encoding import encoding_dim, positional_encoding
+from ..fields.mlp import StackedMLP, geometric_init_, soft_min_init_
+from ..fields.pose import local_pose_mask, pose_feature_dim, pose_features
+from ..skeleton import NUM_JOINTS, POSE_DIM, Kinematics, check_pose, forward_kinematics
 
 __all__ = ["FrameState", "FieldOutput", "LisaModel", "build_model"]
 

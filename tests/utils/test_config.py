@@ -10,7 +10,8 @@ from typing import Literal
 
 import pytest
 
-from lisa_hand.config import (
+from lisa_hand.training.engine import TrainerConfig
+from lisa_hand.utils.config import (
     apply_overrides,
     config_from_dict,
     config_to_dict,
@@ -18,7 +19,6 @@ from lisa_hand.config import (
     parse_override,
     save_config,
 )
-from lisa_hand.training.engine import TrainerConfig
 
 
 @dataclass(frozen=True)

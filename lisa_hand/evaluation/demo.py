@@ -87,8 +87,8 @@ def _gif_data_uri(path: Path) -> str:
 def _novel_view_psnr(model, params, frame_dir: Path, names: list[str]) -> tuple[float, list]:
     """Mean PSNR (dB, inside the masks) of the fitted hand in the views ``names`` -> (psnr,
     [rendered uint8 [H, W, 3], target uint8] per view)."""
-    from .fitting.images import read_views, render_fitted_views
-    from .metrics import psnr
+    from ..fitting.images import read_views, render_fitted_views
+    from ..metrics import psnr
 
     renders = render_fitted_views(model, params, read_views(frame_dir, names))
     values, pictures = [], []
@@ -106,15 +106,15 @@ def run_demo(
     out_dir: str | Path, config: DemoConfig | None = None, log: Callable[[str], None] = print
 ) -> DemoResult:
     """Run the demo into ``out_dir`` (see the module docstring) and return its table."""
-    from .data.layout import FramePaths, read_image
-    from .data.synth import SynthConfig, synthesize
-    from .fitting.images import FitImagesConfig, fit_image_folder
-    from .fitting.io import fit_point_file
-    from .fitting.points import FitPointsConfig
-    from .geometry.cameras import load_cameras
-    from .inference import hand_render_config, orbit_views, prepare_render, render_to_folder
-    from .trained import load_trained
-    from .training.distributed import resolve_device
+    from ..data.layout import FramePaths, read_image
+    from ..data.synth import SynthConfig, synthesize
+    from ..fitting.images import FitImagesConfig, fit_image_folder
+    from ..fitting.io import fit_point_file
+    from ..fitting.points import FitPointsConfig
+    from ..geometry.cameras import load_cameras
+    from ..inference import hand_render_config, orbit_views, prepare_render, render_to_folder
+    from ..model.trained import load_trained
+    from ..utils.device import resolve_device
 
     config = DemoConfig() if config is None else config
     if config.num_views < 5:
@@ -210,7 +210,7 @@ def _markdown_table(rows: list[dict]) -> str:
 
 def _write_report(path: Path, rows, pictures, gif: Path | None, input_image: np.ndarray,
                   source: str, seconds: float, config: DemoConfig) -> Path:
-    from .io_utils import atomic_path
+    from ..utils.io import atomic_path
 
     header = ("<tr><th>input</th><th>V2V recon&rarr;scan</th><th>V2S recon&rarr;scan</th>"
               "<th>V2V scan&rarr;recon</th><th>V2S scan&rarr;recon</th>"
