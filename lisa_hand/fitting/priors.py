@@ -1,0 +1,70 @@
+"""The one pose prior and the one joint-limit term, shared by every fitter (points, images, the
+MANO-like template).
+
+* :func:`joint_limit_excess`: sum over the 15 finger joints of the squared excess of the anatomical
+  angles (flexion, spread, twist of :func:`lisa_hand.handmodel.poses.pose_to_angles`) over
+  :data:`~lisa_hand.handmodel.poses.JOINT_LIMITS`, radians^2; zero inside the limits.
+* :func:`finger_pose_prior`: mean over the 45 finger values of the squared difference from a
+  named mean pose (radians^2): a weak pull of the fingers toward a natural pose where the data
+  says little (occluded fingers, one view).
+
+Both are differentiable and batched; the global rotation (pose[:, :3]) is never penalised.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ..skeleton import POSE_DIM
+
+__all__ = ["PRIOR_POSES", "prior_mean_fingers", "joint_limit_excess", "finger_pose_prior"]
+
+PRIOR_POSES = ("relaxed", "flat")
+"""Named poses a finger-pose prior may pull toward (:func:`lisa_hand.handmodel.named_pose`)."""
+
+_FINGER_DIM = POSE_DIM - 3
+
+
+def prior_mean_fingers(name: str = "relaxed", device: torch.device | str = "cpu",
+                       dtype: torch.dtype = torch.float32) -> torch.Tensor:
+    """[45] finger pose (radians) of the named pose ``name`` (one of :data:`PRIOR_POSES`)."""
+    from ..handmodel.poses import named_pose
+
+    if name not in PRIOR_POSES:
+        raise ValueError(f"prior pose must be one of {', '.join(PRIOR_POSES)}, got {name!r}")
+    return named_pose(name)[3:].to(device=device, dtype=dtype)
+
+
+def _full_pose(pose: torch.Tensor) -> torch.Tensor:
+    if pose.dim() != 2 or pose.shape[-1] not in (POSE_DIM, _FINGER_DIM):
+        raise ValueError(f"pose must have shape [B, {POSE_DIM}] or [B, {_FINGER_DIM}] (finger "
+                         f"values only), got {list(pose.shape)}")
+    if pose.shape[-1] == _FINGER_DIM:
+        pose = torch.cat([pose.new_zeros(pose.shape[0], 3), pose], dim=-1)
+    return pose
+
+
+def joint_limit_excess(pose: torch.Tensor) -> torch.Tensor:
+    """Squared excess over the joint limits.
+
+    pose: [B, 48] axis-angle radians, or [B, 45] finger values only -> [B] radians^2.
+    """
+    from ..handmodel.poses import JOINT_LIMITS, pose_to_angles
+
+    angles = pose_to_angles(_full_pose(pose))  # [B, 15, 3]
+    limits = JOINT_LIMITS.to(angles)
+    excess = torch.relu(limits[..., 0] - angles) + torch.relu(angles - limits[..., 1])
+    return (excess * excess).flatten(1).sum(-1)
+
+
+def finger_pose_prior(pose: torch.Tensor, mean_fingers: torch.Tensor) -> torch.Tensor:
+    """Mean squared difference of the finger values from ``mean_fingers``.
+
+    pose: [B, 48] or [B, 45] radians; mean_fingers: [45] radians (:func:`prior_mean_fingers`)
+    -> [B] radians^2.
+    """
+    fingers = _full_pose(pose)[:, 3:]
+    if mean_fingers.shape != (_FINGER_DIM,):
+        raise ValueError(f"mean_fingers must have shape [{_FINGER_DIM}], got "
+                         f"{list(mean_fingers.shape)}")
+    return (fingers - mean_fingers.to(fingers)).square().mean(-1)
