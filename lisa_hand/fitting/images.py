@@ -30,7 +30,7 @@ Stage 2, pose, shape and colour (:func:`fit_color`; paper: 5k iterations). Each 
 ``num_rays`` camera rays, ``mask_fraction`` of them through the mask and a band of ``band_px``
 pixels around it, renders them with VolSDF (:func:`lisa_hand.render.render_rays`, the model's
 ``field_fn`` with bone culling and ``LaplaceDensity(model.beta)``), applies the model's mean
-colour calibration (:func:`lisa_hand.training.images.calibrate`) and minimises
+colour calibration (:func:`lisa_hand.render.renderer.calibrate`) and minimises
 
     L = lambda_col L_col + lambda_reg L_reg + lambda_joints L_joints' + lambda_mask L_mask
 
@@ -1186,7 +1186,8 @@ def fit_color(
     -> ({"pose" [48], "translation" [3], "betas" [K], "shape_code" [D], "color_code" [D'],
     "rest_joints" [16, 3]}, history).
     """
-    from ..training.images import calibrate, region_bounds
+    from ..model.lisa import region_bounds
+    from ..render.renderer import calibrate
 
     config = FitImagesConfig() if config is None else config
     views = _check_views(views)

@@ -973,7 +973,7 @@ def _angle(first: torch.Tensor, second: torch.Tensor) -> float:
 
 def _region_box(state, field_model) -> tuple[np.ndarray, np.ndarray]:
     """Axis-aligned box [3], [3] (metres, numpy) around every bone region of a one-frame state."""
-    from ..training.images import region_bounds
+    from ..model.lisa import region_bounds
 
     low, high = region_bounds(state, field_model)
     return low[0].cpu().double().numpy(), high[0].cpu().double().numpy()

@@ -51,7 +51,7 @@ from ..fields.mlp import StackedMLP, geometric_init_, soft_min_init_
 from ..fields.pose import local_pose_mask, pose_feature_dim, pose_features
 from ..skeleton import NUM_JOINTS, POSE_DIM, Kinematics, check_pose, forward_kinematics
 
-__all__ = ["FrameState", "FieldOutput", "LisaModel", "build_model"]
+__all__ = ["FrameState", "FieldOutput", "LisaModel", "build_model", "region_bounds"]
 
 _STAND_IN_COLOR = 0.5
 _NUM_PALM_SEGMENTS = len(PALM_CHILDREN)
@@ -670,3 +670,15 @@ def build_model(
     if isinstance(config, dict):
         config = FieldConfig.from_dict(config)
     return LisaModel(config, init_rest_joints=init_rest_joints)
+
+
+def region_bounds(state: FrameState, model: LisaModel) -> tuple[torch.Tensor, torch.Tensor]:
+    """Axis-aligned box around every bone's region (outside it the field is a stand-in).
+
+    -> (low [B, 3], high [B, 3]) world metres, detached.
+    """
+    start = state.segment_start.detach()
+    end = start + state.segment_dir.detach() * state.segment_length.detach()[..., None]
+    ends = torch.cat([start, end], dim=1) + state.region_origin.detach()[:, None]
+    radius = float(max(model.config.palm_region_radius, model.config.finger_region_radius))
+    return ends.amin(dim=1) - radius, ends.amax(dim=1) + radius

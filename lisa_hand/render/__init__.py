@@ -9,7 +9,7 @@ renderer plus colour calibration (:mod:`.renderer`).
 from .bounds import ray_sphere_bounds
 from .composite import RenderOutput, composite, sample_deltas
 from .density import LaplaceDensity, laplace_cdf, volsdf_density
-from .renderer import SAMPLERS, FieldFn, RenderConfig, apply_gain_bias, render_rays
+from .renderer import SAMPLERS, FieldFn, RenderConfig, apply_gain_bias, calibrate, render_rays
 from .samplers import (
     ErrorBoundedSamples,
     SdfFn,
@@ -33,6 +33,7 @@ __all__ = [
     "FieldFn",
     "RenderConfig",
     "apply_gain_bias",
+    "calibrate",
     "render_rays",
     "ErrorBoundedSamples",
     "SdfFn",

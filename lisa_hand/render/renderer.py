@@ -23,7 +23,7 @@ from .samplers import (
     uniform_samples,
 )
 
-__all__ = ["FieldFn", "SAMPLERS", "RenderConfig", "render_rays", "apply_gain_bias"]
+__all__ = ["FieldFn", "SAMPLERS", "RenderConfig", "render_rays", "apply_gain_bias", "calibrate"]
 
 FieldFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
 """``field_fn(points [N, 3] metres, directions [N, 3] unit) -> (sdf [N] metres, rgb [N, C])``."""
@@ -271,3 +271,17 @@ def apply_gain_bias(rgb: torch.Tensor, gain: torch.Tensor, bias: torch.Tensor) -
                 f"got {tuple(value.shape)}"
             )
     return rgb * gain + bias
+
+
+def calibrate(rgb_foreground: torch.Tensor, opacity: torch.Tensor, gain: torch.Tensor,
+              bias: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
+    """Colour calibration of the hand only: ``g * c_fg + b * opacity + (1 - opacity) * bg``.
+
+    The per-camera gain and bias of LISA (Section 4.2, after Neural Volumes) act on the hand's
+    colour; the background keeps its colour (black in the dataset, whatever the camera).
+    rgb_foreground: [R, 3] rendered colour over a black background (``sum_i w_i c_i``).
+    opacity: [R] in [0, 1]. gain, bias: [R, 3] or [3]. background: [3] or [R, 3].
+    -> [R, 3]; differentiable w.r.t. everything.
+    """
+    alpha = opacity[:, None]
+    return apply_gain_bias(rgb_foreground, gain, bias * alpha) + (1.0 - alpha) * background

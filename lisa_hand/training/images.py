@@ -48,9 +48,9 @@ from torch import nn
 from ..data.datasets import SPLITS, RayBatch, RayFrames, ScanFrames
 from ..fields.config import FieldConfig
 from ..fields.latents import LatentTable
-from ..model.lisa import FrameState, LisaModel
+from ..model.lisa import FrameState, LisaModel, region_bounds
 from ..model.losses import color_loss, eikonal_loss, latent_loss, skinning_loss
-from ..render import LaplaceDensity, RenderConfig, apply_gain_bias, ray_sphere_bounds, render_rays
+from ..render import LaplaceDensity, RenderConfig, calibrate, ray_sphere_bounds, render_rays
 from ..skeleton import NUM_JOINTS, POSE_DIM
 from ..utils.config import config_from_dict
 from .distributed import DistContext, shard_slice, unwrap
@@ -75,12 +75,10 @@ __all__ = [
     "ImageModel",
     "build_image_model",
     "resolve_prior",
-    "calibrate",
     "train_images",
     "load_image_model",
     "geometry_from_prior",
     "pose_refine_step",
-    "region_bounds",
     "select_frame",
 ]
 
@@ -280,18 +278,6 @@ def select_frame(state: FrameState, index: int) -> FrameState:
     return take(state)
 
 
-def region_bounds(state: FrameState, model: LisaModel) -> tuple[torch.Tensor, torch.Tensor]:
-    """Axis-aligned box around every bone's region (outside it the field is a stand-in).
-
-    -> (low [B, 3], high [B, 3]) world metres, detached.
-    """
-    start = state.segment_start.detach()
-    end = start + state.segment_dir.detach() * state.segment_length.detach()[..., None]
-    ends = torch.cat([start, end], dim=1) + state.region_origin.detach()[:, None]
-    radius = float(max(model.config.palm_region_radius, model.config.finger_region_radius))
-    return ends.amin(dim=1) - radius, ends.amax(dim=1) + radius
-
-
 # ------------------------------------------------------------------------------------------------
 # The model
 
@@ -475,20 +461,6 @@ class ImageModel(nn.Module):
             "reg": latent_loss(shape, color),
             "mask": mask,
         }
-
-
-def calibrate(rgb_foreground: torch.Tensor, opacity: torch.Tensor, gain: torch.Tensor,
-              bias: torch.Tensor, background: torch.Tensor) -> torch.Tensor:
-    """Colour calibration of the hand only: ``g * c_fg + b * opacity + (1 - opacity) * bg``.
-
-    The per-camera gain and bias of LISA (Section 4.2, after Neural Volumes) act on the hand's
-    colour; the background keeps its colour (black in the dataset, whatever the camera).
-    rgb_foreground: [R, 3] rendered colour over a black background (``sum_i w_i c_i``).
-    opacity: [R] in [0, 1]. gain, bias: [R, 3] or [3]. background: [3] or [R, 3].
-    -> [R, 3]; differentiable w.r.t. everything.
-    """
-    alpha = opacity[:, None]
-    return apply_gain_bias(rgb_foreground, gain, bias * alpha) + (1.0 - alpha) * background
 
 
 def _pick_ray_samples(origins, directions, t_vals, hit, pick, fallback) -> torch.Tensor:

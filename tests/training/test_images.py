@@ -13,17 +13,16 @@ import torch
 
 from lisa_hand.data.datasets import RayFrames, read_frame_table
 from lisa_hand.fields.config import FieldConfig
-from lisa_hand.model.lisa import LisaModel
+from lisa_hand.model.lisa import LisaModel, region_bounds
+from lisa_hand.render.renderer import calibrate
 from lisa_hand.skeleton import forward_kinematics
 from lisa_hand.training.checkpoint import load_checkpoint
 from lisa_hand.training.images import (
     IMAGE_KIND,
     ImageTrainConfig,
     build_image_model,
-    calibrate,
     load_image_model,
     pose_refine_step,
-    region_bounds,
     resolve_prior,
     select_frame,
     train_images,
