@@ -3,14 +3,13 @@
 from __future__ import annotations
 
 import pytest
-import torch
+
+from lisa_hand.utils.threads import cpu_threads
 
 
 @pytest.fixture
 def one_thread():
     """Torch on one CPU thread during the test (the CI machine's 2 cores are shared by the
     test process and the fits' workers), restored afterwards."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(previous)
+    with cpu_threads(1):
+        yield

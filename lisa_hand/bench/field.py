@@ -17,17 +17,16 @@ The optimised field is measured step by step, each step adding one idea to the p
 3. ``culled_bf16``: as 2 with the hidden layers' products in bfloat16.
 
 Beside the model, the ways of running the stacked MLP on the culled (point, bone) pairs are
-timed on the same pairs (``pair_strategies``): the sorted pairs with a loop over the bones in row
-chunks (what the model does), the same without chunks, ``torch.nn.functional.grouped_mm``, a
-padded bmm, and per-bone ``index_select``/``index_copy`` from the unsorted points.
+timed on the same pairs (``pair_strategies``, :mod:`lisa_hand.bench._pairs`): the sorted pairs
+with a loop over the bones in row chunks (what the model does), the same without chunks,
+``torch.nn.functional.grouped_mm``, a padded bmm, and per-bone ``index_select``/``index_copy``
+from the unsorted points.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -40,6 +39,8 @@ from ..fields.bones import SEGMENT_BONES, bone_centres
 from ..fields.encoding import positional_encoding
 from ..model.lisa import FieldOutput, FrameState, LisaModel
 from ..skeleton import NUM_JOINTS
+from ._pairs import time_pair_strategies
+from ._timing import interleaved_best, mlp_flops
 
 __all__ = [
     "BENCH_REST_JOINTS",
@@ -212,13 +213,6 @@ def _sequential(mlp, group: int, activation: nn.Module) -> nn.Sequential:
     return nn.Sequential(*modules)
 
 
-def _mlp_flops(mlp, rows: int, with_cond: bool) -> float:
-    """Multiply-add FLOPs (2 per MAC) of ``rows`` points through one group of ``mlp``."""
-    first_in = mlp.point_dim + (mlp.cond_dim if with_cond else 0)
-    macs = first_in * mlp.hidden + (mlp.depth - 1) * mlp.hidden**2 + mlp.hidden * mlp.out_dim
-    return 2.0 * rows * macs
-
-
 @dataclass
 class FieldBenchmark:
     """Numbers of one benchmark run (see :func:`run_field_benchmark`)."""
@@ -250,28 +244,6 @@ def _max_error(a: torch.Tensor | None, b: torch.Tensor | None) -> float:
     return float((a.double() - b.double()).abs().max())
 
 
-def _interleaved_best(
-    fns: dict[str, Callable[[], object]],
-    rounds: int,
-    slow: tuple[str, ...] = (),
-    slow_rounds: int = 2,
-) -> dict[str, float]:
-    """Best wall time of each function over ``rounds`` rounds (``slow_rounds`` for the names in
-    ``slow``), the functions interleaved in each round, so that a burst of load from other
-    processes hits all of them alike. One warm-up call each first."""
-    for fn in fns.values():
-        fn()
-    best = dict.fromkeys(fns, math.inf)
-    for index in range(max(rounds, slow_rounds)):
-        for name, fn in fns.items():
-            if index >= (slow_rounds if name in slow else rounds):
-                continue
-            start = time.perf_counter()
-            fn()
-            best[name] = min(best[name], time.perf_counter() - start)
-    return best
-
-
 _STEPS = {
     # name: (cull, inference precision, what it adds)
     "stacked": (False, "float32", "stacked weights, conditioning folded into a per-frame bias"),
@@ -281,25 +253,26 @@ _STEPS = {
 }
 
 
-def run_field_benchmark(
-    num_points: int = 65536,
-    *,
-    config: FieldConfig | None = None,
-    repeats: int = 5,
-    seed: int = 0,
-    compile_mlp: bool = False,
-    log: Callable[[str], None] = print,
-) -> FieldBenchmark:
-    """Measure the field and the reference on ``num_points`` points around a posed hand.
+@dataclass
+class _BenchHand:
+    """The benchmark's field and query: a perturbed model, one posed frame, the points."""
 
-    The headline (``points_per_s``, ``speedup``, ``gflops``) is the fastest step whose outputs
-    stay within the tolerances (SDF and weights; with colour under ``*_color``).
-    """
+    model: LisaModel
+    state: FrameState
+    pose: torch.Tensor
+    """[1, 48] radians."""
+    rest_joints: torch.Tensor
+    """[16, 3] metres."""
+    shape_code: torch.Tensor
+    color_code: torch.Tensor
+    points: torch.Tensor
+    """[1, N, 3] world metres."""
+
+
+def _bench_hand(config: FieldConfig, num_points: int, seed: int) -> _BenchHand:
+    """The model (weights perturbed as some way into training), pose, codes and points."""
     torch.manual_seed(seed)
     generator = torch.Generator().manual_seed(seed)
-    config = FieldConfig() if config is None else config
-    if config.composition != "lisa" or not config.use_color:
-        raise ValueError("the field benchmark measures the 'lisa' composition with colour")
     rest_joints = torch.tensor(BENCH_REST_JOINTS)
     model = LisaModel(config, init_rest_joints=rest_joints).eval()
     with torch.no_grad():  # a model some way into training: perturb the initial weights
@@ -309,12 +282,17 @@ def run_field_benchmark(
     translation = 0.05 * torch.randn(1, 3, generator=generator)
     shape_code = 0.1 * torch.randn(1, config.shape_dim, generator=generator)
     color_code = 0.1 * torch.randn(1, config.color_dim, generator=generator)
-    extra: dict = {"threads": torch.get_num_threads(), "config": config.to_dict()}
-
     with torch.no_grad():
         state = model.prepare(pose, translation, rest_joints[None], shape_code, color_code)
         points = sample_bench_points(model, state, num_points, generator)
-        active = model.field(state, points, with_color=False).region_mask
+    return _BenchHand(model, state, pose, rest_joints, shape_code, color_code, points)
+
+
+def _region_counts(hand: _BenchHand, extra: dict, log: Callable[[str], None]) -> tuple[int, int]:
+    """(active (point, bone) pairs, points in 2+ regions); their ratios go into ``extra``."""
+    num_points = hand.points.shape[1]
+    with torch.no_grad():
+        active = hand.model.field(hand.state, hand.points, with_color=False).region_mask
     pairs = int(active.sum())
     multi = int((active.sum(-1) >= 2).sum())
     extra["active_bones_per_point"] = pairs / num_points
@@ -325,14 +303,21 @@ def run_field_benchmark(
         f"{extra['points_in_no_region']:.1%}, in 2+ regions {multi / num_points:.1%}; "
         f"torch threads: {torch.get_num_threads()}"
     )
+    return pairs, multi
 
+
+def _time_steps(hand: _BenchHand, config: FieldConfig, repeats: int):
+    """Best times of the reference and of every step (geometry, and with colour), interleaved,
+    and of a large matmul; then each one's outputs. -> (best {name: s}, reference outputs
+    (geometry, colour), {step: (geometry, colour) outputs}, matmul GFLOP/s)."""
+    model, state, points = hand.model, hand.state, hand.points
     reference = ReferenceField(model).eval()
 
     def run_reference(color: bool) -> FieldOutput:
-        color_input = color_code if color else None
+        color_input = hand.color_code if color else None
         return reference(
-            points, pose, state.kinematics, rest_joints[None], shape_code, color_input,
-            model.pose_mask,
+            points, hand.pose, state.kinematics, hand.rest_joints[None], hand.shape_code,
+            color_input, model.pose_mask,
         )  # fmt: skip
 
     models = {
@@ -357,25 +342,36 @@ def run_field_benchmark(
             fns[name + suffix] = lambda n=name, c=color: run_step(n, c)
     with torch.no_grad():
         slow = ("reference", "reference_color", "stacked", "stacked_color")
-        best = _interleaved_best(fns, repeats, slow=slow, slow_rounds=max(1, min(repeats, 2)))
-        ref_geo, ref_col = run_reference(False), run_reference(True)
+        best = interleaved_best(fns, repeats, slow=slow, slow_rounds=max(1, min(repeats, 2)))
+        ref_outputs = run_reference(False), run_reference(True)
         outputs = {name: (run_step(name, False), run_step(name, True)) for name in _STEPS}
     peak = 2.0 * size**3 / best["matmul"] / 1e9
-    log(f"large fp32 matmul ({size}^3): {peak:.1f} GFLOP/s")
+    return best, ref_outputs, outputs, peak
 
+
+def _flop_counts(model: LisaModel, num_points: int, pairs: int, multi: int
+                 ) -> dict[str, tuple[float, float]]:
+    """{variant: (geometry FLOPs, with colour)} of the MLPs: every point through every bone
+    with the conditioning in the input (reference) or in a bias (stacked); the culled pairs."""
     sdf_mlp, color_mlp, skin_mlp = model.sdf_mlp, model.color_mlp, model.skinning_mlp
-    ref_flops = 16 * _mlp_flops(sdf_mlp, num_points, True) + _mlp_flops(skin_mlp, num_points, False)
-    ref_flops_color = ref_flops + 16 * _mlp_flops(color_mlp, num_points, True)
-    dense_flops = 16 * _mlp_flops(sdf_mlp, num_points, False) + _mlp_flops(
+    ref_flops = 16 * mlp_flops(sdf_mlp, num_points, True) + mlp_flops(skin_mlp, num_points, False)
+    ref_flops_color = ref_flops + 16 * mlp_flops(color_mlp, num_points, True)
+    dense_flops = 16 * mlp_flops(sdf_mlp, num_points, False) + mlp_flops(
         skin_mlp, num_points, False
     )
-    dense_flops_color = dense_flops + 16 * _mlp_flops(color_mlp, num_points, False)
-    culled_flops = _mlp_flops(sdf_mlp, pairs, False) + _mlp_flops(skin_mlp, multi, False)
-    culled_flops_color = culled_flops + _mlp_flops(color_mlp, pairs, False)
+    dense_flops_color = dense_flops + 16 * mlp_flops(color_mlp, num_points, False)
+    culled_flops = mlp_flops(sdf_mlp, pairs, False) + mlp_flops(skin_mlp, multi, False)
+    culled_flops_color = culled_flops + mlp_flops(color_mlp, pairs, False)
     flops = {"reference": (ref_flops, ref_flops_color), "stacked": (dense_flops, dense_flops_color)}
     for name in _STEPS:
         flops.setdefault(name, (culled_flops, culled_flops_color))
+    return flops
 
+
+def _step_results(best: dict[str, float], ref_outputs, outputs, flops, num_points: int,
+                  log: Callable[[str], None]) -> dict[str, dict]:
+    """Speed, GFLOP/s and the largest errors against the reference of every step (logged)."""
+    ref_geo, ref_col = ref_outputs
     ref_time, ref_time_color = best["reference"], best["reference_color"]
     log(
         f"{'reference':17s}: geometry {num_points / ref_time:>10,.0f} points/s "
@@ -426,16 +422,47 @@ def run_field_benchmark(
             f"{'within' if ok else 'OUTSIDE'} tolerance, colour "
             f"{'within' if ok_color else 'OUTSIDE'}"
         )
+    return results
+
+
+def _headlines(results: dict[str, dict]) -> tuple[str, str]:
+    """The fastest step within the tolerances, geometry and with colour (else 'culled')."""
 
     def pick(ok_key: str, speed_key: str) -> str:
         candidates = [n for n, r in results.items() if r[ok_key]] or ["culled"]
         return max(candidates, key=lambda n: results[n][speed_key])
 
-    headline, headline_color = (
-        pick("within_tolerance", "points_per_s"),
-        pick("within_tolerance_color", "points_per_s_color"),
-    )
+    return (pick("within_tolerance", "points_per_s"),
+            pick("within_tolerance_color", "points_per_s_color"))
+
+
+def run_field_benchmark(
+    num_points: int = 65536,
+    *,
+    config: FieldConfig | None = None,
+    repeats: int = 5,
+    seed: int = 0,
+    compile_mlp: bool = False,
+    log: Callable[[str], None] = print,
+) -> FieldBenchmark:
+    """Measure the field and the reference on ``num_points`` points around a posed hand.
+
+    The headline (``points_per_s``, ``speedup``, ``gflops``) is the fastest step whose outputs
+    stay within the tolerances (SDF and weights; with colour under ``*_color``).
+    """
+    config = FieldConfig() if config is None else config
+    if config.composition != "lisa" or not config.use_color:
+        raise ValueError("the field benchmark measures the 'lisa' composition with colour")
+    hand = _bench_hand(config, num_points, seed)
+    extra: dict = {"threads": torch.get_num_threads(), "config": config.to_dict()}
+    pairs, multi = _region_counts(hand, extra, log)
+    best, ref_outputs, outputs, peak = _time_steps(hand, config, repeats)
+    log(f"large fp32 matmul (2048^3): {peak:.1f} GFLOP/s")
+    flops = _flop_counts(hand.model, num_points, pairs, multi)
+    results = _step_results(best, ref_outputs, outputs, flops, num_points, log)
+    headline, headline_color = _headlines(results)
     top, top_color = results[headline], results[headline_color]
+    ref_time, ref_time_color = best["reference"], best["reference_color"]
     extra.update(
         {
             "steps": results,
@@ -454,8 +481,8 @@ def run_field_benchmark(
             },
         }
     )
-    extra["pair_strategies"] = _pair_strategies(
-        model, state, points, repeats, log, compile_mlp=compile_mlp
+    extra["pair_strategies"] = time_pair_strategies(
+        hand.model, hand.state, hand.points, repeats, log, compile_mlp=compile_mlp
     )
     result = FieldBenchmark(
         num_points=num_points,
@@ -473,146 +500,6 @@ def run_field_benchmark(
         f"{top_color['points_per_s_color']:,.0f} points/s, x{top_color['speedup_color']:.1f}"
     )
     return result
-
-
-def _pair_strategies(
-    model: LisaModel,
-    state: FrameState,
-    points: torch.Tensor,
-    repeats: int,
-    log: Callable[[str], None],
-    compile_mlp: bool = False,
-) -> dict:
-    """Time ways of running the stacked SDF MLP on the culled (point, bone) pairs."""
-    import torch.nn.functional as F
-
-    mlp = model.sdf_mlp
-    config = model.config
-    with torch.no_grad():
-        local = model.bone_local_points(state, points)
-        active = model.region_excess(state, points) < 0
-    flat = active.reshape(-1, NUM_JOINTS)
-    bias = state.sdf_bias[0]  # [J, H]
-    layers = mlp.layers()
-
-    def run_rows(x: torch.Tensor, j: int) -> torch.Tensor:
-        hidden = mlp.act(torch.addmm(bias[j], x, mlp.point_weight[j]))
-        for index, (weight, layer_bias) in enumerate(layers):
-            hidden = torch.addmm(layer_bias[j], hidden, weight[j])
-            if index < len(layers) - 1:
-                hidden = mlp.act(hidden)
-        return hidden
-
-    def sorted_pairs():
-        bone, point = flat.t().nonzero(as_tuple=True)
-        sizes = flat.sum(0).tolist()
-        enc = positional_encoding(
-            local.reshape(-1, 3)[point * NUM_JOINTS + bone], config.pe_frequencies
-        )
-        return enc, sizes
-
-    def loop_chunked():
-        enc, sizes = sorted_pairs()
-        return mlp.forward_grouped(enc, sizes, bias)
-
-    def loop_unchunked():
-        enc, sizes = sorted_pairs()
-        return mlp.forward_grouped(enc, sizes, bias, chunk_rows=1 << 30)
-
-    # grouped_mm needs row strides that are multiples of 16 bytes: pad the encoding to 40.
-    pad = (-mlp.point_dim) % 4
-    padded_first = F.pad(mlp.point_weight, (0, 0, 0, pad))
-    out_pad = (-mlp.out_dim) % 4
-    padded_layers = layers[:-1] + [
-        (F.pad(layers[-1][0], (0, out_pad)), F.pad(layers[-1][1], (0, out_pad)))
-    ]
-
-    def grouped_mm():
-        enc, sizes = sorted_pairs()
-        enc = F.pad(enc, (0, pad))
-        offsets = torch.tensor(sizes).cumsum(0).to(torch.int32)
-        group = torch.repeat_interleave(torch.arange(NUM_JOINTS), torch.tensor(sizes))
-        hidden = mlp.act(F.grouped_mm(enc, padded_first, offs=offsets) + bias[group])
-        for index, (weight, layer_bias) in enumerate(padded_layers):
-            hidden = F.grouped_mm(hidden, weight, offs=offsets) + layer_bias[group]
-            if index < len(layers) - 1:
-                hidden = mlp.act(hidden)
-        return hidden[:, : mlp.out_dim]
-
-    def padded_bmm():
-        enc, sizes = sorted_pairs()
-        group = torch.repeat_interleave(torch.arange(NUM_JOINTS), torch.tensor(sizes))
-        starts = torch.tensor([0] + sizes[:-1]).cumsum(0)
-        slot = torch.arange(enc.shape[0]) - starts[group]
-        padded = enc.new_zeros(NUM_JOINTS, max(sizes), enc.shape[1])
-        padded[group, slot] = enc
-        hidden = mlp.act(torch.baddbmm(bias[:, None], padded, mlp.point_weight))
-        for index, (weight, layer_bias) in enumerate(layers):
-            hidden = torch.baddbmm(layer_bias[:, None], hidden, weight)
-            if index < len(layers) - 1:
-                hidden = mlp.act(hidden)
-        return hidden[group, slot]
-
-    def index_select_scatter():
-        out = local.new_zeros(flat.shape[0], NUM_JOINTS)
-        local_flat = local.reshape(-1, NUM_JOINTS, 3)
-        for j in range(NUM_JOINTS):
-            rows = flat[:, j].nonzero()[:, 0]
-            enc = positional_encoding(local_flat[rows, j], config.pe_frequencies)
-            out[:, j].index_copy_(0, rows, run_rows(enc, j)[:, 0])
-        return out
-
-    compile_seconds = None
-    if compile_mlp:
-        # torch.compile (inductor, C++ codegen) of one chunk through all layers, dynamic rows.
-        def run_chunk(x, first_weight, first_bias, *params):
-            hidden = mlp.act(torch.addmm(first_bias, x, first_weight))
-            for index in range(0, len(params), 2):
-                hidden = torch.addmm(params[index + 1], hidden, params[index])
-                if index < len(params) - 2:
-                    hidden = mlp.act(hidden)
-            return hidden
-
-        compiled = torch.compile(run_chunk, dynamic=True)
-
-        def loop_compiled():
-            enc, sizes = sorted_pairs()
-            outputs, start = [], 0
-            for j, size in enumerate(sizes):
-                for lo in range(start, start + size, 4096):
-                    hi = min(lo + 4096, start + size)
-                    params = [t for w, b in layers for t in (w[j], b[j])]
-                    outputs.append(compiled(enc[lo:hi], mlp.point_weight[j], bias[j], *params))
-                start += size
-            return torch.cat(outputs)
-
-        with torch.no_grad():
-            begin = time.perf_counter()
-            loop_compiled()
-            compile_seconds = time.perf_counter() - begin
-        log(f"torch.compile of the chunk MLP: first call (compilation) {compile_seconds:.1f} s")
-
-    strategies = {
-        "sorted_loop_chunked": loop_chunked,
-        "sorted_loop_unchunked": loop_unchunked,
-        "grouped_mm": grouped_mm,
-        "padded_bmm": padded_bmm,
-        "index_select_scatter": index_select_scatter,
-    }
-    if compile_mlp:
-        strategies["sorted_loop_compiled"] = loop_compiled
-    pairs = int(flat.sum())
-    flops = _mlp_flops(mlp, pairs, False)
-    with torch.no_grad():
-        best = _interleaved_best(strategies, repeats)
-    timings = {}
-    log(f"SDF MLP on the {pairs} culled (point, bone) pairs, float32:")
-    for name, seconds in best.items():
-        timings[name] = {"ms": seconds * 1e3, "gflops": flops / seconds / 1e9}
-        log(f"  {name:22s}: {seconds * 1e3:8.1f} ms ({flops / seconds / 1e9:5.1f} GFLOP/s)")
-    if compile_seconds is not None:
-        timings["compile_seconds"] = compile_seconds
-    return timings
 
 
 def main(argv: list[str] | None = None) -> None:

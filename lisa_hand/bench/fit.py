@@ -13,7 +13,7 @@ Accuracy along the way is the mean ``|G(x)|`` of the current fit over 4000 scan 
 vertex-to-surface distance from the scan to the fitted surface when ``G`` is a distance (checked
 at the end against the true V2S of the 128^3 meshes, both ways).
 
-* ``seconds``: :func:`lisa_hand.fitting.points.fit_points` with its defaults (candidate
+* ``seconds``: :func:`lisa_hand.fitting.points.fit.fit_points` with its defaults (candidate
   orientations, articulated proxy, then the field on 512 random points per iteration with
   culled bones, a few candidates pruned to one), from the start until the accuracy first
   reaches ``--target-mm`` (evaluated after the run from per-iteration snapshots, so the check
@@ -36,6 +36,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
+
+from ..utils.threads import cpu_threads
 
 __all__ = ["WEBXR_POSES", "FitBenchmark", "pose_webxr_hand", "run_webxr_fits",
            "run_fit_benchmark", "main"]
@@ -129,10 +131,10 @@ def _target(model, seed: int):
 
 
 def _mean_abs_sdf(model, params, points: torch.Tensor) -> float:
-    from ..inference import hand_state
+    from ..inference import hand_field
 
     with torch.no_grad():
-        return float(hand_state(model, params).sdf_fn()(points).abs().mean())
+        return float(hand_field(model, params).sdf_fn()(points).abs().mean())
 
 
 def _reference_loop(model, start, points: torch.Tensor, target_m: float, budget: float,
@@ -179,14 +181,22 @@ def _reference_loop(model, start, points: torch.Tensor, target_m: float, budget:
 def run_fit_benchmark(model_path=None, *, num_points: int = 20000, noise_mm: float = 0.0,
                       target_mm: float = 1.0, seed: int = 0, device: str = "cpu",
                       threads: int = 1, reference_budget: float = 120.0) -> FitBenchmark:
-    """Run both fits on one target (see the module docstring)."""
+    """Run both fits on one target (see the module docstring), with ``threads`` torch CPU
+    threads (the previous count is given back afterwards)."""
+    with cpu_threads(threads):
+        return _fit_benchmark(model_path, num_points, noise_mm, target_mm, seed, device, threads,
+                              reference_budget)
+
+
+def _fit_benchmark(model_path, num_points: int, noise_mm: float, target_mm: float, seed: int,
+                   device: str, threads: int, reference_budget: float) -> FitBenchmark:
+    """:func:`run_fit_benchmark`'s work, on the thread count it set."""
     from ..data.scans import ScanConfig, simulate_scan
-    from ..fitting.points import FitPointsConfig, fit_points
+    from ..fitting.points.fit import FitPointsConfig, fit_points
     from ..geometry import axis_angle_to_matrix
     from ..inference import MeshConfig, mesh_hand
     from ..metrics import mesh_distances
 
-    torch.set_num_threads(threads)
     model, model_name = _bench_model(model_path, device)
     truth = _target(model, seed)
     plain = MeshConfig(colors=False, skin_weights=False)
@@ -198,7 +208,7 @@ def run_fit_benchmark(model_path=None, *, num_points: int = 20000, noise_mm: flo
     pick = np.random.default_rng(seed).permutation(len(points))[:_EVAL_POINTS]
     eval_points = points[torch.from_numpy(pick).to(points.device)]
 
-    config = FitPointsConfig(cpu_threads=threads)
+    config = FitPointsConfig(num_threads=threads)
     snapshots: list[tuple[str, float, object]] = []
 
     def record(step) -> None:
@@ -228,7 +238,7 @@ def run_fit_benchmark(model_path=None, *, num_points: int = 20000, noise_mm: flo
     rotation = axis_angle_to_matrix(fit.params.pose[:3].double())
     true_rotation = axis_angle_to_matrix(truth.pose[:3].double())
     cosine = (torch.trace(rotation.T @ true_rotation) - 1.0) / 2.0
-    field_iterations = max(config.iterations, 1)
+    field_iterations = max(config.field_iters, 1)
     return FitBenchmark(
         model=model_name,
         device=str(device),
@@ -325,12 +335,13 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
     the scan -> recon directions).
     """
     from ..data.scans import ScanConfig, simulate_scan
-    from ..fitting.points import FitPointsConfig, fit_points
+    from ..fitting.points.fit import FitPointsConfig, fit_points
     from ..geometry import axis_angle_to_matrix
     from ..inference import MeshConfig, mesh_hand
     from ..metrics import mesh_distances
 
     generator = torch.Generator().manual_seed(seed)
+    plain = MeshConfig(colors=False, skin_weights=False)
     rows = []
     for pose in WEBXR_POSES:
         vertices, faces = pose_webxr_hand(path, pose)
@@ -340,10 +351,10 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
         for partial in (False, True):
             scan = simulate_scan(placed, faces, ScanConfig(num_points=num_points, partial=partial,
                                                            noise_normal_std=3e-4), seed=seed)
-            fit = fit_points(model, scan.points, None, FitPointsConfig(cpu_threads=threads,
-                                                                       seed=seed))
-            mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False,
-                                                                skin_weights=False))
+            with cpu_threads(threads):  # the fit and its mesh on ``threads`` threads
+                fit = fit_points(model, scan.points, None, FitPointsConfig(num_threads=threads,
+                                                                           seed=seed))
+                mesh = mesh_hand(model, fit.params, 128, plain)
             distances = mesh_distances(mesh.vertices, mesh.faces, placed, faces)
             rows.append({"pose": pose, "scan": "partial" if partial else "full",
                          "seconds": fit.seconds, **distances.to_dict()})

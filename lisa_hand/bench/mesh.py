@@ -30,6 +30,8 @@ from collections.abc import Callable
 
 import torch
 
+from ..utils.threads import cpu_threads
+
 __all__ = ["TARGET_SECONDS", "bench_hand", "run_mesh_benchmark", "main"]
 
 TARGET_SECONDS = {128: 2.0, 256: 8.0}
@@ -106,6 +108,58 @@ def _mean_distance(fast, reference) -> dict:
     }
 
 
+def _mesh_run(model, params, resolution: int, config, log: Callable[[str], None]) -> dict:
+    """Mesh at one resolution coarse to fine and densely; -> the run's numbers (logged)."""
+    from dataclasses import replace
+
+    from ..inference import mesh_hand_with_stats
+
+    fast = mesh_hand_with_stats(model, params, resolution, config)
+    reference = mesh_hand_with_stats(
+        model, params, resolution, replace(config, coarse_to_fine=False)
+    )
+    accuracy = _mean_distance(fast.mesh, reference.mesh)
+    target = TARGET_SECONDS.get(resolution)
+    run = {
+        "resolution": resolution,
+        "seconds": fast.seconds_total,
+        "reference_seconds": reference.seconds_total,
+        "speedup": reference.seconds_total / fast.seconds_total,
+        "target_seconds": target,
+        **accuracy,
+        "voxel_size_mm": fast.voxel_size * 1e3,
+        "grid_grown": fast.grown,
+        "vertices": fast.mesh.num_vertices,
+        "faces": fast.mesh.num_faces,
+        "evaluations": fast.extraction.num_evaluations,
+        "reference_evaluations": reference.extraction.num_evaluations,
+        "grid_points": fast.extraction.num_grid_points,
+        "stages": {
+            "evaluation": fast.extraction.seconds_evaluation,
+            "marching_cubes": fast.extraction.seconds_marching_cubes,
+            "attributes": fast.seconds_attributes,
+        },
+        "reference_stages": {
+            "evaluation": reference.extraction.seconds_evaluation,
+            "marching_cubes": reference.extraction.seconds_marching_cubes,
+            "attributes": reference.seconds_attributes,
+        },
+    }
+    versus = f", target {target:.0f} s" if target is not None else ""
+    log(
+        f"{resolution}^3: coarse to fine {fast.seconds_total:.2f} s "
+        f"({fast.extraction.num_evaluations / 1e6:.2f} M evaluations: field "
+        f"{fast.extraction.seconds_evaluation:.2f} s, "
+        f"marching cubes {fast.extraction.seconds_marching_cubes:.2f} s, colours+weights "
+        f"{fast.seconds_attributes:.2f} s){versus}; dense {reference.seconds_total:.2f} s "
+        f"({reference.extraction.num_evaluations / 1e6:.2f} M), x"
+        f"{run['speedup']:.1f}; mean distance {accuracy['mean_distance_mm']:.2e} mm "
+        f"(same faces: {accuracy['same_faces']}); {fast.mesh.num_vertices} vertices, voxel "
+        f"{run['voxel_size_mm']:.2f} mm"
+    )
+    return run
+
+
 def run_mesh_benchmark(
     resolutions: tuple[int, ...] = (128, 256),
     model_path: str | None = None,
@@ -115,9 +169,7 @@ def run_mesh_benchmark(
     log: Callable[[str], None] = print,
 ) -> dict:
     """Mesh the benchmark hand coarse to fine and densely at each resolution; return numbers."""
-    from dataclasses import replace
-
-    from ..inference import MeshConfig, hand_state, mesh_hand_with_stats
+    from ..inference import MeshConfig, hand_field
 
     model, params, description = bench_hand(model_path, seed)
     config = MeshConfig() if lipschitz is None else MeshConfig(lipschitz=lipschitz)
@@ -135,58 +187,13 @@ def run_mesh_benchmark(
         "runs": [],
     }
     # Warm-up (first calls allocate and pick kernels), not timed.
-    hand = hand_state(model, params)
+    hand = hand_field(model, params)
     with torch.no_grad():
         hand.sdf_fn()(torch.zeros(4096, 3))
     for resolution in resolutions:
-        fast = mesh_hand_with_stats(model, params, resolution, config)
-        reference = mesh_hand_with_stats(
-            model, params, resolution, replace(config, coarse_to_fine=False)
-        )
-        accuracy = _mean_distance(fast.mesh, reference.mesh)
-        target = TARGET_SECONDS.get(resolution)
-        run = {
-            "resolution": resolution,
-            "seconds": fast.seconds_total,
-            "reference_seconds": reference.seconds_total,
-            "speedup": reference.seconds_total / fast.seconds_total,
-            "target_seconds": target,
-            **accuracy,
-            "voxel_size_mm": fast.voxel_size * 1e3,
-            "grid_grown": fast.grown,
-            "vertices": fast.mesh.num_vertices,
-            "faces": fast.mesh.num_faces,
-            "evaluations": fast.extraction.num_evaluations,
-            "reference_evaluations": reference.extraction.num_evaluations,
-            "grid_points": fast.extraction.num_grid_points,
-            "stages": {
-                "evaluation": fast.extraction.seconds_evaluation,
-                "marching_cubes": fast.extraction.seconds_marching_cubes,
-                "attributes": fast.seconds_attributes,
-            },
-            "reference_stages": {
-                "evaluation": reference.extraction.seconds_evaluation,
-                "marching_cubes": reference.extraction.seconds_marching_cubes,
-                "attributes": reference.seconds_attributes,
-            },
-        }
-        results["runs"].append(run)
-        versus = f", target {target:.0f} s" if target is not None else ""
-        log(
-            f"{resolution}^3: coarse to fine {fast.seconds_total:.2f} s "
-            f"({fast.extraction.num_evaluations / 1e6:.2f} M evaluations: field "
-            f"{fast.extraction.seconds_evaluation:.2f} s, "
-            f"marching cubes {fast.extraction.seconds_marching_cubes:.2f} s, colours+weights "
-            f"{fast.seconds_attributes:.2f} s){versus}; dense {reference.seconds_total:.2f} s "
-            f"({reference.extraction.num_evaluations / 1e6:.2f} M), x"
-            f"{run['speedup']:.1f}; mean distance {accuracy['mean_distance_mm']:.2e} mm "
-            f"(same faces: {accuracy['same_faces']}); {fast.mesh.num_vertices} vertices, voxel "
-            f"{run['voxel_size_mm']:.2f} mm"
-        )
-    results["resolution"] = [run["resolution"] for run in results["runs"]]
-    results["seconds"] = [run["seconds"] for run in results["runs"]]
-    results["reference_seconds"] = [run["reference_seconds"] for run in results["runs"]]
-    results["mean_distance_mm"] = [run["mean_distance_mm"] for run in results["runs"]]
+        results["runs"].append(_mesh_run(model, params, resolution, config, log))
+    for key in ("resolution", "seconds", "reference_seconds", "mean_distance_mm"):
+        results[key] = [run[key] for run in results["runs"]]
     results["load_average_at_end"] = os.getloadavg()[0]
     log(
         f"load average (1 min) at start {results['load_average_at_start']:.1f}, at end "
@@ -216,19 +223,19 @@ def main(argv: list[str] | None = None) -> dict:
     )  # fmt: skip
     parser.add_argument("--resolutions", default="128,256", help="grid sizes, comma separated")
     parser.add_argument("--lipschitz", type=float, default=None, help="override the bound")
-    parser.add_argument("--threads", type=int, default=None, help="torch.set_num_threads")
+    parser.add_argument("--threads", type=int, default=None,
+                        help="torch CPU threads (default: unchanged)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--json", default=None, metavar="FILE", help="write the results here")
     args = parser.parse_args(argv)
     resolutions = _parse_resolutions(args.resolutions)
-    if args.threads is not None:
-        if args.threads < 1:
-            raise ValueError(f"--threads must be >= 1, got {args.threads}")
-        torch.set_num_threads(args.threads)
+    if args.threads is not None and args.threads < 1:
+        raise ValueError(f"--threads must be >= 1, got {args.threads}")
     start = time.perf_counter()
-    results = run_mesh_benchmark(
-        resolutions, args.model, lipschitz=args.lipschitz, seed=args.seed
-    )
+    with cpu_threads(args.threads):
+        results = run_mesh_benchmark(
+            resolutions, args.model, lipschitz=args.lipschitz, seed=args.seed
+        )
     results["benchmark_seconds"] = time.perf_counter() - start
     if args.json is not None:
         from ..utils.io import write_json

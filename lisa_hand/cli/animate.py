@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from .mesh import DeviceOpt, ModelOpt, ParamsArg
+from .options import DeviceOpt, ModelOpt, ParamsArg, parse_image_size, read_cameras
 
 
 class MeshFormat(str, Enum):
@@ -24,6 +24,26 @@ class MeshMode(str, Enum):
 
     field = "field"
     skinning = "skinning"
+
+
+def _check_motion_options(
+    poses: Path | None, motion: str | None, frames_per_segment: int, res: int, frames: bool
+) -> None:
+    """One of --poses and --motion (a known one), the counts in range, something to write."""
+    if (poses is None) == (motion is None):
+        raise ValueError("give exactly one of --poses SEQ.json and --motion NAME")
+    if motion is not None:
+        from ..handmodel.poses import POSE_NAMES
+
+        if motion not in POSE_NAMES:
+            raise ValueError(f"--motion: unknown motion {motion!r}; known: "
+                             f"{', '.join(POSE_NAMES)}")
+    if not 1 <= frames_per_segment <= 1000:
+        raise ValueError(f"--frames-per-segment must be in [1, 1000], got {frames_per_segment}")
+    if res != 0 and not 8 <= res <= 1024:
+        raise ValueError(f"--res must be 0 (no meshes) or in [8, 1024], got {res}")
+    if res == 0 and not frames:
+        raise ValueError("nothing to write: --res 0 and --no-frames")
 
 
 def animate(
@@ -66,43 +86,25 @@ def animate(
     """Re-pose the hand of PARAMS along --poses SEQ.json or a --motion: one mesh and one frame
     per pose from a fixed camera, with the hand's shape and colour codes (mix them first with
     'lisa blend')."""
-    from ..geometry.cameras import load_cameras
     from ..inference import (
         MeshConfig,
         animate_hand,
         load_hand,
         motion_poses,
-        parse_image_size,
         read_pose_sequence,
         resolve_poses,
-        scale_camera,
     )
     from ..utils.device import resolve_device
 
-    if (poses is None) == (motion is None):
-        raise ValueError("give exactly one of --poses SEQ.json and --motion NAME")
-    if motion is not None:
-        from ..handmodel.poses import POSE_NAMES
-
-        if motion not in POSE_NAMES:
-            raise ValueError(f"--motion: unknown motion {motion!r}; known: "
-                             f"{', '.join(POSE_NAMES)}")
-    if not 1 <= frames_per_segment <= 1000:
-        raise ValueError(f"--frames-per-segment must be in [1, 1000], got {frames_per_segment}")
-    if res != 0 and not 8 <= res <= 1024:
-        raise ValueError(f"--res must be 0 (no meshes) or in [8, 1024], got {res}")
-    if res == 0 and not render_frames:
-        raise ValueError("nothing to write: --res 0 and --no-frames")
+    _check_motion_options(poses, motion, frames_per_segment, res, render_frames)
     size = parse_image_size(resolution, "--resolution") if resolution is not None else None
     if not fps > 0:
         raise ValueError(f"--fps must be > 0, got {fps}")
     sequence = read_pose_sequence(poses) if poses is not None else None
-    fixed_camera = None
-    if camera is not None:
-        cameras = load_cameras(camera)
-        if not cameras:
-            raise ValueError(f"--camera {camera}: the file holds no camera")
-        fixed_camera = cameras[0] if size is None else scale_camera(cameras[0], *size)
+    fixed_camera = read_cameras(camera, size)[0] if camera is not None else None
+    from ..utils.io import check_output_dir
+
+    check_output_dir(out)  # before the work: a file or an unwritable place fails now
     trained, hand = load_hand(params, model, resolve_device(device))
     if sequence is not None:
         pose_seq, translations = resolve_poses(hand, sequence)

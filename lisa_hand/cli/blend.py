@@ -38,9 +38,11 @@ def blend(
     the result."""
     from ..inference import blend_params
     from ..skeleton.params import read_params, write_params
+    from ..utils.io import check_output_file
 
     shape_weight = _weight(shape, "--shape")
     color_weight = _weight(color, "--color")
+    check_output_file(out)  # a folder or an unwritable place fails before reading the hands
     hand_a, hand_b = read_params(a), read_params(b)
     try:
         mixed = blend_params(hand_a, hand_b, shape=shape_weight, color=color_weight)

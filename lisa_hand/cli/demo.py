@@ -1,4 +1,4 @@
-"""``lisa demo``: the main job, end to end (see :mod:`lisa_hand.demo`)."""
+"""``lisa demo``: the main job, end to end (see :mod:`lisa_hand.evaluation.demo`)."""
 
 from __future__ import annotations
 

@@ -16,10 +16,10 @@ def _parse_models(values: list[str] | None) -> dict[str, str]:
         method, sep, path = value.partition("=")
         if not sep or not path:
             raise ValueError(f"--model {value!r}: expected METHOD=PATH, e.g. nasa=runs/nasa")
-        if method not in METHODS or method == "mano":
+        if method not in METHODS or not METHODS[method].takes_model:
             raise ValueError(f"--model {value!r}: unknown method {method!r}; choose from "
-                             f"{', '.join(m for m in METHODS if m != 'mano')} (the MANO-like "
-                             "template is always evaluated)")
+                             f"{', '.join(m for m in METHODS if METHODS[m].takes_model)} (the "
+                             "MANO-like template is always evaluated)")
         if method in models:
             raise ValueError(f"--model: {method} given twice")
         if not Path(path).exists():
@@ -74,8 +74,9 @@ def eval_command(
     --workers processes; an interrupted run resumes from OUT/jobs/."""
     import dataclasses
 
+    from ..evaluation.config import EvalConfig
     from ..evaluation.quick import QUICK_EVAL, quick_models
-    from ..evaluation.tables import EvalConfig, run_eval
+    from ..evaluation.tables import run_eval
 
     models = _parse_models(model)
     if data is None:

@@ -3,20 +3,12 @@
 from __future__ import annotations
 
 import math
-from enum import Enum
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from .options import FitModelOpt, Units
-
-
-class Side(str, Enum):
-    """Which hand the images show."""
-
-    right = "right"
-    left = "left"
+from .options import DeviceOpt, FitModelOpt, Side, Units
 
 
 def fit_images(
@@ -34,7 +26,8 @@ def fit_images(
         "--gt", help="Ground-truth mesh (or points), e.g. the frame's mesh.ply: adds V2V and "
                      "V2S distances (mm), both ways, to metrics.json.")] = None,
     units: Annotated[Units, typer.Option(
-        "--units", help="Unit of GT: m, mm, or auto (over 2 units across is mm).")] = Units.auto,
+        "--units", help="Unit of GT: m, cm, mm, or auto (from the size of a hand: 0.1-0.3 m, "
+                        "10-30 cm or 100-300 mm across).")] = Units.auto,
     keypoint_iters: Annotated[int | None, typer.Option(
         "--keypoint-iters", min=0,
         help="Iterations of the pose stage (default 400; the paper uses 1000).")] = None,
@@ -47,8 +40,7 @@ def fit_images(
     side: Annotated[Side, typer.Option("--side", help="right or left hand.")] = Side.right,
     res: Annotated[int, typer.Option(
         "--res", min=16, max=1024, help="Marching-cubes samples per axis of the mesh.")] = 128,
-    device: Annotated[str, typer.Option(
-        "--device", help="auto (CUDA when available), cpu, cuda or cuda:N.")] = "auto",
+    device: DeviceOpt = "auto",
     threads: Annotated[int, typer.Option(
         "--threads", min=0, help="CPU threads of torch during the fit (0: torch's default; "
                                  "1 is fastest on a busy machine).")] = 1,
@@ -61,23 +53,24 @@ def fit_images(
     """Fit the LISA hand to the calibrated views of DIR: the pose from the 2D keypoints and
     masks, then pose, shape and colour with volume rendering; write OUT/params.json,
     OUT/mesh.ply and OUT/metrics.json."""
-    from ..fitting.images import FitImagesConfig, fit_image_folder
+    from ..fitting.images.config import FitImagesConfig
+    from ..fitting.images.folder import fit_image_folder
 
     names = None
     if views is not None:
         names = [name.strip() for name in views.split(",") if name.strip()]
         if not names:
             raise ValueError(f"--views {views!r}: no camera name given")
-    overrides: dict = {"seed": seed, "side": side.value,
-                       "num_threads": threads if threads > 0 else None}
+    overrides: dict = {"seed": seed, "num_threads": threads if threads > 0 else None}
     for key, value in (("keypoint_iters", keypoint_iters), ("color_iters", color_iters),
                        ("num_rays", rays)):
         if value is not None:
             overrides[key] = value
     config = FitImagesConfig(**overrides)
     report = fit_image_folder(frame, out, views=names, model_path=model, gt_path=gt,
-                              units=units.value, resolution=res, config=config, device=device,
-                              psnr=psnr, progress=progress, log=typer.echo)
+                              units=units.value, resolution=res, config=config,
+                              side=side.value, device=device, psnr=psnr, progress=progress,
+                              log=typer.echo)
     fit, metrics = report.fit, report.metrics
 
     def shown(value, unit: str) -> str:

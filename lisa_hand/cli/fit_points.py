@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from .options import FitModelOpt, Units
+from .options import DeviceOpt, FitModelOpt, Side, Units
 
 
 def fit_points(
@@ -21,35 +21,37 @@ def fit_points(
         "--gt", help="Ground-truth mesh (or points): also write V2V and V2S distances (mm), "
                      "both ways.")] = None,
     units: Annotated[Units, typer.Option(
-        "--units", help="Units of POINTS and GT: m, mm, or auto (a bounding box over 2 units "
-                        "across is millimetres).")] = Units.auto,
+        "--units", help="Units of POINTS and GT: m, cm, mm, or auto (from the size of a hand: "
+                        "0.1-0.3 m, 10-30 cm or 100-300 mm across).")] = Units.auto,
     res: Annotated[int, typer.Option(
         "--res", min=16, max=1024, help="Marching-cubes samples per axis of the mesh.")] = 128,
     iterations: Annotated[int | None, typer.Option(
-        "--iterations", min=0, help="Iterations of the field stage (default: the config's).")
-    ] = None,
+        "--field-iters", "--iterations", min=0,
+        help="Iterations of the field stage (default: the config's, 200).")] = None,
     restarts: Annotated[int | None, typer.Option(
         "--restarts", min=1, help="Candidate poses fitted with the field (default: the config's).")
     ] = None,
-    device: Annotated[str, typer.Option(
-        "--device", help="auto (CUDA when available), cpu, cuda or cuda:N.")] = "auto",
+    device: DeviceOpt = "auto",
+    side: Annotated[Side, typer.Option(
+        "--side", help="right or left hand (a left one is fitted as the mirrored right hand).")
+    ] = Side.right,
     seed: Annotated[int, typer.Option(help="Seed of the random point subsets.")] = 0,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
     full, with noise and outliers) and write OUT/params.json and OUT/mesh.ply."""
-    from ..fitting.io import fit_point_file
-    from ..fitting.points import FitPointsConfig
+    from ..fitting.points.fit import FitPointsConfig
+    from ..fitting.points.io import fit_point_file
 
     overrides = {"seed": seed}
     if iterations is not None:
-        overrides["iterations"] = iterations
+        overrides["field_iters"] = iterations
     if restarts is not None:
         overrides["num_restarts"] = restarts
     config = FitPointsConfig(**overrides)
     report = fit_point_file(points, out, model_path=model, gt_path=gt, units=units.value,
-                            resolution=res, config=config, device=device, progress=progress,
-                            log=typer.echo)
+                            resolution=res, config=config, device=device, side=side.value,
+                            progress=progress, log=typer.echo)
     fit = report.fit
     typer.echo(f"fitted {fit.num_points} points in {fit.seconds:.1f} s: |G| at the points "
                f"median {fit.residual_median_mm:.2f} mm, mean {fit.residual_mean_mm:.2f} mm, "

@@ -50,18 +50,34 @@ class UserError(Exception):
     """An error caused by the user's input: printed as one line, no traceback."""
 
 
+def error_line(exc: BaseException) -> str:
+    """The one line ``lisa: error: ...`` prints for ``exc``.
+
+    An OSError raised by the system (``[Errno 21] Is a directory: 'x'``) becomes ``x: Is a
+    directory``; a message of several lines is joined into one.
+    """
+    if isinstance(exc, OSError) and exc.strerror and exc.filename is not None:
+        message = f"{exc.filename}: {exc.strerror}"
+        if exc.filename2 is not None:
+            message += f" (-> {exc.filename2})"
+    else:
+        message = str(exc) or type(exc).__name__
+    return "; ".join(line.strip() for line in message.splitlines() if line.strip())
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``lisa`` console script.
 
     Errors from bad input (``ValueError``, ``TypeError``, ``OSError``) print one line naming the
-    problem and exit with status 2; set ``LISA_DEBUG=1`` to see the traceback instead.
+    problem (:func:`error_line`) and exit with status 2; set ``LISA_DEBUG=1`` to see the
+    traceback instead.
     """
     try:
         app(args=argv)
     except (ValueError, TypeError, OSError, UserError) as exc:
         if os.environ.get("LISA_DEBUG"):
             raise
-        print(f"lisa: error: {exc}", file=sys.stderr)
+        print(f"lisa: error: {error_line(exc)}", file=sys.stderr)
         raise SystemExit(2) from None
 
 

@@ -7,15 +7,7 @@ from typing import Annotated
 
 import typer
 
-ParamsArg = Annotated[Path, typer.Argument(
-    metavar="PARAMS",
-    help="The hand: a params.json written by 'lisa fit-points', 'lisa fit-images' or "
-         "'lisa blend'.")]
-ModelOpt = Annotated[Path | None, typer.Option(
-    "--model", help="Trained model (exported file, or a 'lisa train' / 'lisa train-prior' run); "
-                    "default: the one PARAMS names (the shipped model for 'default').")]
-DeviceOpt = Annotated[str, typer.Option(
-    "--device", help="auto (CUDA when available), cpu, cuda or cuda:N.")]
+from .options import DeviceOpt, ModelOpt, ParamsArg
 
 
 def mesh(
@@ -53,6 +45,9 @@ def mesh(
         raise ValueError(f"--res must be within [8, 2048] grid samples, got {res}")
     config = MeshConfig(padding=padding, coarse_to_fine=not dense, colors=colors,
                         skin_weights=weights and suffix == ".ply")
+    from ..utils.io import check_output_file
+
+    check_output_file(out)  # before the work: a folder or an unwritable place fails now
     trained, hand = load_hand(params, model, resolve_device(device))
     result = mesh_hand_with_stats(trained, hand, res, config)
     save_mesh(out, result.mesh)

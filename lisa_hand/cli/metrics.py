@@ -75,7 +75,8 @@ def metrics(
         "--json", help="Also write the metrics (distances in mm) to this JSON file.")] = None,
     units: Annotated[Units, typer.Option(
         "--units",
-        help="Units of both mesh files: m, mm, or auto (a bounding-box diagonal over 2 means mm).",
+        help="Units of both mesh files: m, cm, mm, or auto (each file's own, from the size of a "
+             "hand: 0.1-0.3 m, 10-30 cm or 100-300 mm across its bounding box).",
     )] = Units.auto,
     mask: Annotated[Path | None, typer.Option(
         "--mask", metavar="PNG",
@@ -89,8 +90,10 @@ def metrics(
     what is missing (nothing is ever downloaded).
     """
     from ..metrics import compare_mesh_files
-    from ..utils.io import write_json
+    from ..utils.io import check_output_file, write_json
 
+    if json_path is not None:
+        check_output_file(json_path)  # before the work, naming the user's path
     is_image = [path.suffix.lower() in _IMAGE_SUFFIXES for path in (recon, gt)]
     if any(is_image) and not all(is_image):
         raise ValueError(f"{recon} and {gt}: compare two meshes/point sets or two images, "
@@ -102,10 +105,9 @@ def metrics(
         raise ValueError(f"--mask {mask} applies to images only; {recon} and {gt} are meshes")
 
     result = compare_mesh_files(recon, gt, units=units.value)
-    for path, unit, detected in ((recon, result.recon_unit, result.recon_unit_detected),
-                                 (gt, result.scan_unit, result.scan_unit_detected)):
-        if detected and unit == "mm":
-            typer.echo(f"{path}: bounding box over 2 units across, read as millimetres")
+    for path, note in ((recon, result.recon_note), (gt, result.scan_note)):
+        if note is not None:
+            typer.echo(f"{path}: {note}")
     values = result.distances.to_dict()
     width = max(len(label) for label in _LABELS.values())
     typer.echo(f"{'metric':<{width}}  {'mm':>9}")

@@ -1,22 +1,72 @@
-"""Option types and declarations shared by several ``lisa`` verbs."""
+"""Option types, declarations and parsing helpers shared by several ``lisa`` verbs."""
 
 from __future__ import annotations
 
 from enum import Enum
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+if TYPE_CHECKING:
+    from ..geometry.cameras import Camera
+
 
 class Units(str, Enum):
-    """Length unit of input files: metres, millimetres, or guessed from their size."""
+    """Length unit of input files: metres, centimetres, millimetres, or guessed from their size
+    (:func:`lisa_hand.data.units.decide_length_unit`)."""
 
     auto = "auto"
     m = "m"
+    cm = "cm"
     mm = "mm"
+
+
+class Side(str, Enum):
+    """Which hand the input shows (``--side`` of the fit verbs)."""
+
+    right = "right"
+    left = "left"
 
 
 FitModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model: exported file, run folder or checkpoint "
                     "(default: the shipped model).")]
+
+# The verbs over a fitted hand (lisa mesh, render, animate).
+ParamsArg = Annotated[Path, typer.Argument(
+    metavar="PARAMS",
+    help="The hand: a params.json written by 'lisa fit-points', 'lisa fit-images' or "
+         "'lisa blend'.")]
+ModelOpt = Annotated[Path | None, typer.Option(
+    "--model", help="Trained model (exported file, or a 'lisa train' / 'lisa train-prior' run); "
+                    "default: the one PARAMS names (the shipped model for 'default').")]
+DeviceOpt = Annotated[str, typer.Option(
+    "--device", help="auto (CUDA when available), cpu, cuda or cuda:N.")]
+
+
+def parse_image_size(text: str, name: str = "resolution") -> tuple[int, int]:
+    """``"1024x667"`` -> ``(1024, 667)`` (width, height in pixels; ValueError naming ``name``)."""
+    parts = str(text).lower().strip().split("x")
+    try:
+        width, height = (int(part) for part in parts)
+    except ValueError:
+        raise ValueError(f"{name} must look like WIDTHxHEIGHT, e.g. 512x512, got {text!r}") \
+            from None
+    if not (1 <= width <= 16384 and 1 <= height <= 16384):
+        raise ValueError(f"{name} must be between 1x1 and 16384x16384 pixels, got {text!r}")
+    return width, height
+
+
+def read_cameras(path: Path, size: tuple[int, int] | None = None) -> list[Camera]:
+    """The cameras of a ``--camera`` file (ValueError when it holds none), their intrinsics
+    scaled to ``size`` (width, height pixels) when given."""
+    from ..geometry.cameras import load_cameras
+    from ..inference import scale_camera
+
+    cameras = load_cameras(path)
+    if not cameras:
+        raise ValueError(f"--camera {path}: the file holds no camera")
+    if size is not None:
+        cameras = [scale_camera(camera, *size) for camera in cameras]
+    return cameras

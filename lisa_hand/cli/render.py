@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from .mesh import DeviceOpt, ModelOpt, ParamsArg
+from .options import DeviceOpt, ModelOpt, ParamsArg, parse_image_size, read_cameras
 
 
 class Mode(str, Enum):
@@ -61,15 +61,12 @@ def render(
     """Render the hand of PARAMS: from the cameras of CAM.json, or an orbit of N views with a
     turntable. Rays that miss the hand's occupancy grid cost nothing; samples gather in a band
     around the surface; colours use the model's mean gain and bias."""
-    from ..geometry.cameras import load_cameras
     from ..inference import (
         hand_render_config,
         load_hand,
         orbit_views,
-        parse_image_size,
         prepare_render,
         render_to_folder,
-        scale_camera,
     )
     from ..utils.device import resolve_device
 
@@ -84,13 +81,10 @@ def render(
         raise ValueError(f"--elevation must be in (-90, 90) degrees, got {elevation}")
     if not fps > 0:
         raise ValueError(f"--fps must be > 0, got {fps}")
-    cameras = None
-    if camera is not None:
-        cameras = load_cameras(camera)
-        if not cameras:
-            raise ValueError(f"--camera {camera}: the file holds no camera")
-        if size is not None:
-            cameras = [scale_camera(c, *size) for c in cameras]
+    from ..utils.io import check_output_dir
+
+    check_output_dir(out)  # before the work: a file or an unwritable place fails now
+    cameras = read_cameras(camera, size) if camera is not None else None
     trained, hand = load_hand(params, model, resolve_device(device))
     config = hand_render_config(
         trained, mode=mode.value, background=_BACKGROUNDS[background.value],

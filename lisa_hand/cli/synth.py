@@ -53,7 +53,7 @@ def synth(
     subjects into train/val/test. Prints the time taken.
     """
     from ..data.scans import ScanConfig
-    from ..data.synth import SynthConfig, parse_resolution, synthesize, write_preview
+    from ..data.synth.dataset import SynthConfig, parse_resolution, synthesize, write_preview
 
     if out is None and preview is None:
         raise ValueError("nothing to write: give a dataset folder OUT, --preview PNG, or both")

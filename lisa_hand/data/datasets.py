@@ -22,19 +22,16 @@ malformed dataset name the file.
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 from dataclasses import dataclass
-from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 
-from ..geometry.cameras import load_cameras
-from ..skeleton import NUM_JOINTS, POSE_DIM
-from ..utils.io import read_json
-from .layout import FramePaths, read_image, read_mask, read_npz, read_split
+from ..geometry.cameras import Camera, load_cameras
+from ..skeleton import NUM_JOINTS
+from .frame_table import SPLITS, FrameTable, read_frame_table
+from .layout import FramePaths, read_image, read_mask, read_npz
 
 __all__ = [
     "SPLITS",
@@ -46,122 +43,12 @@ __all__ = [
     "RayFrames",
 ]
 
-SPLITS = ("train", "val", "test")
 _SCAN_ARRAYS = ("points", "normals", "template_weights", "sdf_points", "sdf")
 _MAX_BAND_LIMIT = 254  # pixel distances are stored as uint8, 255 meaning "further"
 
 
 # ------------------------------------------------------------------------------------------------
-# The split's frames
-
-
-@dataclass(eq=False)
-class FrameTable:
-    """The subjects and frames of one split, with the per-frame parameters LISA is given.
-
-    F frames, S subjects; frames are sorted by (subject, frame folder).
-    """
-
-    root: Path
-    """The dataset folder."""
-    split: str
-    """'train', 'val' or 'test'."""
-    subject_ids: list[str]
-    """[S] sorted subject ids of the split (``subject_index`` indexes this list)."""
-    frames: list[FramePaths]
-    """[F] frame folders."""
-    frame_subject: torch.Tensor
-    """[F] long, subject index of each frame."""
-    pose: torch.Tensor
-    """[F, 48] float32 axis-angle radians (``params.json`` "pose")."""
-    translation: torch.Tensor
-    """[F, 3] float32 metres (``params.json`` "translation")."""
-    rest_joints: torch.Tensor
-    """[S, 16, 3] float32 metres, each subject's template skeleton (``subject.json``
-    "template_rest_joints"): the skeleton LISA is trained and fitted with."""
-
-    @property
-    def num_frames(self) -> int:
-        return len(self.frames)
-
-    @property
-    def num_subjects(self) -> int:
-        return len(self.subject_ids)
-
-    @property
-    def frame_keys(self) -> list[str]:
-        """[F] ``"s000/f000"`` names of the frames."""
-        return [f"{p.root.parent.name}/{p.root.name}" for p in self.frames]
-
-
-def _float_array(value: Any, shape: tuple[int, ...], path: Path, key: str) -> np.ndarray:
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{path}: {key!r} must be a numeric array of shape {list(shape)}") \
-            from None
-    if array.size == math.prod(shape):
-        array = array.reshape(shape)
-    if array.shape != shape or not np.isfinite(array).all():
-        raise ValueError(f"{path}: {key!r} must be finite with shape {list(shape)}, got "
-                         f"{list(array.shape)}")
-    return array
-
-
-def _read_entries(path: Path, shapes: dict[str, tuple[int, ...]]) -> list[np.ndarray]:
-    """The arrays ``shapes`` names from one JSON object file, checked."""
-    data = read_json(path)
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a JSON object")
-    missing = [key for key in shapes if key not in data]
-    if missing:
-        raise ValueError(f"{path}: missing key(s) {', '.join(repr(k) for k in missing)}")
-    return [_float_array(data[key], shape, path, key) for key, shape in shapes.items()]
-
-
-def read_frame_table(root: str | os.PathLike, split: str = "train") -> FrameTable:
-    """Read ``split.json``, the split's ``subject.json`` and ``params.json`` files.
-
-    root: the dataset folder (``lisa synth`` output). split: 'train', 'val' or 'test'.
-    Raises FileNotFoundError / ValueError naming the missing or malformed file.
-    """
-    root = Path(root)
-    if split not in SPLITS:
-        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
-    if not root.is_dir():
-        raise FileNotFoundError(f"{root}: no such dataset folder")
-    subjects = sorted(read_split(root)[split])
-    if not subjects:
-        raise ValueError(f"{root / 'split.json'}: split {split!r} lists no subjects")
-    frames: list[FramePaths] = []
-    frame_subject: list[int] = []
-    rest_joints = []
-    for index, subject in enumerate(subjects):
-        folder = root / subject
-        if not folder.is_dir():
-            raise FileNotFoundError(f"{folder}: subject folder listed in split.json is missing")
-        subject_json = folder / "subject.json"
-        rest_joints.extend(_read_entries(subject_json, {"template_rest_joints": (NUM_JOINTS, 3)}))
-        subject_frames = [FramePaths(p) for p in sorted(folder.glob("f*")) if p.is_dir()]
-        if not subject_frames:
-            raise ValueError(f"{folder}: subject {subject!r} has no frame folders (f000, ...)")
-        frames.extend(subject_frames)
-        frame_subject.extend([index] * len(subject_frames))
-    poses, translations = [], []
-    for paths in frames:
-        pose, translation = _read_entries(paths.params, {"pose": (POSE_DIM,), "translation": (3,)})
-        poses.append(pose)
-        translations.append(translation)
-    return FrameTable(
-        root=root,
-        split=split,
-        subject_ids=subjects,
-        frames=frames,
-        frame_subject=torch.tensor(frame_subject, dtype=torch.long),
-        pose=torch.from_numpy(np.stack(poses)).float(),
-        translation=torch.from_numpy(np.stack(translations)).float(),
-        rest_joints=torch.from_numpy(np.stack(rest_joints)).float(),
-    )
+# Batches
 
 
 def _choose_frames(num_frames_total: int, batch_frames: int, generator: torch.Generator,
@@ -188,7 +75,7 @@ def _draw(start: torch.Tensor, count: torch.Tensor, num: int,
     return start[:, None] + offset
 
 
-def _check_count(value: Any, name: str, minimum: int = 0) -> int:
+def _check_count(value: object, name: str, minimum: int = 0) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < minimum:
         raise ValueError(f"{name} must be an int >= {minimum}, got {value!r}")
     return value
@@ -252,6 +139,28 @@ class ScanBatch(_Batch):
     """[B, Nu, 3] world metres, uniform in the scan's bounding box grown by the margin."""
 
 
+def _read_scan(paths: FramePaths) -> dict[str, np.ndarray]:
+    """The arrays of a frame's ``scan.npz`` that the prior trains on, checked (shapes agree,
+    values finite); ValueError naming the file."""
+    arrays = read_npz(paths.scan, required=_SCAN_ARRAYS)
+    num = arrays["points"].shape[0] if arrays["points"].ndim == 2 else -1
+    expected = {"points": (num, 3), "normals": (num, 3), "template_weights": (num, NUM_JOINTS)}
+    for key, shape in expected.items():
+        if num < 1 or arrays[key].shape != shape:
+            raise ValueError(f"{paths.scan}: {key!r} must have shape "
+                             f"[N, {shape[1]}] with N >= 1 shared by points, normals and "
+                             f"template_weights; got {list(arrays[key].shape)}")
+    num_sdf = arrays["sdf"].shape[0] if arrays["sdf"].ndim == 1 else -1
+    if num_sdf < 0 or arrays["sdf_points"].shape != (num_sdf, 3):
+        raise ValueError(f"{paths.scan}: 'sdf_points' [M, 3] and 'sdf' [M] disagree: "
+                         f"{list(arrays['sdf_points'].shape)} and "
+                         f"{list(arrays['sdf'].shape)}")
+    for key in _SCAN_ARRAYS:
+        if not np.isfinite(arrays[key]).all():
+            raise ValueError(f"{paths.scan}: {key!r} has non-finite values")
+    return arrays
+
+
 class ScanFrames:
     """All scans of one split in memory, for the geometric prior (paper Section 4.2).
 
@@ -266,23 +175,7 @@ class ScanFrames:
         self.table = read_frame_table(root, split)
         points, normals, weights, sdf_points, sdf_values = [], [], [], [], []
         for paths in self.table.frames:
-            arrays = read_npz(paths.scan, required=_SCAN_ARRAYS)
-            num = arrays["points"].shape[0] if arrays["points"].ndim == 2 else -1
-            expected = {"points": (num, 3), "normals": (num, 3),
-                        "template_weights": (num, NUM_JOINTS)}
-            for key, shape in expected.items():
-                if num < 1 or arrays[key].shape != shape:
-                    raise ValueError(f"{paths.scan}: {key!r} must have shape "
-                                     f"[N, {shape[1]}] with N >= 1 shared by points, normals and "
-                                     f"template_weights; got {list(arrays[key].shape)}")
-            num_sdf = arrays["sdf"].shape[0] if arrays["sdf"].ndim == 1 else -1
-            if num_sdf < 0 or arrays["sdf_points"].shape != (num_sdf, 3):
-                raise ValueError(f"{paths.scan}: 'sdf_points' [M, 3] and 'sdf' [M] disagree: "
-                                 f"{list(arrays['sdf_points'].shape)} and "
-                                 f"{list(arrays['sdf'].shape)}")
-            for key in _SCAN_ARRAYS:
-                if not np.isfinite(arrays[key]).all():
-                    raise ValueError(f"{paths.scan}: {key!r} has non-finite values")
+            arrays = _read_scan(paths)
             points.append(arrays["points"].astype(np.float32))
             normals.append(arrays["normals"].astype(np.float32))
             weights.append(arrays["template_weights"].astype(np.float16))
@@ -403,6 +296,68 @@ class RayBatch(_Batch):
     """[B, R, 2] continuous pixel coordinates (u, v) of the ray (pixel centres)."""
 
 
+def _camera_names(frames: list[FramePaths], frame_cameras: list[list[Camera]]) -> list[str]:
+    """The sorted names of every camera of the split; ValueError for a frame without cameras
+    or a camera without a name."""
+    names = set()
+    for paths, cameras in zip(frames, frame_cameras, strict=True):
+        if not cameras:
+            raise ValueError(f"{paths.cameras}: no cameras")
+        for index, camera in enumerate(cameras):
+            if not camera.name:
+                raise ValueError(f"{paths.cameras}: camera {index} has no name (the image "
+                                 "files are images/NAME.png)")
+            names.add(camera.name)
+    return sorted(names)
+
+
+def _view_pixels(paths: FramePaths, camera: Camera, view: int, max_band_px: int,
+                 background_per_view: int, rng: np.random.Generator
+                 ) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...]]:
+    """The drawable pixels of one view (index ``view``) -> (near, far): near = (view ids, pixel
+    ids, rgb uint8, distance to the mask in pixels uint8) of the pixels within ``max_band_px``
+    of the mask; far = (view ids, pixel ids, rgb) of up to ``background_per_view`` others."""
+    from scipy.ndimage import distance_transform_edt
+
+    image = read_image(paths.image(camera.name))
+    mask = read_mask(paths.mask(camera.name))
+    expected = (camera.height, camera.width)
+    for path, shape in ((paths.image(camera.name), image.shape[:2]),
+                        (paths.mask(camera.name), mask.shape)):
+        if shape != expected:
+            raise ValueError(f"{path}: image is {shape[1]}x{shape[0]} but camera "
+                             f"{camera.name!r} in {paths.cameras} is "
+                             f"{camera.width}x{camera.height}")
+    rgb = np.round(image.reshape(-1, 3) * 255.0).astype(np.uint8)
+    if mask.any():
+        distance = np.ceil(distance_transform_edt(~mask)).reshape(-1)
+    else:
+        distance = np.full(mask.size, np.inf)
+    near = np.flatnonzero(distance <= max_band_px)
+    far = np.flatnonzero(distance > max_band_px)
+    if far.size > background_per_view:
+        far = np.sort(rng.choice(far, size=background_per_view, replace=False))
+    dist_u8 = distance[near].astype(np.uint8)
+    return ((np.full(near.size, view, np.int32), near.astype(np.int32), rgb[near], dist_u8),
+            (np.full(far.size, view, np.int32), far.astype(np.int32), rgb[far]))
+
+
+def _frame_pools(frame_near: list[tuple], frame_far: list[tuple], max_band_px: int
+                 ) -> tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], np.ndarray]:
+    """One frame's views' pixels in two pools -> (near sorted by distance to the mask, far,
+    cumulative near counts by distance [max_band_px + 1])."""
+    near_arrays = [np.concatenate(part) for part in zip(*frame_near, strict=True)]
+    order = np.argsort(near_arrays[3], kind="stable")  # by distance to the mask
+    near = tuple(array[order] for array in near_arrays)
+    far = tuple(np.concatenate(part) for part in zip(*frame_far, strict=True))
+    counts = np.bincount(near_arrays[3], minlength=max_band_px + 1)[:max_band_px + 1]
+    return near, far, np.cumsum(counts)
+
+
+def _starts(counts: np.ndarray) -> torch.Tensor:
+    return torch.from_numpy(np.cumsum(counts) - counts)
+
+
 class RayFrames:
     """All images of one split in memory as candidate rays, for training from images.
 
@@ -424,8 +379,6 @@ class RayFrames:
         background_per_view: int = 4096,
         seed: int = 0,
     ) -> None:
-        from scipy.ndimage import distance_transform_edt
-
         if isinstance(max_band_px, bool) or not isinstance(max_band_px, int) \
                 or not 0 <= max_band_px <= _MAX_BAND_LIMIT:
             raise ValueError(f"max_band_px must be an int in [0, {_MAX_BAND_LIMIT}], got "
@@ -435,96 +388,66 @@ class RayFrames:
         self.table = read_frame_table(root, split)
         rng = np.random.default_rng(seed)
         frame_cameras = [load_cameras(paths.cameras) for paths in self.table.frames]
-        names = set()
-        for paths, cameras in zip(self.table.frames, frame_cameras, strict=True):
-            if not cameras:
-                raise ValueError(f"{paths.cameras}: no cameras")
-            for index, camera in enumerate(cameras):
-                if not camera.name:
-                    raise ValueError(f"{paths.cameras}: camera {index} has no name (the image "
-                                     "files are images/NAME.png)")
-                names.add(camera.name)
-        self.camera_names = sorted(names)
+        self.camera_names = _camera_names(self.table.frames, frame_cameras)
         camera_lookup = {name: i for i, name in enumerate(self.camera_names)}
 
-        world_from_pixel, centres, widths, view_camera, view_frame = [], [], [], [], []
+        views: list[tuple[Camera, int]] = []  # (camera, frame) of every view
         near_parts: list[tuple[np.ndarray, ...]] = []
         far_parts: list[tuple[np.ndarray, ...]] = []
         near_cum = np.zeros((self.table.num_frames, max_band_px + 1), dtype=np.int64)
-        near_total = np.zeros(self.table.num_frames, dtype=np.int64)
-        far_count = np.zeros(self.table.num_frames, dtype=np.int64)
         for frame, (paths, cameras) in enumerate(zip(self.table.frames, frame_cameras,
                                                      strict=True)):
             frame_near, frame_far = [], []
             for camera in cameras:
-                view = len(view_camera)
-                image = read_image(paths.image(camera.name))
-                mask = read_mask(paths.mask(camera.name))
-                expected = (camera.height, camera.width)
-                for path, shape in ((paths.image(camera.name), image.shape[:2]),
-                                    (paths.mask(camera.name), mask.shape)):
-                    if shape != expected:
-                        raise ValueError(f"{path}: image is {shape[1]}x{shape[0]} but camera "
-                                         f"{camera.name!r} in {paths.cameras} is "
-                                         f"{camera.width}x{camera.height}")
-                rgb = np.round(image.reshape(-1, 3) * 255.0).astype(np.uint8)
-                if mask.any():
-                    distance = np.ceil(distance_transform_edt(~mask)).reshape(-1)
-                else:
-                    distance = np.full(mask.size, np.inf)
-                near = np.flatnonzero(distance <= max_band_px)
-                far = np.flatnonzero(distance > max_band_px)
-                if far.size > background_per_view:
-                    far = np.sort(rng.choice(far, size=background_per_view, replace=False))
-                dist_u8 = distance[near].astype(np.uint8)
-                frame_near.append((np.full(near.size, view, np.int32), near.astype(np.int32),
-                                   rgb[near], dist_u8))
-                frame_far.append((np.full(far.size, view, np.int32), far.astype(np.int32),
-                                  rgb[far]))
-                K = camera.K.double()
-                R = camera.R.double()
-                # As geometry.cameras.pixel_rays: direction = R^T K^-1 [u, v, 1], normalised.
-                world_from_pixel.append((R.T @ torch.linalg.inv(K)).float())
-                centres.append(camera.center.float())
-                widths.append(camera.width)
-                view_camera.append(camera_lookup[camera.name])
-                view_frame.append(frame)
-            near_arrays = [np.concatenate(part) for part in zip(*frame_near, strict=True)]
-            order = np.argsort(near_arrays[3], kind="stable")  # by distance to the mask
-            near_parts.append(tuple(array[order] for array in near_arrays))
-            far_parts.append(tuple(np.concatenate(part) for part in zip(*frame_far,
-                                                                          strict=True)))
-            counts = np.bincount(near_arrays[3], minlength=max_band_px + 1)[:max_band_px + 1]
-            near_cum[frame] = np.cumsum(counts)
-            near_total[frame] = near_arrays[3].size
-            far_count[frame] = far_parts[-1][0].size
-            if near_total[frame] + far_count[frame] == 0:
+                near, far = _view_pixels(paths, camera, len(views), max_band_px,
+                                         background_per_view, rng)
+                frame_near.append(near)
+                frame_far.append(far)
+                views.append((camera, frame))
+            near, far, near_cum[frame] = _frame_pools(frame_near, frame_far, max_band_px)
+            near_parts.append(near)
+            far_parts.append(far)
+            if near[3].size + far[0].size == 0:
                 raise ValueError(f"{paths.root}: no pixel to draw rays from")
+        self._init_views(views, camera_lookup)
+        self._init_pools(near_parts, far_parts, near_cum)
 
-        def starts(counts: np.ndarray) -> torch.Tensor:
-            return torch.from_numpy(np.cumsum(counts) - counts)
-
-        # One dummy entry at the end of each pool (never drawn): keeps gathers in range.
-        near_parts.append((np.zeros(1, np.int32), np.zeros(1, np.int32),
-                           np.zeros((1, 3), np.uint8), np.full(1, 255, np.uint8)))
-        far_parts.append((np.zeros(1, np.int32), np.zeros(1, np.int32),
-                          np.zeros((1, 3), np.uint8)))
+    def _init_views(self, views: list[tuple[Camera, int]], camera_lookup: dict[str, int]) -> None:
+        """Per view V: the pixel-to-ray matrix, the camera centre, image width, camera and frame."""
+        world_from_pixel = []
+        for camera, _ in views:
+            K = camera.K.double()
+            R = camera.R.double()
+            # As geometry.cameras.pixel_rays: direction = R^T K^-1 [u, v, 1], normalised.
+            world_from_pixel.append((R.T @ torch.linalg.inv(K)).float())
         self.view_world_from_pixel = torch.stack(world_from_pixel)  # [V, 3, 3]
-        self.view_centre = torch.stack(centres)  # [V, 3]
-        self.view_width = torch.tensor(widths, dtype=torch.long)
-        self.view_camera = torch.tensor(view_camera, dtype=torch.long)
-        self.view_frame = torch.tensor(view_frame, dtype=torch.long)
+        self.view_centre = torch.stack([camera.center.float() for camera, _ in views])  # [V, 3]
+        self.view_width = torch.tensor([camera.width for camera, _ in views], dtype=torch.long)
+        self.view_camera = torch.tensor([camera_lookup[camera.name] for camera, _ in views],
+                                        dtype=torch.long)
+        self.view_frame = torch.tensor([frame for _, frame in views], dtype=torch.long)
+
+    def _init_pools(self, near_parts: list[tuple[np.ndarray, ...]],
+                    far_parts: list[tuple[np.ndarray, ...]], near_cum: np.ndarray) -> None:
+        """The frames' pools concatenated, each frame's slice given by its start and count."""
+        near_total = np.array([part[3].size for part in near_parts], dtype=np.int64)
+        far_count = np.array([part[0].size for part in far_parts], dtype=np.int64)
+        # One dummy entry at the end of each pool (never drawn): keeps gathers in range.
+        near_parts = near_parts + [(np.zeros(1, np.int32), np.zeros(1, np.int32),
+                                    np.zeros((1, 3), np.uint8), np.full(1, 255, np.uint8))]
+        far_parts = far_parts + [(np.zeros(1, np.int32), np.zeros(1, np.int32),
+                                  np.zeros((1, 3), np.uint8))]
         self.near_view = torch.from_numpy(np.concatenate([p[0] for p in near_parts]))
         self.near_pixel = torch.from_numpy(np.concatenate([p[1] for p in near_parts]))
         self.near_rgb = torch.from_numpy(np.concatenate([p[2] for p in near_parts]))
         self.near_distance = torch.from_numpy(np.concatenate([p[3] for p in near_parts]))
-        self.near_start = starts(near_total)
+        self.near_start = _starts(near_total)
         self.near_cumulative = torch.from_numpy(near_cum)  # [F, max_band + 1]
         self.near_total = torch.from_numpy(near_total)
         self.far_view = torch.from_numpy(np.concatenate([p[0] for p in far_parts]))
         self.far_pixel = torch.from_numpy(np.concatenate([p[1] for p in far_parts]))
         self.far_rgb = torch.from_numpy(np.concatenate([p[2] for p in far_parts]))
-        self.far_start = starts(far_count)
+        self.far_start = _starts(far_count)
         self.far_count = torch.from_numpy(far_count)
 
     @property
@@ -579,12 +502,21 @@ class RayFrames:
                              f"({batch})")
         per_frame = num_rays // batch
         num_near = int(round(mask_fraction * per_frame))
+        from_near, near_index, far_index = self._draw_pixels(frame, per_frame, num_near, band_px,
+                                                             generator)
+        return self._rays(frame, from_near, near_index, far_index)
 
+    def _draw_pixels(self, frame: torch.Tensor, per_frame: int, num_near: int, band_px: int,
+                     generator: torch.Generator
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Pool entries of ``per_frame`` rays in each frame [B], the first ``num_near`` from the
+        pixels within ``band_px`` of the mask -> (from the near pool [B, R] bool, near index
+        [B, R], far index [B, R]; the index into the other pool is its dummy entry)."""
         inner = self.near_cumulative[frame, band_px]  # [B] pixels within the band
         outer = self.near_total[frame] - inner + self.far_count[frame]  # [B] the others
         want_near = torch.arange(per_frame)[None, :] < num_near
         use_near = (want_near & (inner[:, None] > 0)) | (outer[:, None] == 0)  # [B, R]
-        unit = torch.rand(batch, per_frame, generator=generator, dtype=torch.float64)
+        unit = torch.rand(frame.shape[0], per_frame, generator=generator, dtype=torch.float64)
         count = torch.where(use_near, inner[:, None], outer[:, None])
         offset = (unit * count).long().clamp_max(count - 1)
         # Background offsets beyond the band's prefix: the near pool's tail, then the far pool.
@@ -594,9 +526,14 @@ class RayFrames:
         far_index = self.far_start[frame][:, None] + offset - (
             self.near_total[frame] - inner)[:, None]
         from_near = use_near | in_tail
-        # Both pools end with a dummy entry (see __init__), so every index below is valid.
+        # Both pools end with a dummy entry (see _init_pools), so every index below is valid.
         near_index = torch.where(from_near, near_index, self.near_view.numel() - 1)
         far_index = torch.where(from_near, self.far_view.numel() - 1, far_index)
+        return from_near, near_index, far_index
+
+    def _rays(self, frame: torch.Tensor, from_near: torch.Tensor, near_index: torch.Tensor,
+              far_index: torch.Tensor) -> RayBatch:
+        """The rays of the drawn pool entries (see :meth:`_draw_pixels`)."""
 
         def pick(near_values: torch.Tensor, far_values: torch.Tensor) -> torch.Tensor:
             mask = from_near.reshape(from_near.shape + (1,) * (near_values.dim() - 1))

@@ -3,10 +3,12 @@
 Two ways to find the first surface point along each camera ray, with the same outputs:
 
 * :func:`render_views` casts the rays against a triangle mesh with Embree (through
-  point-cloud-utils' ``RayMeshIntersector``, wrapped by :class:`MeshRayCaster`) and shades with
-  smooth normals (vertex normals interpolated with the hit's barycentric coordinates);
+  point-cloud-utils' ``RayMeshIntersector``, wrapped by
+  :class:`~lisa_hand.data.raycast.MeshRayCaster`) and shades with smooth normals (vertex normals
+  interpolated with the hit's barycentric coordinates);
 * :func:`sphere_trace_views` sphere traces a signed distance callback on the rays that hit a
-  bounding sphere, with normals from the SDF gradient (autograd).
+  bounding sphere (the package's one tracer, :func:`~lisa_hand.geometry.tracing.sphere_trace`),
+  with normals from the SDF gradient (:func:`~lisa_hand.geometry.tracing.sdf_normals`, autograd).
 
 Measured on the 2-core CPU machine, 8 views at 512x334 of a hand-like scene (a log-sum-exp
 smooth union of 20 tapered capsules, and its 99k-vertex, 197k-face marching-cubes mesh): Embree
@@ -17,12 +19,13 @@ median depth difference of 0.07 mm (the mesh's marching-cubes error). The datase
 512x334, one thread): Embree 0.36 s with vertex colours, sphere tracing
 :meth:`lisa_hand.handmodel.PosedHand.sdf` 6.1 s, mask IoU 0.996.
 
-Shading is Lambertian plus ambient (:class:`ShadingConfig`), per pixel::
+Shading is Lambertian plus ambient (:mod:`lisa_hand.data.shading`), per pixel::
 
     rgb = clip(gain * albedo * (ambient + diffuse / L * sum_l max(0, n . l)) + bias, 0, 1)
 
-with ``n`` the unit outward normal, ``l`` the unit direction *towards* light ``l`` (L lights) and
-``gain``, ``bias`` a per-camera, per-channel colour response (:class:`GainBiasConfig`, as the
+with ``n`` the unit outward normal, ``l`` the unit direction *towards* light ``l`` (L lights,
+:class:`~lisa_hand.data.shading.ShadingConfig`) and ``gain``, ``bias`` a per-camera,
+per-channel colour response (:class:`~lisa_hand.data.shading.GainBiasConfig`, as the
 "color calibration" of LISA Section 4.2 models it). Gain and bias act on the hand only: the
 background keeps ``ShadingConfig.background`` (black by default), as in InterHand2.6M, whose
 backgrounds are removed with hand masks after capture. A renderer that models the calibration
@@ -40,7 +43,6 @@ and covers ``[u, u + 1) x [v, v + 1)`` in the continuous pixel coordinates of
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -48,23 +50,30 @@ import numpy as np
 import torch
 
 from ..geometry.cameras import Camera, pixel_rays, project_points
+from ..geometry.fields import SdfFn
+from ..geometry.rays import ray_sphere_bounds
+from ..geometry.tracing import sdf_normals, sphere_trace
+from .arrays import to_numpy
+from .raycast import MeshRayCaster
+from .shading import (
+    GainBias,
+    GainBiasConfig,
+    ShadingConfig,
+    as_generator,
+    lights_per_view,
+    resolve_gain_bias,
+    shade,
+)
 
 __all__ = [
-    "ShadingConfig",
-    "GainBiasConfig",
-    "GainBias",
     "ViewImage",
-    "RayHits",
-    "MeshRayCaster",
     "KeypointProjection",
-    "vertex_normals",
     "render_views",
     "sphere_trace_views",
     "project_keypoints",
 ]
 
 AlbedoFn = Callable[[torch.Tensor], "torch.Tensor | np.ndarray"]
-SdfFn = Callable[[torch.Tensor], torch.Tensor]
 
 # Points per albedo / SDF callback call: bounds the memory of per-part intermediates.
 _CHUNK = 1 << 17
@@ -72,108 +81,10 @@ _CHUNK = 1 << 17
 _ALBEDO_TOL = 1e-4
 
 
-@dataclass(frozen=True)
-class ShadingConfig:
-    """Lambertian plus ambient shading of the ground-truth images."""
-
-    ambient: float = 0.35
-    """Ambient intensity (unitless; a surface facing away from every light gets albedo * this)."""
-    diffuse: float = 0.65
-    """Total diffuse intensity, shared equally by the lights (ambient + diffuse = 1 keeps a
-    surface facing the light at its albedo)."""
-    light_directions: tuple[tuple[float, float, float], ...] = ((0.0, -0.5, -1.0),)
-    """Directions *towards* the lights (normalised here), in ``light_frame``. The default, in the
-    camera frame (x right, y down, z forward), is a light at the camera, slightly above it."""
-    light_frame: str = "camera"
-    """"camera": each view lit from the same place relative to its camera (a flash);
-    "world": one set of lights for the whole scene."""
-    background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    """RGB in [0, 1] where no surface is hit; black, as masked InterHand2.6M images."""
-    random_light: bool = False
-    """Jitter each light direction uniformly in a cone of ``light_jitter_deg``: per view in the
-    camera frame, once per :func:`render_views` call (one scene) in the world frame."""
-    light_jitter_deg: float = 30.0
-    """Half-angle of the random light cone, degrees."""
-
-    def __post_init__(self) -> None:
-        for name in ("ambient", "diffuse"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
-                raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
-        lights = np.asarray(self.light_directions, dtype=np.float64)
-        if lights.ndim != 2 or lights.shape[0] < 1 or lights.shape[1] != 3:
-            raise ValueError(f"light_directions must be a non-empty list of 3-vectors, got shape "
-                             f"{list(lights.shape)}")
-        if not (np.isfinite(lights).all() and (np.linalg.norm(lights, axis=1) > 0).all()):
-            raise ValueError(f"light_directions must be finite, non-zero vectors, got "
-                             f"{lights.tolist()}")
-        if self.light_frame not in ("camera", "world"):
-            raise ValueError(f"light_frame must be 'camera' or 'world', got {self.light_frame!r}")
-        background = np.asarray(self.background, dtype=np.float64)
-        if background.shape != (3,) or not ((background >= 0) & (background <= 1)).all():
-            raise ValueError(f"background must be 3 values in [0, 1], got {self.background!r}")
-        if not 0.0 <= self.light_jitter_deg <= 180.0:
-            raise ValueError(f"light_jitter_deg must be in [0, 180], got {self.light_jitter_deg}")
-
-    def unit_lights(self) -> np.ndarray:
-        """[L, 3] unit directions towards the lights, in ``light_frame``."""
-        lights = np.asarray(self.light_directions, dtype=np.float64)
-        return lights / np.linalg.norm(lights, axis=1, keepdims=True)
 
 
-@dataclass(frozen=True)
-class GainBiasConfig:
-    """Random per-camera, per-channel colour response ``gain * rgb + bias`` (uncalibrated)."""
-
-    gain_range: tuple[float, float] = (0.85, 1.15)
-    """Each camera's gain per channel is uniform in this range (unitless)."""
-    bias_range: tuple[float, float] = (-0.05, 0.05)
-    """Each camera's bias per channel is uniform in this range (colour units, [0, 1] scale)."""
-
-    def __post_init__(self) -> None:
-        for name in ("gain_range", "bias_range"):
-            low, high = getattr(self, name)
-            if not (math.isfinite(low) and math.isfinite(high) and low <= high):
-                raise ValueError(f"{name} must be finite (low, high) with low <= high, got "
-                                 f"{getattr(self, name)!r}")
-
-    def sample(self, num_cameras: int, generator: np.random.Generator) -> GainBias:
-        """Draw gains then biases, [num_cameras, 3] each."""
-        gain = generator.uniform(*self.gain_range, size=(num_cameras, 3))
-        bias = generator.uniform(*self.bias_range, size=(num_cameras, 3))
-        return GainBias(gain=gain, bias=bias)
 
 
-@dataclass(frozen=True, eq=False)
-class GainBias:
-    """Explicit per-camera colour response.
-
-    gain: [C, 3] (or [3], shared) unitless; bias: [C, 3] (or [3]) colour units.
-    """
-
-    gain: np.ndarray
-    bias: np.ndarray
-
-    def __post_init__(self) -> None:
-        for name in ("gain", "bias"):
-            value = np.asarray(_to_numpy(getattr(self, name), name), dtype=np.float32)
-            if value.ndim not in (1, 2) or value.shape[-1] != 3 or not np.isfinite(value).all():
-                raise ValueError(f"{name} must be finite with shape [C, 3] or [3], got "
-                                 f"{list(value.shape)}")
-            object.__setattr__(self, name, value)
-
-    def for_camera(self, index: int, num_cameras: int) -> tuple[np.ndarray, np.ndarray]:
-        """(gain [3], bias [3]) of camera ``index``."""
-        out = []
-        for name in ("gain", "bias"):
-            value = getattr(self, name)
-            if value.ndim == 2:
-                if value.shape[0] != num_cameras:
-                    raise ValueError(f"{name} has {value.shape[0]} rows for {num_cameras} "
-                                     f"cameras (shape {list(value.shape)})")
-                value = value[index]
-            out.append(value)
-        return out[0], out[1]
 
 
 @dataclass(eq=False)
@@ -197,18 +108,6 @@ class ViewImage:
     asked for."""
 
 
-@dataclass(eq=False)
-class RayHits:
-    """First hits of rays on a mesh. R rays."""
-
-    hit: np.ndarray
-    """[R] bool."""
-    face_ids: np.ndarray
-    """[R] int64 index of the face hit, -1 on a miss."""
-    barycentrics: np.ndarray
-    """[R, 3] float32 weights of the face's three vertices (0 on a miss)."""
-    distances: np.ndarray
-    """[R] float32 ray parameter of the hit (metres for unit directions), inf on a miss."""
 
 
 @dataclass(eq=False)
@@ -225,122 +124,12 @@ class KeypointProjection:
     """[K] bool: ``in_image`` and, when a depth map was given, not behind another surface."""
 
 
-def _to_numpy(value, name: str) -> np.ndarray:
-    if isinstance(value, torch.Tensor):
-        return value.detach().cpu().numpy()
-    try:
-        return np.asarray(value)
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"{name} must be an array, got {type(value).__name__} ({exc})") from None
 
 
-def _check_mesh(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
-    """Validate a triangle mesh; -> (float32 [V, 3], int32 [F, 3]) C-contiguous arrays."""
-    vertices = _to_numpy(vertices, "vertices")
-    faces = _to_numpy(faces, "faces")
-    if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.shape[0] == 0:
-        raise ValueError(f"vertices must have shape [V, 3] with V > 0, got {list(vertices.shape)}")
-    if not np.issubdtype(vertices.dtype, np.floating) or not np.isfinite(vertices).all():
-        raise ValueError(f"vertices must be finite floats, got dtype {vertices.dtype}")
-    if faces.ndim != 2 or faces.shape[1] != 3 or faces.shape[0] == 0:
-        raise ValueError(f"faces must have shape [F, 3] with F > 0, got {list(faces.shape)}")
-    if not np.issubdtype(faces.dtype, np.integer):
-        raise TypeError(f"faces must hold integer vertex indices, got dtype {faces.dtype}")
-    if faces.min() < 0 or faces.max() >= vertices.shape[0]:
-        raise ValueError(f"faces index vertices in [{faces.min()}, {faces.max()}], outside "
-                         f"[0, {vertices.shape[0] - 1}]")
-    return (np.ascontiguousarray(vertices, dtype=np.float32),
-            np.ascontiguousarray(faces, dtype=np.int32))
 
 
-def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Angle-weighted vertex normals (unit; zero for unused vertices).
-
-    Each face adds its unit normal times its corner angle at the vertex (Thuermer and Wuethrich
-    1998): closer to the true normal of a smooth surface than area weighting when the faces
-    around a vertex differ in shape.
-
-    vertices: [V, 3] metres; faces: [F, 3] counter-clockwise seen from outside.
-    -> [V, 3] float32, pointing outwards.
-    """
-    vertices, faces = _check_mesh(vertices, faces)
-    corners = vertices.astype(np.float64)[faces]  # [F, 3, 3]
-    face_normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    face_normals /= np.maximum(np.linalg.norm(face_normals, axis=1, keepdims=True), 1e-300)
-    # Corner k's angle between the edges to the next and the previous corner.
-    to_next = np.roll(corners, -1, axis=1) - corners
-    to_prev = np.roll(corners, 1, axis=1) - corners
-    to_next /= np.maximum(np.linalg.norm(to_next, axis=2, keepdims=True), 1e-300)
-    to_prev /= np.maximum(np.linalg.norm(to_prev, axis=2, keepdims=True), 1e-300)
-    angles = np.arccos(np.clip((to_next * to_prev).sum(-1), -1.0, 1.0))  # [F, 3]
-    weighted = angles[:, :, None] * face_normals[:, None, :]  # [F, 3, 3]
-    flat_ids = faces.reshape(-1)
-    normals = np.stack([np.bincount(flat_ids, weights=weighted[:, :, axis].reshape(-1),
-                                    minlength=vertices.shape[0]) for axis in range(3)], axis=1)
-    length = np.linalg.norm(normals, axis=1, keepdims=True)
-    return (normals / np.where(length > 0, length, 1.0)).astype(np.float32)
 
 
-class MeshRayCaster:
-    """First-hit ray casting against one triangle mesh (Embree, via point-cloud-utils).
-
-    The acceleration structure is built once, on construction (tens of milliseconds for 200k
-    faces); :meth:`intersect` then runs at millions of rays per second on a few cores.
-
-    vertices: [V, 3] metres; faces: [F, 3] vertex indices, counter-clockwise seen from outside
-    (numpy or torch). Computation is float32.
-    """
-
-    def __init__(self, vertices, faces) -> None:
-        import point_cloud_utils as pcu
-
-        self.vertices, self.faces = _check_mesh(vertices, faces)
-        self._intersector = pcu.RayMeshIntersector(self.vertices, self.faces)
-        self._vertex_normals: np.ndarray | None = None
-        self._face_normals: np.ndarray | None = None
-
-    @property
-    def vertex_normals(self) -> np.ndarray:
-        """[V, 3] float32 unit angle-weighted vertex normals (computed once)."""
-        if self._vertex_normals is None:
-            self._vertex_normals = vertex_normals(self.vertices, self.faces)
-        return self._vertex_normals
-
-    @property
-    def face_normals(self) -> np.ndarray:
-        """[F, 3] float32 unit face normals (right-hand rule on the face's vertex order)."""
-        if self._face_normals is None:
-            corners = self.vertices[self.faces]
-            normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-            length = np.linalg.norm(normals, axis=1, keepdims=True)
-            self._face_normals = (normals / np.where(length > 0, length, 1.0)).astype(np.float32)
-        return self._face_normals
-
-    def intersect(self, origins, directions, near: float = 0.0,
-                  far: float = math.inf) -> RayHits:
-        """First hit of each ray ``origin + s direction`` with ``near <= s <= far``.
-
-        origins: [R, 3] metres; directions: [R, 3] (unit for ``s`` in metres).
-        """
-        origins = np.ascontiguousarray(_to_numpy(origins, "origins"), dtype=np.float32)
-        directions = np.ascontiguousarray(_to_numpy(directions, "directions"), dtype=np.float32)
-        if origins.ndim != 2 or origins.shape[1] != 3:
-            raise ValueError(f"origins must have shape [R, 3], got {list(origins.shape)}")
-        if directions.shape != origins.shape:
-            raise ValueError(f"directions must have the shape of origins {list(origins.shape)}, "
-                             f"got {list(directions.shape)}")
-        if origins.shape[0] == 0:
-            return RayHits(hit=np.zeros(0, bool), face_ids=np.zeros(0, np.int64),
-                           barycentrics=np.zeros((0, 3), np.float32),
-                           distances=np.zeros(0, np.float32))
-        face_ids, barycentrics, distances = self._intersector.intersect_rays(
-            origins, directions, float(near), float(far))
-        face_ids = np.asarray(face_ids, dtype=np.int64)
-        hit = face_ids >= 0
-        distances = np.where(hit, np.asarray(distances, np.float32), np.float32(np.inf))
-        barycentrics = np.where(hit[:, None], np.asarray(barycentrics, np.float32), 0.0)
-        return RayHits(hit=hit, face_ids=face_ids, barycentrics=barycentrics.astype(np.float32),
-                       distances=distances.astype(np.float32))
 
 
 # --------------------------------------------------------------------------------------------
@@ -386,31 +175,8 @@ def _supersampled(camera: Camera, factor: int) -> Camera:
                   width=camera.width * factor, height=camera.height * factor, name=camera.name)
 
 
-def _as_generator(generator, needed: bool, what: str) -> np.random.Generator | None:
-    if generator is None:
-        if needed:
-            raise ValueError(f"generator must be a numpy Generator or an int seed when {what}")
-        return None
-    if isinstance(generator, np.random.Generator):
-        return generator
-    if isinstance(generator, (int, np.integer)) and not isinstance(generator, bool):
-        return np.random.default_rng(int(generator))
-    raise TypeError(f"generator must be a numpy Generator, an int seed or None, got "
-                    f"{type(generator).__name__}")
 
 
-def _sample_cone(axis: np.ndarray, half_angle_deg: float,
-                 generator: np.random.Generator) -> np.ndarray:
-    """A unit vector uniform on the spherical cap of ``half_angle_deg`` around unit ``axis``."""
-    cos_max = math.cos(math.radians(half_angle_deg))
-    cos_theta = generator.uniform(cos_max, 1.0)
-    phi = generator.uniform(0.0, 2.0 * math.pi)
-    helper = np.array([1.0, 0.0, 0.0]) if abs(axis[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    first = np.cross(axis, helper)
-    first /= np.linalg.norm(first)
-    second = np.cross(axis, first)
-    sin_theta = math.sqrt(max(0.0, 1.0 - cos_theta * cos_theta))
-    return (cos_theta * axis + sin_theta * (math.cos(phi) * first + math.sin(phi) * second))
 
 
 def _bounding_rectangle(camera: Camera, bbox_min: np.ndarray,
@@ -468,7 +234,7 @@ def _call_albedo(albedo_fn: AlbedoFn, points: np.ndarray | torch.Tensor) -> np.n
     with torch.no_grad():
         for start in range(0, num_points, _CHUNK):
             chunk = points[start:start + _CHUNK]
-            values = np.asarray(_to_numpy(albedo_fn(chunk), "albedo_fn(points)"), np.float32)
+            values = np.asarray(to_numpy(albedo_fn(chunk), "albedo_fn(points)"), np.float32)
             if values.shape != (chunk.shape[0], 3):
                 raise ValueError(f"albedo_fn(points [N, 3]) must return [N, 3] colours, got shape "
                                  f"{list(values.shape)} for N = {chunk.shape[0]}")
@@ -481,37 +247,8 @@ def _call_albedo(albedo_fn: AlbedoFn, points: np.ndarray | torch.Tensor) -> np.n
     return np.clip(albedo, 0.0, 1.0)
 
 
-def _resolve_gain_bias(gain_bias, num_cameras: int, generator) -> GainBias | None:
-    if gain_bias is None:
-        return None
-    if isinstance(gain_bias, GainBiasConfig):
-        return gain_bias.sample(num_cameras, generator)
-    if isinstance(gain_bias, GainBias):
-        gain_bias.for_camera(0, num_cameras)  # validates the row count
-        return gain_bias
-    raise TypeError(f"gain_bias must be None, a GainBiasConfig or a GainBias, got "
-                    f"{type(gain_bias).__name__}")
 
 
-def _lights_per_view(cameras: list[Camera], shading: ShadingConfig,
-                     generator: np.random.Generator | None) -> list[np.ndarray]:
-    """World-frame unit light directions [L, 3] for each camera (sampling the random lights)."""
-    lights = shading.unit_lights()
-
-    def jitter(directions: np.ndarray) -> np.ndarray:
-        if not shading.random_light:
-            return directions
-        return np.stack([_sample_cone(direction, shading.light_jitter_deg, generator)
-                         for direction in directions])
-
-    if shading.light_frame == "world":
-        world = jitter(lights).astype(np.float32)
-        return [world.copy() for _ in cameras]
-    out = []
-    for camera in cameras:
-        rotation = camera.R.detach().cpu().double().numpy()
-        out.append((jitter(lights) @ rotation).astype(np.float32))  # R^T l for each row l
-    return out
 
 
 def _pool(values: np.ndarray, shape: tuple[int, int], factor: int) -> np.ndarray:
@@ -524,11 +261,11 @@ def _assemble(cameras: list[Camera], view_hits: list[_ViewHits], shading: Shadin
               generator, gain_bias, supersample: int, return_normals: bool) -> list[ViewImage]:
     """Shade the hits, composite over the background, average the sub-pixels."""
     needs_random = shading.random_light or isinstance(gain_bias, GainBiasConfig)
-    generator = _as_generator(generator, needs_random,
+    generator = as_generator(generator, needs_random,
                               "random_light is on or gain_bias is a GainBiasConfig")
     # Randomness in a fixed order: lights (world once / per view), then gains, then biases.
-    lights = _lights_per_view(cameras, shading, generator)
-    responses = _resolve_gain_bias(gain_bias, len(cameras), generator)
+    lights = lights_per_view(cameras, shading, generator)
+    responses = resolve_gain_bias(gain_bias, len(cameras), generator)
     background = np.asarray(shading.background, np.float32)
     factor = supersample
     images = []
@@ -537,9 +274,7 @@ def _assemble(cameras: list[Camera], view_hits: list[_ViewHits], shading: Shadin
             gain, bias = np.ones(3, np.float32), np.zeros(3, np.float32)
         else:
             gain, bias = responses.for_camera(index, len(cameras))
-        lambert = np.clip(hits.normals @ lights[index].T, 0.0, None).mean(axis=1)  # [Nh]
-        shade = shading.ambient + shading.diffuse * lambert
-        colour = np.clip(gain * (hits.albedo * shade[:, None]) + bias, 0.0, 1.0)
+        colour = shade(hits.normals, hits.albedo, lights[index], gain, bias, shading)
         height, width = camera.height * factor, camera.width * factor
         num_rays = height * width
         rgb = np.broadcast_to(background, (num_rays, 3)).copy()
@@ -628,31 +363,14 @@ def render_views(
     """
     cameras = _check_cameras(cameras)
     supersample = _check_supersample(supersample)
-    shading = ShadingConfig() if shading is None else shading
-    if not isinstance(shading, ShadingConfig):
-        raise TypeError(f"shading must be a ShadingConfig or None, got {type(shading).__name__}")
+    shading = _check_shading(shading)
     if caster is None:
         caster = MeshRayCaster(vertices, faces)
     elif not isinstance(caster, MeshRayCaster):
         raise TypeError(f"caster must be a MeshRayCaster or None, got {type(caster).__name__}")
-    num_vertices = caster.vertices.shape[0]
-
-    vertex_colours = None
-    if not callable(albedo_fn):
-        vertex_colours = np.asarray(_to_numpy(albedo_fn, "albedo_fn"), np.float32)
-        if vertex_colours.shape not in ((3,), (num_vertices, 3)):
-            raise ValueError(f"albedo_fn must be a callable, a colour [3] or per-vertex colours "
-                             f"[V, 3] = [{num_vertices}, 3], got shape "
-                             f"{list(vertex_colours.shape)}")
-        if not ((vertex_colours >= 0) & (vertex_colours <= 1)).all():
-            raise ValueError("albedo_fn colours must be in [0, 1]")
-    if albedo_vertices is not None:
-        albedo_vertices = np.asarray(_to_numpy(albedo_vertices, "albedo_vertices"), np.float32)
-        if albedo_vertices.shape != (num_vertices, 3):
-            raise ValueError(f"albedo_vertices must have shape [V, 3] = [{num_vertices}, 3], "
-                             f"got {list(albedo_vertices.shape)}")
-
-    vertex_normals_ = caster.vertex_normals
+    vertex_colours, albedo_vertices = _check_vertex_albedo(
+        albedo_fn, albedo_vertices, caster.vertices.shape[0]
+    )
     bbox_min, bbox_max = caster.vertices.min(0), caster.vertices.max(0)
     view_hits = []
     for camera in cameras:
@@ -661,63 +379,72 @@ def render_views(
         rectangle = _bounding_rectangle(fine_camera, bbox_min, bbox_max)
         origins, directions, pixel_index = _rectangle_rays(fine_camera, rectangle)
         z_axis = fine_camera.R[2].detach().cpu().to(torch.float32).numpy()
-        hits = caster.intersect(origins, directions)
-        ray_index = np.flatnonzero(hits.hit)
-        face_ids = hits.face_ids[ray_index]
-        weights = hits.barycentrics[ray_index][:, :, None]  # [Nh, 3, 1]
-        corner_ids = caster.faces[face_ids]  # [Nh, 3]
-        ray_dirs = directions[ray_index]
-        distances = hits.distances[ray_index]
-        points = origins[ray_index] + distances[:, None] * ray_dirs
-        normals = (weights * vertex_normals_[corner_ids]).sum(axis=1)
-        back_facing = (caster.face_normals[face_ids] * ray_dirs).sum(axis=1) > 0
-        normals[back_facing] *= -1.0
-        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
-        view = _ViewHits(ray_index=pixel_index[ray_index], depth=(distances * (ray_dirs @ z_axis)),
-                         normals=normals.astype(np.float32), points=points.astype(np.float32),
-                         albedo_points=None)
-        if albedo_vertices is not None:
-            view.albedo_points = (weights * albedo_vertices[corner_ids]).sum(axis=1)
-        if vertex_colours is not None:
-            if vertex_colours.ndim == 1:
-                view.albedo = np.broadcast_to(vertex_colours, (len(ray_index), 3))
-            else:
-                view.albedo = (weights * vertex_colours[corner_ids]).sum(axis=1)
-        view_hits.append(view)
+        view_hits.append(_mesh_view_hits(caster, origins, directions, pixel_index, z_axis,
+                                         vertex_colours, albedo_vertices))
     _fill_albedo(view_hits, albedo_fn)
     return _assemble(cameras, view_hits, shading, generator, gain_bias, supersample,
                      return_normals)
 
 
+def _check_shading(shading: ShadingConfig | None) -> ShadingConfig:
+    shading = ShadingConfig() if shading is None else shading
+    if not isinstance(shading, ShadingConfig):
+        raise TypeError(f"shading must be a ShadingConfig or None, got {type(shading).__name__}")
+    return shading
+
+
+def _check_vertex_albedo(albedo_fn, albedo_vertices, num_vertices: int):
+    """-> (vertex_colours: [3] or [V, 3] float32 when ``albedo_fn`` is colours, else None;
+    albedo_vertices: [V, 3] float32 or None), checked."""
+    vertex_colours = None
+    if not callable(albedo_fn):
+        vertex_colours = np.asarray(to_numpy(albedo_fn, "albedo_fn"), np.float32)
+        if vertex_colours.shape not in ((3,), (num_vertices, 3)):
+            raise ValueError(f"albedo_fn must be a callable, a colour [3] or per-vertex colours "
+                             f"[V, 3] = [{num_vertices}, 3], got shape "
+                             f"{list(vertex_colours.shape)}")
+        if not ((vertex_colours >= 0) & (vertex_colours <= 1)).all():
+            raise ValueError("albedo_fn colours must be in [0, 1]")
+    if albedo_vertices is not None:
+        albedo_vertices = np.asarray(to_numpy(albedo_vertices, "albedo_vertices"), np.float32)
+        if albedo_vertices.shape != (num_vertices, 3):
+            raise ValueError(f"albedo_vertices must have shape [V, 3] = [{num_vertices}, 3], "
+                             f"got {list(albedo_vertices.shape)}")
+    return vertex_colours, albedo_vertices
+
+
+def _mesh_view_hits(caster: MeshRayCaster, origins, directions, pixel_index, z_axis,
+                    vertex_colours, albedo_vertices) -> _ViewHits:
+    """Cast one view's rays (origins, directions [P, 3] float32, their pixel indices [P]) and
+    interpolate the smooth normals (flipped on back faces), the albedo points and the vertex
+    colours at the hits. z_axis: [3] the camera's z axis, for the depth."""
+    hits = caster.intersect(origins, directions)
+    ray_index = np.flatnonzero(hits.hit)
+    face_ids = hits.face_ids[ray_index]
+    weights = hits.barycentrics[ray_index][:, :, None]  # [Nh, 3, 1]
+    corner_ids = caster.faces[face_ids]  # [Nh, 3]
+    ray_dirs = directions[ray_index]
+    distances = hits.distances[ray_index]
+    points = origins[ray_index] + distances[:, None] * ray_dirs
+    normals = (weights * caster.vertex_normals[corner_ids]).sum(axis=1)
+    back_facing = (caster.face_normals[face_ids] * ray_dirs).sum(axis=1) > 0
+    normals[back_facing] *= -1.0
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    view = _ViewHits(ray_index=pixel_index[ray_index], depth=(distances * (ray_dirs @ z_axis)),
+                     normals=normals.astype(np.float32), points=points.astype(np.float32),
+                     albedo_points=None)
+    if albedo_vertices is not None:
+        view.albedo_points = (weights * albedo_vertices[corner_ids]).sum(axis=1)
+    if vertex_colours is not None:
+        if vertex_colours.ndim == 1:
+            view.albedo = np.broadcast_to(vertex_colours, (len(ray_index), 3))
+        else:
+            view.albedo = (weights * vertex_colours[corner_ids]).sum(axis=1)
+    return view
+
+
 # --------------------------------------------------------------------------------------------
 # Sphere tracing backend.
-
-
-def _eval_sdf(sdf_fn: SdfFn, points: torch.Tensor, chunk_size: int) -> torch.Tensor:
-    values = []
-    for start in range(0, points.shape[0], chunk_size):
-        chunk = points[start:start + chunk_size]
-        value = sdf_fn(chunk)
-        if value.dim() == 2 and value.shape[1] == 1:
-            value = value[:, 0]
-        if value.shape != (chunk.shape[0],):
-            raise ValueError(f"sdf_fn(points [N, 3]) must return [N] or [N, 1], got shape "
-                             f"{list(value.shape)} for N = {chunk.shape[0]}")
-        values.append(value)
-    return torch.cat(values) if values else points.new_zeros(0)
-
-
-def _sdf_gradients(sdf_fn: SdfFn, points: torch.Tensor, chunk_size: int) -> torch.Tensor:
-    """Unit SDF gradients [N, 3] by autograd, chunked."""
-    out = []
-    for start in range(0, points.shape[0], chunk_size):
-        with torch.enable_grad():
-            chunk = points[start:start + chunk_size].detach().requires_grad_(True)
-            value = sdf_fn(chunk)
-            (grad,) = torch.autograd.grad(value.sum(), chunk)
-        out.append(grad)
-    grads = torch.cat(out) if out else points.new_zeros(0, 3)
-    return grads / grads.norm(dim=-1, keepdim=True).clamp_min(1e-12)
 
 
 def sphere_trace_views(
@@ -739,15 +466,18 @@ def sphere_trace_views(
 ) -> list[ViewImage]:
     """Render the zero level set of ``sdf_fn`` into each camera by sphere tracing.
 
-    Rays of all views are traced together; only those that hit the bounding sphere are marched,
-    from its entry point: ``s <- s + step_scale * sdf(o + s d)`` on the still-active rays until
-    ``sdf < tolerance`` (a hit) or ``s`` leaves the sphere or ``max_steps`` run out (a miss). The
-    normal is the normalised SDF gradient (autograd) at the hit; shading, gain/bias and the
+    Rays of all views are traced together by the package's one sphere tracer
+    (:func:`~lisa_hand.geometry.tracing.sphere_trace`); only those that hit the bounding sphere
+    are marched, from its entry point: ``s <- s + step_scale * sdf(o + s d)`` on the
+    still-active rays until ``sdf <= tolerance`` (a hit) or ``s`` leaves the sphere or
+    ``max_steps`` run out (a miss). The normal is the normalised SDF gradient at the hit
+    (:func:`~lisa_hand.geometry.tracing.sdf_normals`, autograd); shading, gain/bias and the
     outputs are those of :func:`render_views`. Runs on the cameras' device.
 
-    sdf_fn: ``points [N, 3] metres (cameras' dtype and device) -> [N] or [N, 1] metres``,
-        negative inside; must not overestimate the distance (an exact SDF, a union or a
-        log-sum-exp smooth union of exact SDFs), or use ``step_scale < 1``; differentiable.
+    sdf_fn: ``points [N, 3] metres (cameras' dtype and device) -> [N] or [N, 1] metres``
+        (:class:`~lisa_hand.geometry.fields.SdfFn`), negative inside; must not overestimate the
+        distance (an exact SDF, a union or a log-sum-exp smooth union of exact SDFs), or use
+        ``step_scale < 1`` (the tracer's ``lipschitz = 1 / step_scale``); differentiable.
     albedo_fn: ``points [N, 3] world (torch, the cameras' device) -> [N, 3] in [0, 1]``.
     bound_center: [3] metres; bound_radius: metres, a sphere holding the whole surface.
     tolerance: hit threshold on the SDF, metres (depth error about this over the cosine of the
@@ -755,9 +485,7 @@ def sphere_trace_views(
     """
     cameras = _check_cameras(cameras)
     supersample = _check_supersample(supersample)
-    shading = ShadingConfig() if shading is None else shading
-    if not isinstance(shading, ShadingConfig):
-        raise TypeError(f"shading must be a ShadingConfig or None, got {type(shading).__name__}")
+    shading = _check_shading(shading)
     if not callable(sdf_fn):
         raise TypeError(f"sdf_fn must be callable, got {type(sdf_fn).__name__}")
     if not callable(albedo_fn):
@@ -766,54 +494,28 @@ def sphere_trace_views(
         raise ValueError(f"need tolerance > 0, 0 < step_scale <= 1, max_steps >= 1 and "
                          f"bound_radius > 0; got {tolerance}, {step_scale}, {max_steps}, "
                          f"{bound_radius}")
-    from ..render.bounds import ray_sphere_bounds
-
     device, dtype = cameras[0].device, cameras[0].dtype
-    center = torch.as_tensor(_to_numpy(bound_center, "bound_center"), dtype=dtype, device=device)
+    center = torch.as_tensor(to_numpy(bound_center, "bound_center"), dtype=dtype, device=device)
     if center.shape != (3,):
         raise ValueError(f"bound_center must have shape [3], got {list(center.shape)}")
 
-    all_origins, all_dirs, view_of_ray, z_axes = [], [], [], []
-    for index, camera in enumerate(cameras):
-        origins, directions = pixel_rays(_supersampled(camera, supersample), device=device,
-                                         dtype=dtype)
-        all_origins.append(origins)
-        all_dirs.append(directions)
-        view_of_ray.append(torch.full((origins.shape[0],), index, device=device))
-        z_axes.append(camera.R[2].to(device=device, dtype=dtype))
-    origins = torch.cat(all_origins)
-    directions = torch.cat(all_dirs)
+    origins, directions, view_of_ray, z_axes = _all_view_rays(cameras, supersample)
     near, far, in_bound = ray_sphere_bounds(origins, directions, center, float(bound_radius))
-
     ray_ids = torch.nonzero(in_bound)[:, 0]
-    distance = near[ray_ids].clone()
-    far = far[ray_ids]
-    converged = torch.zeros(ray_ids.shape[0], dtype=torch.bool, device=device)
-    active = torch.arange(ray_ids.shape[0], device=device)
-    with torch.no_grad():
-        for _ in range(max_steps):
-            if active.numel() == 0:
-                break
-            rays = ray_ids[active]
-            points = origins[rays] + distance[active, None] * directions[rays]
-            sdf = _eval_sdf(sdf_fn, points, chunk_size).to(dtype)
-            done = sdf < tolerance
-            converged[active[done]] = True
-            distance[active] = torch.where(done, distance[active],
-                                           distance[active] + step_scale * sdf)
-            active = active[~done & (distance[active] <= far[active])]
-
-    hit_rays = ray_ids[converged]
-    hit_distance = distance[converged]
+    hits = sphere_trace(sdf_fn, origins[ray_ids], directions[ray_ids], near[ray_ids],
+                        far[ray_ids], num_steps=max_steps, tolerance=tolerance,
+                        lipschitz=1.0 / step_scale, points_per_call=chunk_size)
+    hit_rays = ray_ids[hits.hit]
+    hit_distance = hits.t[hits.hit]
     hit_dirs = directions[hit_rays]
     hit_points = origins[hit_rays] + hit_distance[:, None] * hit_dirs
-    normals = _sdf_gradients(sdf_fn, hit_points, chunk_size)
+    normals = sdf_normals(sdf_fn, hit_points, "autograd", chunk_size=chunk_size)
     albedo = _call_albedo(albedo_fn, hit_points)
-    hit_view = torch.cat(view_of_ray)[hit_rays]
-    depth = hit_distance * (hit_dirs * torch.stack(z_axes)[hit_view]).sum(-1)
+    hit_view = view_of_ray[hit_rays]
+    depth = hit_distance * (hit_dirs * z_axes[hit_view]).sum(-1)
 
     hit_view = hit_view.cpu().numpy()
-    offsets = np.cumsum([0] + [o.shape[0] for o in all_origins])
+    offsets = np.cumsum([0] + [_num_rays(camera, supersample) for camera in cameras])
     hit_rays_np = hit_rays.cpu().numpy()
     depth_np = depth.detach().cpu().numpy().astype(np.float32)
     normals_np = normals.detach().cpu().numpy().astype(np.float32)
@@ -827,6 +529,27 @@ def sphere_trace_views(
                                    albedo=albedo[select]))
     return _assemble(cameras, view_hits, shading, generator, gain_bias, supersample,
                      return_normals)
+
+
+def _num_rays(camera: Camera, supersample: int) -> int:
+    return camera.width * supersample * camera.height * supersample
+
+
+def _all_view_rays(cameras: list[Camera], supersample: int):
+    """The (supersampled) pixel rays of all views, on the first camera's device and dtype:
+    origins [P, 3], directions [P, 3], the view of each ray [P] long, and the views' z axes
+    [C, 3] (each ray's depth is its distance times ``direction . z``)."""
+    device, dtype = cameras[0].device, cameras[0].dtype
+    all_origins, all_dirs, view_of_ray, z_axes = [], [], [], []
+    for index, camera in enumerate(cameras):
+        origins, directions = pixel_rays(_supersampled(camera, supersample), device=device,
+                                         dtype=dtype)
+        all_origins.append(origins)
+        all_dirs.append(directions)
+        view_of_ray.append(torch.full((origins.shape[0],), index, device=device))
+        z_axes.append(camera.R[2].to(device=device, dtype=dtype))
+    return (torch.cat(all_origins), torch.cat(all_dirs), torch.cat(view_of_ray),
+            torch.stack(z_axes))
 
 
 # --------------------------------------------------------------------------------------------
@@ -846,7 +569,7 @@ def project_keypoints(keypoints_world, camera: Camera, depth=None,
     """
     if not isinstance(camera, Camera):
         raise TypeError(f"camera must be a Camera, got {type(camera).__name__}")
-    keypoints = torch.as_tensor(np.asarray(_to_numpy(keypoints_world, "keypoints_world"),
+    keypoints = torch.as_tensor(np.asarray(to_numpy(keypoints_world, "keypoints_world"),
                                            np.float64))
     if keypoints.ndim != 2 or keypoints.shape[1] != 3:
         raise ValueError(f"keypoints_world must have shape [K, 3], got {list(keypoints.shape)}")
@@ -859,7 +582,7 @@ def project_keypoints(keypoints_world, camera: Camera, depth=None,
                     & (pixels[:, 1] >= 0) & (pixels[:, 1] < camera.height))
     visible = in_image.copy()
     if depth is not None:
-        depth_map = np.asarray(_to_numpy(depth, "depth"), np.float32)
+        depth_map = np.asarray(to_numpy(depth, "depth"), np.float32)
         if depth_map.shape != (camera.height, camera.width):
             raise ValueError(f"depth must have shape [H, W] = [{camera.height}, {camera.width}], "
                              f"got {list(depth_map.shape)}")

@@ -40,7 +40,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..utils.io import atomic_path, read_json
+from ..utils.io import atomic_path, read_json, require_file
 
 __all__ = [
     "FORMAT_NAME",
@@ -191,13 +191,15 @@ def read_depth(path: str | os.PathLike) -> np.ndarray:
 def _read_png(path: str | os.PathLike) -> np.ndarray:
     import imageio.v3 as iio
 
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
+    path = require_file(path)
     try:
         return np.asarray(iio.imread(path))
     except Exception as exc:  # imageio raises many types for corrupt files
-        raise ValueError(f"{path}: cannot read image ({exc})") from None
+        # One line: imageio's "no backend" message lists plugins to install over several.
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        if "backend" in reason:
+            reason = "not a PNG or JPEG file, or a corrupt one"
+        raise ValueError(f"{path}: not a readable image ({reason})") from None
 
 
 def write_npz(path: str | os.PathLike, **arrays: np.ndarray) -> Path:
@@ -210,9 +212,7 @@ def write_npz(path: str | os.PathLike, **arrays: np.ndarray) -> Path:
 
 def read_npz(path: str | os.PathLike, required: Sequence[str] = ()) -> dict[str, np.ndarray]:
     """Read an NPZ into a dict; missing file or keys raise errors naming the file."""
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
+    path = require_file(path)
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {key: data[key] for key in data.files}

@@ -8,7 +8,7 @@ trimesh and Open3D write for triangle meshes. OBJ carries vertex colours as ``v 
 (floats in [0, 1]); GLB goes through trimesh (vertex colours as ``COLOR_0``). Neither stores
 skinning weights: saving a mesh with weights to them warns and drops the weights.
 
-Every write is atomic (:func:`lisa_hand.io_utils.atomic_path`): an exception leaves the previous
+Every write is atomic (:func:`lisa_hand.utils.io.atomic_path`): an exception leaves the previous
 file, or none, never a partial one.
 """
 
@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from ..geometry.meshing import Mesh, colors_to_uint8
-from ..utils.io import atomic_path
+from ..utils.io import atomic_path, require_file
 
-__all__ = ["save_mesh", "load_mesh", "MESH_SUFFIXES"]
+__all__ = ["save_mesh", "load_mesh", "read_ply_vertices", "MESH_SUFFIXES"]
 
 MESH_SUFFIXES = (".ply", ".obj", ".glb")
 """File extensions that :func:`save_mesh` and :func:`load_mesh` understand."""
@@ -46,7 +46,8 @@ def save_mesh(path: str | os.PathLike, mesh: Mesh) -> Path:
     """
     path = Path(path)
     if not isinstance(mesh, Mesh):
-        raise TypeError(f"mesh must be a lisa_hand.meshing.Mesh, got {type(mesh).__name__}")
+        raise TypeError("mesh must be a lisa_hand.geometry.meshing.Mesh, got "
+                        f"{type(mesh).__name__}")
     suffix = _suffix(path)
     if mesh.skin_weights is not None and suffix != ".ply":
         warnings.warn(
@@ -67,13 +68,13 @@ def load_mesh(path: str | os.PathLike) -> Mesh:
     or 0-255 if any exceeds 1); polygons are fan-triangulated. GLB: all meshes of the scene
     concatenated, vertex colours when present.
 
-    Raises FileNotFoundError for a missing file and ValueError naming the file for an unknown
-    extension or a corrupt file.
+    Raises FileNotFoundError for a missing file, IsADirectoryError for a folder and ValueError
+    naming the file for an unknown extension or a corrupt file (a PLY whose faces have no
+    vertices says so).
     """
     path = Path(path)
     suffix = _suffix(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
+    require_file(path)
     reader = {".ply": _read_ply, ".obj": _read_obj, ".glb": _read_glb}[suffix]
     try:
         return reader(path)
@@ -141,9 +142,58 @@ def _split_ply(path: Path, data: bytes) -> tuple[int, str, list]:
     return body_start, fmt, elements
 
 
+def _check_ply_vertices(path: Path, elements: list, need_vertices: bool) -> None:
+    """A clear error for a PLY without vertices: no vertex element, or ``element vertex 0``
+    with faces that then index nothing (with ``need_vertices``, any empty vertex element)."""
+    counts = {name: count for name, count, _ in elements}
+    faces = counts.get("face", 0)
+    if "vertex" not in counts:
+        if faces:
+            raise ValueError(f"{path}: the PLY has {faces} face(s) but no vertex element (a "
+                             "mesh needs 'element vertex N' with x y z before its faces)")
+        raise ValueError(f"{path}: PLY has no vertex element")
+    if counts["vertex"] == 0 and (faces or need_vertices):
+        also = (f" but {faces} face(s), which index vertices the file does not hold" if faces
+                else "")
+        raise ValueError(f"{path}: the PLY has no vertices (element vertex 0){also}")
+
+
+def read_ply_vertices(path: str | os.PathLike) -> np.ndarray:
+    """The vertex element of a PLY file (ASCII or binary) as a structured array.
+
+    -> [V] with one field per scalar vertex property, as stored (``x y z``, and ``nx ny nz``,
+    ``red green blue`` ... when present), V > 0. What follows the vertex element (faces, custom
+    elements) is not read. Raises FileNotFoundError, IsADirectoryError, or ValueError naming the
+    file (not a PLY, no vertices, truncated, no ``x y z``).
+    """
+    path = require_file(path)
+    data = path.read_bytes()
+    body_start, fmt, elements = _split_ply(path, data)
+    _check_ply_vertices(path, elements, need_vertices=True)
+    names = [name for name, _, _ in elements]
+    elements = elements[: names.index("vertex") + 1]
+    if fmt == "ascii":
+        tables = _read_ply_ascii(path, data[body_start:], elements)
+    else:
+        order = "<" if "little" in fmt else ">"
+        needed = body_start + sum(
+            count * np.dtype([(p[0], order + p[1]) for p in props]).itemsize
+            for _, count, props in elements if all(p[2] is None for p in props))
+        if len(data) < needed:
+            raise ValueError(f"{path}: PLY file is truncated ({len(data)} of at least {needed} "
+                             "bytes)")
+        tables = _read_ply_binary(path, data, body_start, elements, order)
+    vertex = tables["vertex"]
+    missing = [axis for axis in "xyz" if axis not in vertex.dtype.names]
+    if missing:
+        raise ValueError(f"{path}: PLY vertex element lacks properties {missing}")
+    return vertex
+
+
 def _read_ply(path: Path) -> Mesh:
     data = path.read_bytes()
     body_start, fmt, elements = _split_ply(path, data)
+    _check_ply_vertices(path, elements, need_vertices=False)
     if fmt == "ascii":
         tables = _read_ply_ascii(path, data[body_start:], elements)
     else:
@@ -249,6 +299,8 @@ def _read_ply_ascii(path: Path, body: bytes, elements) -> dict:
             if any(prop[2] is not None for prop in properties):
                 raise ValueError(f"{path}: unsupported PLY vertex list properties")
             values = np.array([line.split()[: len(properties)] for line in block], dtype=np.float64)
+            if count == 0:
+                values = values.reshape(0, len(properties))
             if values.shape != (count, len(properties)):
                 raise ValueError(f"{path}: PLY vertex lines do not have {len(properties)} values")
             table = np.empty(count, dtype=[(prop[0], prop[1]) for prop in properties])

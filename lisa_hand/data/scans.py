@@ -18,14 +18,17 @@ differentiable.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
 import torch
 
-from .images import MeshRayCaster, _check_mesh, _to_numpy, vertex_normals
+from ..geometry.fields import SdfFn, call_sdf
+from ..handmodel.hand import SurfaceSamples
+from .arrays import to_numpy
+from .raycast import MeshRayCaster, check_mesh, vertex_normals
 
 __all__ = [
     "ScanConfig",
@@ -36,8 +39,6 @@ __all__ = [
     "simulate_scan",
     "sdf_samples",
 ]
-
-SdfFn = Callable[[torch.Tensor], torch.Tensor]
 
 # Visible points lie on the surface, so the first hit along the ray to them is the point itself,
 # up to float32 rounding: the hit may come this much (relative to the distance) short of it.
@@ -118,17 +119,6 @@ class Scan:
     """[3] float32 sensor position of a partial scan, world metres; None for a full scan."""
 
 
-class SurfaceSamples(NamedTuple):
-    """Points sampled on a mesh (a named tuple: ``points, normals, face_ids = ...`` works)."""
-
-    points: np.ndarray
-    """[N, 3] float32 world metres, exactly on the faces."""
-    normals: np.ndarray
-    """[N, 3] float32 unit outward normals."""
-    face_ids: np.ndarray
-    """[N] int64 face of each point."""
-
-
 class SdfSamples(NamedTuple):
     """Points near a surface and their signed distances (``points, sdf = ...`` works)."""
 
@@ -204,7 +194,7 @@ def sample_surface(vertices, faces, num_points: int, generator: np.random.Genera
     smooth_normals: interpolate angle-weighted vertex normals (True) or use face normals.
     -> :class:`SurfaceSamples` ``(points [N, 3], normals [N, 3], face_ids [N])``.
     """
-    vertices, faces = _check_mesh(vertices, faces)
+    vertices, faces = check_mesh(vertices, faces)
     num_points = _check_count(num_points, "num_points")
     return _SurfaceSampler(vertices, faces, smooth_normals).sample(num_points,
                                                                     _as_rng(generator))
@@ -247,7 +237,7 @@ def simulate_scan(vertices, faces, config: ScanConfig | None = None,
     config = ScanConfig() if config is None else config
     if not isinstance(config, ScanConfig):
         raise TypeError(f"config must be a ScanConfig or None, got {type(config).__name__}")
-    vertices, faces = _check_mesh(vertices, faces)
+    vertices, faces = check_mesh(vertices, faces)
     rng = _as_rng(seed, "seed")
     sampler = _SurfaceSampler(vertices, faces, config.smooth_normals)
     num_outliers = int(round(config.outlier_fraction * config.num_points))
@@ -273,14 +263,13 @@ def simulate_scan(vertices, faces, config: ScanConfig | None = None,
             candidates = sampler.sample(int(_OVERSAMPLE * missing) + 16, rng)
             visible = _visible(caster, candidates.points, candidates.normals, viewpoint,
                                config.max_incidence_deg)
-            kept.append(SurfaceSamples(*(field[visible] for field in candidates)))
+            kept.append(candidates.select(visible))
             num_kept += int(visible.sum())
         if num_kept < num_inliers:
             raise ValueError(f"partial scan: only {num_kept} of {num_inliers} points are visible "
                              f"from viewpoint {viewpoint.tolist()} after {_MAX_ROUNDS} rounds; "
                              f"is the viewpoint inside the mesh or the mesh open?")
-        samples = SurfaceSamples(*(np.concatenate(parts)[:num_inliers]
-                                   for parts in zip(*kept, strict=True)))
+        samples = SurfaceSamples.concatenate(kept).select(slice(0, num_inliers))
 
     points = samples.points.astype(np.float64)
     normals = samples.normals.astype(np.float64)
@@ -306,9 +295,9 @@ def simulate_scan(vertices, faces, config: ScanConfig | None = None,
 def _mesh_of(target) -> tuple[np.ndarray, np.ndarray] | None:
     """(vertices, faces) of a (vertices, faces) pair or an object with those attributes."""
     if isinstance(target, (tuple, list)) and len(target) == 2:
-        return _check_mesh(*target)
+        return check_mesh(*target)
     if hasattr(target, "vertices") and hasattr(target, "faces"):
-        return _check_mesh(target.vertices, target.faces)
+        return check_mesh(target.vertices, target.faces)
     return None
 
 
@@ -325,19 +314,19 @@ def sdf_samples(target: SdfFn | tuple | object, surface_points, normals=None,
 
     target: ``sdf_fn(points [N, 3] float32 torch) -> [N] metres`` (negative inside), or a
         watertight mesh as ``(vertices [V, 3], faces [F, 3])`` or any object with ``vertices``
-        and ``faces`` (``lisa_hand.meshing.Mesh``, trimesh): distances from point-cloud-utils'
-        ``signed_distance_to_mesh`` (sign by fast winding numbers).
+        and ``faces`` (``lisa_hand.geometry.meshing.Mesh``, trimesh): distances from
+        point-cloud-utils' ``signed_distance_to_mesh`` (sign by fast winding numbers).
     surface_points: [N, 3] metres; normals: [N, 3] unit or None.
     num_samples: M; sigma: metres, > 0, one value or several.
     generator: numpy Generator or int seed.
     -> :class:`SdfSamples` ``(points [M, 3], sdf [M])``.
     """
-    surface_points = np.asarray(_to_numpy(surface_points, "surface_points"), np.float64)
+    surface_points = np.asarray(to_numpy(surface_points, "surface_points"), np.float64)
     if surface_points.ndim != 2 or surface_points.shape[1] != 3 or surface_points.shape[0] == 0:
         raise ValueError(f"surface_points must have shape [N, 3] with N > 0, got "
                          f"{list(surface_points.shape)}")
     if normals is not None:
-        normals = np.asarray(_to_numpy(normals, "normals"), np.float64)
+        normals = np.asarray(to_numpy(normals, "normals"), np.float64)
         if normals.shape != surface_points.shape:
             raise ValueError(f"normals must have the shape of surface_points "
                              f"{list(surface_points.shape)}, got {list(normals.shape)}")
@@ -380,12 +369,6 @@ def sdf_samples(target: SdfFn | tuple | object, surface_points, normals=None,
             query = torch.from_numpy(points)
             for start in range(0, num_samples, _CHUNK):
                 chunk = query[start:start + _CHUNK]
-                value = target(chunk)
-                if value.dim() == 2 and value.shape[1] == 1:
-                    value = value[:, 0]
-                if value.shape != (chunk.shape[0],):
-                    raise ValueError(f"sdf_fn(points [N, 3]) must return [N] or [N, 1], got "
-                                     f"shape {list(value.shape)} for N = {chunk.shape[0]}")
-                values.append(value.detach().cpu().numpy())
+                values.append(call_sdf(target, chunk).detach().cpu().numpy())
         sdf = (np.concatenate(values) if values else np.zeros(0)).astype(np.float32)
     return SdfSamples(points=points, sdf=sdf)

@@ -2,7 +2,7 @@
 
 1. Synthesize one hand of the open hand model (a subject and pose drawn from a seed stream that
    training never used): its ground-truth mesh, a scan, and ``views`` calibrated images with
-   masks and 2D keypoints (:func:`lisa_hand.data.synth.synthesize`).
+   masks and 2D keypoints (:func:`lisa_hand.data.synth.dataset.synthesize`).
 2. Fit the shipped model to the scan (``lisa fit-points``), to 1 view and to 4 views
    (``lisa fit-images``); mesh each fit.
 3. Measure each fit against the truth: V2V and V2S both ways (mm), and the PSNR of the fitted
@@ -87,7 +87,8 @@ def _gif_data_uri(path: Path) -> str:
 def _novel_view_psnr(model, params, frame_dir: Path, names: list[str]) -> tuple[float, list]:
     """Mean PSNR (dB, inside the masks) of the fitted hand in the views ``names`` -> (psnr,
     [rendered uint8 [H, W, 3], target uint8] per view)."""
-    from ..fitting.images import read_views, render_fitted_views
+    from ..fitting.images.folder import render_fitted_views
+    from ..fitting.images.views import read_views
     from ..metrics import psnr
 
     renders = render_fitted_views(model, params, read_views(frame_dir, names))
@@ -107,10 +108,11 @@ def run_demo(
 ) -> DemoResult:
     """Run the demo into ``out_dir`` (see the module docstring) and return its table."""
     from ..data.layout import FramePaths, read_image
-    from ..data.synth import SynthConfig, synthesize
-    from ..fitting.images import FitImagesConfig, fit_image_folder
-    from ..fitting.io import fit_point_file
-    from ..fitting.points import FitPointsConfig
+    from ..data.synth.dataset import SynthConfig, synthesize
+    from ..fitting.images.config import FitImagesConfig
+    from ..fitting.images.folder import fit_image_folder
+    from ..fitting.points.fit import FitPointsConfig
+    from ..fitting.points.io import fit_point_file
     from ..geometry.cameras import load_cameras
     from ..inference import hand_render_config, orbit_views, prepare_render, render_to_folder
     from ..model.trained import load_trained
@@ -141,7 +143,7 @@ def run_demo(
 
     rows, pictures = [], {}
     points_config = _scaled(FitPointsConfig(), config.fit_scale,
-                            ("align_iterations", "pose_iterations", "iterations"))
+                            ("align_iters", "pose_iters", "field_iters"))
     images_config = _scaled(FitImagesConfig(), config.fit_scale,
                             ("keypoint_iters", "color_iters"))
     if not model.has_color:

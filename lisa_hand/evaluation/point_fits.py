@@ -3,7 +3,7 @@
 ``python -m lisa_hand.evaluation.point_fits DATA [--model M] [--split test] [--frames N]``
 
 For each frame of the split (subjects never seen in training), ``scan.npz``'s points and normals
-are fitted (:func:`lisa_hand.fitting.io.fit_point_file`: global pose from scratch, then pose,
+are fitted (:func:`lisa_hand.fitting.points.io.fit_point_file`: global pose from scratch, then pose,
 skeleton and shape code), the fitted surface is meshed, and V2V and V2S are measured both ways
 against the frame's ground-truth ``mesh.ply`` (millimetres, :mod:`lisa_hand.metrics`). Prints a
 line per frame and the means; ``--json`` writes them.
@@ -54,7 +54,7 @@ def evaluate_point_fits(
 
     out_dir: where each frame's fit goes (``out_dir/s006_f000/``); None: a temporary folder.
     """
-    from ..fitting.io import fit_point_file
+    from ..fitting.points.io import fit_point_file
 
     data_dir = Path(data_dir)
     subjects = read_split(data_dir)[split]

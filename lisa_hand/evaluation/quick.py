@@ -1,7 +1,8 @@
 """``lisa eval --quick``: the whole evaluation pipeline at toy sizes, in a few minutes on a CPU.
 
 Without models, it first makes what it needs in ``OUT/quick``: a tiny synthetic dataset
-(:func:`lisa_hand.data.synth.synthesize`: 4 subjects, 2 poses, 5 views of 64 x 48, one held-out
+(:func:`lisa_hand.data.synth.dataset.synthesize`: 4 subjects, 2 poses, 5 views of 64 x 48, one
+held-out
 test subject) and every method trained for a few dozen steps with tiny fields (VolSDF, NASA,
 NARF, LISA-im on the images; LISA-geom on the scans; LISA-full from LISA-geom). The numbers
 only show that every stage runs and measures in millimetres and dB, not how the methods
@@ -14,7 +15,7 @@ import dataclasses
 from collections.abc import Callable
 from pathlib import Path
 
-from .tables import EvalConfig
+from .config import EvalConfig
 
 __all__ = ["QUICK_EVAL", "quick_config", "quick_models"]
 
@@ -41,10 +42,10 @@ def quick_models(work: str | Path, steps: int = 30, log: Callable[[str], None] =
 
     Runs that already finished are reused (their ``last.pt`` is resumed, a no-op when done).
     """
-    from ..data.synth import SynthConfig, synthesize
+    from ..data.synth.dataset import SynthConfig, synthesize
     from ..fields.config import FieldConfig
     from ..render import RenderConfig
-    from ..training.engine import TrainerConfig
+    from ..training.config import TrainerConfig
     from ..training.images import ImageTrainConfig, train_images
     from ..training.prior import PriorConfig, train_prior
 

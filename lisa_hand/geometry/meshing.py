@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from .fields import SdfFn, check_sdf_output
+
 __all__ = [
     "Mesh",
     "MeshExtraction",
@@ -37,8 +39,6 @@ __all__ = [
     "mesh_attributes",
     "colors_to_uint8",
 ]
-
-SdfFn = Callable[[torch.Tensor], torch.Tensor]
 
 # Blocks of this many cells a side end the hierarchy: their centre is a grid point (reused), and
 # their 2^3 owned grid points are evaluated when they may touch the surface.
@@ -353,15 +353,7 @@ class _GridEvaluator:
         points = self._origin + grid.to(self.dtype) * self._spacing
         with torch.no_grad():
             values = self.sdf_fn(points)
-        if not isinstance(values, torch.Tensor):
-            raise TypeError(f"sdf_fn must return a torch.Tensor, got {type(values).__name__}")
-        if values.dim() == 2 and values.shape[1] == 1:
-            values = values[:, 0]
-        if values.shape != (points.shape[0],):
-            raise ValueError(
-                f"sdf_fn must return [N] or [N, 1] for N = {points.shape[0]} points, got "
-                f"{tuple(values.shape)}"
-            )
+        values = check_sdf_output(values, points.shape[0])
         values = values.detach().to("cpu", self.dtype).numpy()
         if not np.isfinite(values).all():
             raise ValueError(

@@ -13,6 +13,7 @@ facing -y, thumb on +z, metres. See :mod:`.shape` and :mod:`.poses`.
 
 from .appearance import APPEARANCE_BOUNDS, Appearance, albedo, sample_appearance, skin_color
 from .hand import DEFAULT_VOXELS_PER_LENGTH, OpenHand, PosedHand, SurfaceSamples, sample_hand
+from .parts import HandParts, build_hand_parts
 from .poses import (
     JOINT_LIMITS,
     POSE_NAMES,
@@ -31,7 +32,7 @@ from .poses import (
     within_limits,
 )
 from .preview import VIEWS, contact_sheet, render_preview
-from .sdf import HandFieldOutput, HandTemplate, PosedField, build_template
+from .sdf import HandFieldOutput, PosedField
 from .shape import SHAPE_BOUNDS, HandShape, RestSkeleton, rest_skeleton, sample_shape
 
 __all__ = [
@@ -63,10 +64,10 @@ __all__ = [
     "VIEWS",
     "contact_sheet",
     "render_preview",
+    "HandParts",
+    "build_hand_parts",
     "HandFieldOutput",
-    "HandTemplate",
     "PosedField",
-    "build_template",
     "SHAPE_BOUNDS",
     "HandShape",
     "RestSkeleton",

@@ -14,7 +14,8 @@ axis-angle vector in the hand's own side convention (see :mod:`lisa_hand.handmod
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 import torch
@@ -22,7 +23,8 @@ import torch
 from ..skeleton.kinematics import check_side, forward_kinematics, mirror_points, mirror_pose
 from ..skeleton.tree import FINGER_JOINTS, FINGER_NAMES, NUM_JOINTS, POSE_DIM, joints_to_keypoints
 from .appearance import Appearance, albedo, sample_appearance
-from .sdf import HandFieldOutput, HandTemplate, PosedField, build_template, single_threaded
+from .parts import HandParts, build_hand_parts
+from .sdf import HandFieldOutput, PosedField, single_threaded
 from .shape import HandShape, sample_shape
 
 __all__ = [
@@ -71,20 +73,20 @@ class OpenHand:
         check_side(self.side)
 
     @functools.cached_property
-    def template(self) -> HandTemplate:
-        """The right-hand rest-pose parts and detail (float64, CPU)."""
-        return build_template(self.shape, int(self.detail_seed))
+    def parts(self) -> HandParts:
+        """The right-hand rest-pose parts and detail (float64, CPU; :mod:`.parts`)."""
+        return build_hand_parts(self.shape, int(self.detail_seed))
 
     @property
     def rest_joints(self) -> torch.Tensor:
         """[16, 3] float64 rest-pose joints of this side, metres."""
-        joints = self.template.skeleton.joints
+        joints = self.parts.skeleton.joints
         return mirror_points(joints) if self.side == "left" else joints.clone()
 
     @property
     def rest_fingertips(self) -> torch.Tensor:
         """[5, 3] float64 rest-pose fingertips (thumb, index, middle, ring, pinky) of this side."""
-        tips = self.template.skeleton.fingertips
+        tips = self.parts.skeleton.fingertips
         return mirror_points(tips) if self.side == "left" else tips.clone()
 
     def posed(
@@ -113,20 +115,50 @@ def sample_hand(generator: torch.Generator, side: str = "right") -> OpenHand:
     return OpenHand(shape=shape, appearance=appearance, detail_seed=detail_seed, side=side)
 
 
-@dataclass
+@dataclass(frozen=True)
 class SurfaceSamples:
-    """Points on a posed hand's surface with their exact attributes (world frame).
+    """Points on a surface with what is known there (world frame): the one type of surface
+    samples of the package. The open hand's :meth:`PosedHand.surface_samples` fills ``weights``
+    and ``colors`` (torch tensors, on the exact zero level set, |sdf| < 1e-5 m); sampling a mesh
+    (:func:`lisa_hand.data.scans.sample_surface`) fills ``face_ids`` (numpy arrays, float32
+    points exactly on the faces). Arrays are all torch tensors or all numpy arrays.
 
-    points: [N, 3] metres, on the zero level set (|sdf| < 1e-5 m).
-    normals: [N, 3] outward unit normals (normalised SDF gradients).
-    weights: [N, 16] skinning weights (bone ownership), rows summing to 1.
-    colors: [N, 3] albedo, sRGB in [0, 1].
+    points: [N, 3] metres, on the surface.
+    normals: [N, 3] outward unit normals.
+    weights: [N, 16] skinning weights (bone ownership), rows summing to 1; None if not known.
+    colors: [N, 3] albedo, sRGB in [0, 1]; None if not known.
+    face_ids: [N] int64 mesh face of each point; None when not sampled on a mesh.
     """
 
-    points: torch.Tensor
-    normals: torch.Tensor
-    weights: torch.Tensor
-    colors: torch.Tensor
+    points: torch.Tensor | np.ndarray
+    normals: torch.Tensor | np.ndarray
+    weights: torch.Tensor | np.ndarray | None = None
+    colors: torch.Tensor | np.ndarray | None = None
+    face_ids: torch.Tensor | np.ndarray | None = None
+
+    def _known(self) -> dict[str, torch.Tensor | np.ndarray]:
+        return {f.name: getattr(self, f.name) for f in fields(self)
+                if getattr(self, f.name) is not None}  # fmt: skip
+
+    def select(self, index) -> SurfaceSamples:
+        """The samples ``index`` picks (a boolean mask [N], indices or a slice), with every
+        known attribute."""
+        return SurfaceSamples(**{name: value[index] for name, value in self._known().items()})
+
+    @staticmethod
+    def concatenate(parts: Sequence[SurfaceSamples]) -> SurfaceSamples:
+        """The samples of ``parts`` one after the other (all with the same known attributes)."""
+        if not parts:
+            raise ValueError("concatenate needs at least one SurfaceSamples")
+        names = list(parts[0]._known())
+        if any(list(part._known()) != names for part in parts):
+            raise ValueError("concatenate: the parts know different attributes")
+        joined = {}
+        for name in names:
+            values = [getattr(part, name) for part in parts]
+            is_tensor = isinstance(values[0], torch.Tensor)
+            joined[name] = torch.cat(values) if is_tensor else np.concatenate(values)
+        return SurfaceSamples(**joined)
 
 
 def _check_vector(value, size: int, name: str) -> torch.Tensor:
@@ -181,12 +213,10 @@ class PosedHand:
         # Everything is computed on the right hand; a left hand mirrors inputs and outputs.
         pose_right = mirror_pose(self.pose) if self.mirrored else self.pose
         transl_right = mirror_points(self.translation) if self.mirrored else self.translation
-        template = hand.template
-        kinematics = forward_kinematics(
-            pose_right[None], template.skeleton.joints, transl_right[None]
-        )
+        parts = hand.parts
+        kinematics = forward_kinematics(pose_right[None], parts.skeleton.joints, transl_right[None])
         transforms_right = kinematics.transforms[0]
-        self._field = PosedField(template, transforms_right.to(self.device, dtype))
+        self._field = PosedField(parts, transforms_right.to(self.device, dtype))
         tips_right = self._fingertips(transforms_right)
         joints_right = kinematics.joints[0]
         if self.mirrored:
@@ -267,7 +297,7 @@ class PosedHand:
         """
         field = self._field
         centers = torch.cat([field.cone_center, field.slab_center]).double()
-        radii = torch.cat([field.template.cone_bound, field.template.slab_bound]).double()
+        radii = torch.cat([field.parts.cone_bound, field.parts.slab_bound]).double()
         if self.mirrored:
             centers = mirror_points(centers)
         low = (centers - radii[:, None]).amin(0) - margin
@@ -291,7 +321,7 @@ class PosedHand:
             100k-150k vertices). resolution: alternatively, grid samples along the longest side
             of the bounding box. Give at most one.
         colors: attach per-vertex albedo; skin_weights: attach per-vertex ownership weights.
-        -> :class:`lisa_hand.meshing.Mesh` (world frame, float32 vertices, outward faces).
+        -> :class:`lisa_hand.geometry.meshing.Mesh` (world frame, float32 vertices, outward faces).
         """
         from ..geometry.meshing import Mesh, colors_to_uint8, extract_mesh
 
@@ -378,13 +408,13 @@ class PosedHand:
     # ------------------------------------------------------------------------------------------
     def _fingertips(self, transforms_right: torch.Tensor) -> torch.Tensor:
         """[5, 3] the surface points where each distal bone's axis leaves the finger (right)."""
-        skel = self.hand.template.skeleton
+        skel = self.hand.parts.skeleton
         distal = [FINGER_JOINTS[name][2] for name in FINGER_NAMES]
         tips_rest = skel.fingertips
         rot = transforms_right[distal, :3, :3]
         tips = (rot @ tips_rest[..., None])[..., 0] + transforms_right[distal, :3, 3]
         directions = (rot @ skel.bone_dirs[distal][..., None])[..., 0]
-        field = PosedField(self.hand.template, transforms_right)
+        field = PosedField(self.hand.parts, transforms_right)
         with torch.no_grad():
             for _ in range(4):  # Newton steps along the bone: the surface normal is ~ the axis
                 values = field.evaluate(tips).sdf

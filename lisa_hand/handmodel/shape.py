@@ -238,26 +238,33 @@ def _thumb_direction(angle: float, tilt: float) -> np.ndarray:
     return _unit(in_plane * math.cos(tilt) + np.array([0.0, -math.sin(tilt), 0.0]))
 
 
-def rest_skeleton(shape: HandShape, dtype: torch.dtype = torch.float64) -> RestSkeleton:
-    """Rest-pose joints, fingertips, bone frames and flesh radii of a hand shape.
+@dataclass
+class _Bones:
+    """The rest skeleton's arrays while they are filled in (float64, metres)."""
 
-    shape: a :class:`HandShape`.
-    -> :class:`RestSkeleton` with tensors of ``dtype`` (CPU).
-    """
-    if not isinstance(shape, HandShape):
-        raise TypeError(f"shape must be a HandShape, got {type(shape).__name__}")
+    joints: np.ndarray
+    ends: np.ndarray
+    radii: np.ndarray
+    dirs: np.ndarray
+    dorsal: np.ndarray
+    tips: np.ndarray
+
+    @classmethod
+    def zeros(cls) -> _Bones:
+        three = (NUM_JOINTS, 3)
+        return cls(joints=np.zeros(three), ends=np.zeros(three), radii=np.zeros((NUM_JOINTS, 2)),
+                   dirs=np.zeros(three), dorsal=np.zeros(three), tips=np.zeros((5, 3)))
+
+
+_UP = np.array([0.0, 1.0, 0.0])
+
+
+def _place_fingers(shape: HandShape, middle_mcp: np.ndarray, bones: _Bones) -> None:
+    """The four fingers' bones, straight chains from their MCP joints (splayed in the palm
+    plane, tapering toward the tip)."""
     length = shape.hand_length
     scale = length / 0.185  # offsets above are for the average 18.5 cm hand
     thick = shape.finger_thickness * scale
-    joints = np.zeros((NUM_JOINTS, 3))
-    ends = np.zeros((NUM_JOINTS, 3))
-    radii = np.zeros((NUM_JOINTS, 2))
-    dirs = np.zeros((NUM_JOINTS, 3))
-    dorsal = np.zeros((NUM_JOINTS, 3))
-    tips = np.zeros((5, 3))
-    up = np.array([0.0, 1.0, 0.0])
-
-    middle_mcp = np.array([-shape.palm_length * length, 0.0, _MIDDLE_MCP_Z * scale])
     middle_finger = (1.0 - shape.palm_length) * length
     ratios = {"index": shape.index_ratio, "middle": 1.0, "ring": shape.ring_ratio}
     ratios["pinky"] = shape.pinky_ratio
@@ -268,56 +275,77 @@ def rest_skeleton(shape: HandShape, dtype: torch.dtype = torch.float64) -> RestS
         spacing = shape.palm_width * (0.6 + 0.4 * shape.finger_thickness)
         mcp = middle_mcp + np.array([dx * scale, dy * scale, dz * scale * spacing])
         splay = _FINGER_SPLAY[finger] * shape.finger_spread
-        direction = _rotate_about(np.array([-1.0, 0.0, 0.0]), up, splay)
+        direction = _rotate_about(np.array([-1.0, 0.0, 0.0]), _UP, splay)
         finger_length = ratios[finger] * middle_finger
         fractions = FINGER_BONE_FRACTIONS[finger]
         base_radius = _FINGER_BASE_RADIUS[finger] * thick
         taper = shape.fingertip_taper
         position, walked = mcp, 0.0
         for bone, fraction in zip(chain, fractions, strict=True):
-            joints[bone] = position
+            bones.joints[bone] = position
             start_radius = base_radius * (1.0 - (1.0 - taper) * walked)
             walked += fraction
             end_radius = base_radius * (1.0 - (1.0 - taper) * walked)
             position = position + direction * fraction * finger_length
-            ends[bone] = position
-            radii[bone] = (start_radius, end_radius)
-            dirs[bone] = direction
-            dorsal[bone] = up
-        tips[FINGER_NAMES.index(finger)] = position
+            bones.ends[bone] = position
+            bones.radii[bone] = (start_radius, end_radius)
+            bones.dirs[bone] = direction
+            bones.dorsal[bone] = _UP
+        bones.tips[FINGER_NAMES.index(finger)] = position
 
+
+def _place_thumb(shape: HandShape, bones: _Bones) -> None:
+    """The thumb's three bones from its CMC joint, each turned by its own angle and tilt, the
+    nail side pronated toward +z."""
+    length = shape.hand_length
+    scale = length / 0.185
     cmc = np.array(_THUMB_CMC) * scale * np.array([shape.thumb_base, 1.0, shape.thumb_base])
     cmc[2] *= shape.palm_width
     position = cmc
     for k, bone in enumerate(FINGER_JOINTS["thumb"]):
         direction = _thumb_direction(shape.thumb_angle + _THUMB_ANGLE_OFFSETS[k], _THUMB_TILT[k])
-        joints[bone] = position
+        bones.joints[bone] = position
         position = position + direction * _THUMB_FRACTIONS[k] * length * shape.thumb_length
-        ends[bone] = position
+        bones.ends[bone] = position
         thumb_scale = shape.finger_thickness * scale
-        radii[bone] = (_THUMB_RADII[k] * thumb_scale, _THUMB_RADII[k + 1] * thumb_scale)
-        dirs[bone] = direction
+        bones.radii[bone] = (_THUMB_RADII[k] * thumb_scale, _THUMB_RADII[k + 1] * thumb_scale)
+        bones.dirs[bone] = direction
         # Nail side: "up" made orthogonal to the bone, then turned about the bone toward +z.
-        base_up = _unit(up - direction * np.dot(up, direction))
-        dorsal[bone] = _unit(_rotate_about(base_up, direction, -_THUMB_PRONATION))
-    tips[0] = position
+        base_up = _unit(_UP - direction * np.dot(_UP, direction))
+        bones.dorsal[bone] = _unit(_rotate_about(base_up, direction, -_THUMB_PRONATION))
+    bones.tips[0] = position
 
+
+def rest_skeleton(shape: HandShape, dtype: torch.dtype = torch.float64) -> RestSkeleton:
+    """Rest-pose joints, fingertips, bone frames and flesh radii of a hand shape.
+
+    shape: a :class:`HandShape`.
+    -> :class:`RestSkeleton` with tensors of ``dtype`` (CPU).
+    """
+    if not isinstance(shape, HandShape):
+        raise TypeError(f"shape must be a HandShape, got {type(shape).__name__}")
+    length = shape.hand_length
+    scale = length / 0.185  # offsets above are for the average 18.5 cm hand
+    bones = _Bones.zeros()
+    middle_mcp = np.array([-shape.palm_length * length, 0.0, _MIDDLE_MCP_Z * scale])
+    _place_fingers(shape, middle_mcp, bones)
+    _place_thumb(shape, bones)
     # Wrist bone: toward the middle MCP joint; radii = palm half thickness.
-    ends[0] = middle_mcp
-    dirs[0] = np.array([-1.0, 0.0, 0.0])
-    dorsal[0] = up
-    radii[0] = 0.012 * scale * shape.palm_thickness
-    lateral = np.cross(dorsal, dirs)
+    bones.ends[0] = middle_mcp
+    bones.dirs[0] = np.array([-1.0, 0.0, 0.0])
+    bones.dorsal[0] = _UP
+    bones.radii[0] = 0.012 * scale * shape.palm_thickness
+    lateral = np.cross(bones.dorsal, bones.dirs)
 
     def as_tensor(array: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(array, dtype=dtype)
 
     return RestSkeleton(
-        joints=as_tensor(joints),
-        fingertips=as_tensor(tips),
-        bone_ends=as_tensor(ends),
-        radii=as_tensor(radii),
-        bone_dirs=as_tensor(dirs),
-        dorsal=as_tensor(dorsal),
+        joints=as_tensor(bones.joints),
+        fingertips=as_tensor(bones.tips),
+        bone_ends=as_tensor(bones.ends),
+        radii=as_tensor(bones.radii),
+        bone_dirs=as_tensor(bones.dirs),
+        dorsal=as_tensor(bones.dorsal),
         lateral=as_tensor(lateral),
     )

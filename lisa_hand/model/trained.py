@@ -3,7 +3,7 @@
 What fitting, meshing, rendering and animation load. It comes from one of
 
 * the model shipped with the package (``lisa_hand/assets/lisa_pretrained.pt``, the default);
-* a file written by :func:`export_trained` (``python -m lisa_hand.trained RUN --out FILE``);
+* a file written by :func:`export_trained` (``python -m lisa_hand.model.trained RUN --out FILE``);
 * a training run: a ``lisa train`` run (geometry and colour) or a ``lisa train-prior`` run
   (geometry only), as its folder or its checkpoint file.
 
@@ -23,7 +23,10 @@ from typing import Any
 import torch
 
 from ..fields.config import FieldConfig
+from ..render.density import laplace_beta
+from ..utils.config import config_from_dict
 from ..utils.io import atomic_path
+from .checkpoint import IMAGE_KIND, LAST_CHECKPOINT, PRIOR_KIND, Checkpoint, load_checkpoint
 from .lisa import LisaModel
 
 __all__ = [
@@ -32,6 +35,7 @@ __all__ = [
     "TrainedModel",
     "default_model_path",
     "load_trained",
+    "trained_from_checkpoint",
     "export_trained",
     "main",
 ]
@@ -105,42 +109,82 @@ def default_model_path() -> Path:
 
 
 def _from_run(path: Path) -> TrainedModel:
-    from ..training.checkpoint import LAST_CHECKPOINT, load_checkpoint
-    from ..training.images import IMAGE_KIND, load_image_model
-    from ..training.prior import PRIOR_KIND, load_prior
-
     ckpt_path = path / LAST_CHECKPOINT if path.is_dir() else path
     if not ckpt_path.is_file():
         raise FileNotFoundError(f"{ckpt_path}: no checkpoint here (expected a run folder with "
                                 f"{LAST_CHECKPOINT}, a checkpoint or an exported model file)")
-    kind = load_checkpoint(ckpt_path).extra.get("kind")
-    if kind == IMAGE_KIND:
-        model = load_image_model(ckpt_path)
-        gain, bias = model.mean_calibration()
-        return TrainedModel(
-            field=model.field.eval(),
-            shape_codes=model.shape_codes.weight.detach().clone(),
-            color_codes=model.color_codes.weight.detach().clone(),
-            subject_ids=list(model.subject_ids),
-            beta=float(model.density.beta.detach()),
-            gain=gain.detach().clone(),
-            bias=bias.detach().clone(),
-            source=str(ckpt_path),
-        )
+    return trained_from_checkpoint(load_checkpoint(ckpt_path))
+
+
+def _run_field(ckpt: Checkpoint, source: Path) -> tuple[LisaModel, dict[str, Any]]:
+    """The trained field of a prior or image run (``model.field``, the ``field.*`` weights),
+    its config checked; -> (field in eval mode, the run's config)."""
+    if ckpt.config is None:
+        raise ValueError(f"{source}: the checkpoint holds no run config")
+    field_config = config_from_dict(FieldConfig, ckpt.config.get("field", {}),
+                                    source=f"{source} (field)")
+    field = LisaModel(field_config)
+    prefix = "field."
+    state = {k[len(prefix):]: v for k, v in ckpt.model.items() if k.startswith(prefix)}
+    try:
+        field.load_state_dict(state)
+    except RuntimeError as exc:
+        first = " ".join(line.strip() for line in str(exc).strip().splitlines()[:3])
+        raise ValueError(f"{source}: the weights do not fit the saved config ({first})") \
+            from None
+    return field.eval(), ckpt.config
+
+
+def _run_names(ckpt: Checkpoint, source: Path, keys: tuple[str, ...]) -> dict[str, list]:
+    names = {}
+    for key in keys:
+        value = ckpt.extra.get(key)
+        if not isinstance(value, list) or not value:
+            raise ValueError(f"{source}: the checkpoint lists no {key}")
+        names[key] = value
+    return names
+
+
+def trained_from_checkpoint(ckpt: Checkpoint) -> TrainedModel:
+    """What inference needs of a training run's checkpoint (a ``lisa train`` or ``lisa
+    train-prior`` run, :data:`IMAGE_KIND` or :data:`PRIOR_KIND`): the field, the codes, beta
+    and the mean colour calibration (identity and :data:`DEFAULT_BETA` for a prior)."""
+    source = ckpt.path if ckpt.path is not None else Path("<checkpoint>")
+    kind = ckpt.extra.get("kind")
+    if kind not in (IMAGE_KIND, PRIOR_KIND):
+        raise ValueError(f"{source}: a checkpoint of kind {kind!r}, not a LISA model "
+                         f"({IMAGE_KIND!r} or {PRIOR_KIND!r})")
+    field, config = _run_field(ckpt, source)
+    dims = field.config.shape_dim, field.config.color_dim
     if kind == PRIOR_KIND:
-        model = load_prior(ckpt_path)
+        names = _run_names(ckpt, source, ("subject_ids",))
+        num = len(names["subject_ids"])
         return TrainedModel(
-            field=model.field.eval(),
-            shape_codes=model.shape_codes.weight.detach().clone(),
+            field=field,
+            shape_codes=_tensor(ckpt.model, "shape_codes.weight", source, (num, dims[0])).clone(),
             color_codes=None,
-            subject_ids=list(model.subject_ids),
+            subject_ids=list(names["subject_ids"]),
             beta=DEFAULT_BETA,
             gain=torch.ones(3),
             bias=torch.zeros(3),
-            source=str(ckpt_path),
+            source=str(source),
         )
-    raise ValueError(f"{ckpt_path}: a checkpoint of kind {kind!r}, not a LISA model "
-                     f"({IMAGE_KIND!r} or {PRIOR_KIND!r})")
+    names = _run_names(ckpt, source, ("subject_ids", "camera_names", "frame_keys"))
+    num, cameras = len(names["subject_ids"]), len(names["camera_names"])
+    beta_min = config.get("beta_min")
+    if isinstance(beta_min, bool) or not isinstance(beta_min, (int, float)):
+        raise ValueError(f"{source}: the run config has no beta_min")
+    beta_raw = _tensor(ckpt.model, "density.beta_raw", source, ())
+    return TrainedModel(
+        field=field,
+        shape_codes=_tensor(ckpt.model, "shape_codes.weight", source, (num, dims[0])).clone(),
+        color_codes=_tensor(ckpt.model, "color_codes.weight", source, (num, dims[1])).clone(),
+        subject_ids=list(names["subject_ids"]),
+        beta=float(laplace_beta(beta_raw, float(beta_min))),
+        gain=_tensor(ckpt.model, "gain", source, (cameras, 3)).mean(dim=0),
+        bias=_tensor(ckpt.model, "bias", source, (cameras, 3)).mean(dim=0),
+        source=str(source),
+    )
 
 
 def _tensor(data: dict, key: str, path: Path, shape: tuple[int | None, ...]) -> torch.Tensor:
@@ -260,11 +304,11 @@ def export_trained(
 
 
 def main(argv: list[str] | None = None) -> None:
-    """``python -m lisa_hand.trained RUN --out FILE [--half]``."""
+    """``python -m lisa_hand.model.trained RUN --out FILE [--half]``."""
     import argparse
 
     parser = argparse.ArgumentParser(
-        prog="python -m lisa_hand.trained",
+        prog="python -m lisa_hand.model.trained",
         description="Export a trained run (lisa train or lisa train-prior) for inference.")
     parser.add_argument("run", help="run folder or checkpoint (or an exported model)")
     parser.add_argument("--out", required=True, help="output file (.pt)")

@@ -21,7 +21,7 @@ import math
 import torch
 from torch import nn
 
-__all__ = ["laplace_cdf", "volsdf_density", "LaplaceDensity"]
+__all__ = ["laplace_cdf", "volsdf_density", "laplace_beta", "LaplaceDensity"]
 
 
 def _check_beta(beta: float | torch.Tensor) -> None:
@@ -75,6 +75,15 @@ def _inverse_softplus(value: float) -> float:
     return value + math.log(-math.expm1(-value))
 
 
+def laplace_beta(beta_raw: torch.Tensor, beta_min: float) -> torch.Tensor:
+    """VolSDF's Laplace scale from its raw parameter: ``beta_min + softplus(beta_raw)``.
+
+    beta_raw: [] unconstrained; beta_min: metres (>= 0) -> [] metres, > ``beta_min``
+    (differentiable in ``beta_raw``).
+    """
+    return beta_min + nn.functional.softplus(beta_raw)
+
+
 class LaplaceDensity(nn.Module):
     """VolSDF density with a learnable Laplace scale ``beta`` and ``alpha = 1 / beta``.
 
@@ -99,7 +108,7 @@ class LaplaceDensity(nn.Module):
     @property
     def beta(self) -> torch.Tensor:
         """[] current Laplace scale, metres (differentiable)."""
-        return self.beta_min + nn.functional.softplus(self.beta_raw)
+        return laplace_beta(self.beta_raw, self.beta_min)
 
     @property
     def alpha(self) -> torch.Tensor:

@@ -1,7 +1,7 @@
 """Render rays through a signed-distance / colour field with VolSDF's density (LISA Section 4.1).
 
-The field is a callback (nerfacc style), so the renderer never imports the model and is tested
-on analytic fields:
+The field is a callback (the protocol of :mod:`lisa_hand.geometry.fields`, nerfacc style), so
+the renderer never imports the model and is tested on analytic fields:
 
     field_fn(points [N, 3] metres, directions [N, 3] unit) -> (sdf [N] metres, rgb [N, C])
     sdf_fn(points [N, 3] metres) -> sdf [N] metres     (geometry only, used to place samples)
@@ -9,24 +9,27 @@ on analytic fields:
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
 
+from ..geometry.fields import FieldFn, SdfFn, call_field
 from .composite import RenderOutput, composite
 from .density import LaplaceDensity
 from .samplers import (
-    SdfFn,
     error_bounded_samples,
     sphere_traced_samples,
     uniform_samples,
 )
 
-__all__ = ["FieldFn", "SAMPLERS", "RenderConfig", "render_rays", "apply_gain_bias", "calibrate"]
-
-FieldFn = Callable[[torch.Tensor, torch.Tensor], tuple[torch.Tensor, torch.Tensor]]
-"""``field_fn(points [N, 3] metres, directions [N, 3] unit) -> (sdf [N] metres, rgb [N, C])``."""
+__all__ = [
+    "SAMPLERS",
+    "RenderConfig",
+    "place_samples",
+    "render_rays",
+    "apply_gain_bias",
+    "calibrate",
+]
 
 SAMPLERS = ("error_bounded", "sphere_traced", "uniform")
 
@@ -95,7 +98,23 @@ class RenderConfig:
         return self.num_samples + self.num_samples_extra
 
 
-def _place_samples(config, sdf_fn, origins, directions, near, far, beta, generator):
+def place_samples(
+    config: RenderConfig,
+    sdf_fn: SdfFn | None,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    near: torch.Tensor,
+    far: torch.Tensor,
+    beta: torch.Tensor,
+    generator: torch.Generator | None,
+) -> torch.Tensor:
+    """Sample distances ``t_vals [R, S]`` (sorted, metres) by ``config.sampler``.
+
+    sdf_fn: points [N, 3] metres -> sdf [N] metres (None only for 'uniform'). origins: [R, 3]
+    metres. directions: [R, 3] unit. near, far: [R] metres. beta: the density's Laplace scale,
+    metres ([] tensor). generator: for stratified draws. ``S = config.samples_per_ray``.
+    Not differentiable (the samplers run under ``torch.no_grad``).
+    """
     if config.sampler == "uniform":
         return uniform_samples(near, far, config.num_samples, config.stratified, generator)
     if sdf_fn is None:
@@ -134,44 +153,8 @@ def _place_samples(config, sdf_fn, origins, directions, near, far, beta, generat
     )
 
 
-def render_rays(
-    field_fn: FieldFn,
-    sdf_fn: SdfFn | None,
-    origins: torch.Tensor,
-    directions: torch.Tensor,
-    near: torch.Tensor,
-    far: torch.Tensor,
-    config: RenderConfig,
-    density: LaplaceDensity,
-    *,
-    hit: torch.Tensor | None = None,
-    background: torch.Tensor | None = None,
-    generator: torch.Generator | None = None,
-) -> RenderOutput:
-    """Volume-render rays: ``c = int_near^far T(t) sigma(r(t)) c(r(t), d) dt`` over a background.
-
-    Only rays with ``hit`` are processed, in chunks of ``config.chunk_size``: samples are placed
-    by ``config.sampler`` (using ``sdf_fn`` and the density's current beta, without gradients),
-    ``field_fn`` is evaluated there, ``sigma = density(sdf)`` and the samples are composited
-    (:func:`composite`). Other rays cost nothing and get the background, zero opacity, depth
-    and weights.
-
-    Differentiable w.r.t. the field outputs (hence the field's parameters), the density's beta
-    and the background. *Not* differentiable w.r.t. the sample positions ``t``: they are chosen
-    under ``torch.no_grad`` (points ``o + t d`` still carry gradients of ``origins`` and
-    ``directions``, if those require them).
-
-    field_fn: points [N, 3] metres, directions [N, 3] -> (sdf [N] metres, rgb [N, C]).
-    sdf_fn: points [N, 3] -> sdf [N] metres, for sample placement; may be None for 'uniform'.
-    origins: [R, 3] metres. directions: [R, 3] unit length.
-    near, far: [R] metres along the ray (e.g. from :func:`ray_sphere_bounds`).
-    density: the VolSDF density (its ``beta`` drives the samplers).
-    hit: [R] bool, rays to process; None means ``far > near``.
-    background: [C] or [R, C]; None uses ``config.background``.
-    generator: random generator for stratified sampling (on the rays' device).
-    Returns RenderOutput with rgb [R, C], opacity [R], depth [R], weights [R, S], t_vals [R, S]
-    (``S = config.samples_per_ray``; zeros for skipped rays).
-    """
+def _check_rays_and_background(origins, directions, near, far, config, hit, background):
+    """Validate :func:`render_rays`' rays; -> (hit [R] bool, background [C] or [R, C])."""
     if not isinstance(config, RenderConfig):
         raise TypeError(f"config must be a RenderConfig, got {type(config).__name__}")
     if origins.dim() != 2 or origins.shape[-1] != 3:
@@ -200,32 +183,14 @@ def render_rays(
     num_channels = background.shape[-1]
     if background.shape not in ((num_channels,), (num_rays, num_channels)):
         raise ValueError(f"background must have shape [C] or [R, C], got {tuple(background.shape)}")
+    return hit, background
 
-    num_samples = config.samples_per_ray
-    beta = density.beta.detach()
-    ray_ids = torch.nonzero(hit).squeeze(-1)
-    chunks = []
-    for start in range(0, ray_ids.shape[0], config.chunk_size):
-        ids = ray_ids[start : start + config.chunk_size]
-        ray_o, ray_d, ray_far = origins[ids], directions[ids], far[ids]
-        t_vals = _place_samples(
-            config, sdf_fn, ray_o, ray_d, near[ids], ray_far, beta, generator
-        ).detach()
-        points = ray_o[:, None, :] + t_vals[..., None] * ray_d[:, None, :]
-        view_dirs = ray_d[:, None, :].expand(-1, num_samples, -1)
-        sdf, rgb = field_fn(points.reshape(-1, 3), view_dirs.reshape(-1, 3))
-        count = ids.shape[0] * num_samples
-        if sdf.shape != (count,) or rgb.dim() != 2 or rgb.shape != (count, num_channels):
-            raise ValueError(
-                f"field_fn must return sdf [N]=({count},) and rgb [N, C]=({count}, "
-                f"{num_channels}), got {tuple(sdf.shape)} and {tuple(rgb.shape)}"
-            )
-        sigma = density(sdf).reshape(ids.shape[0], num_samples)
-        chunk_bg = background if background.dim() == 1 else background[ids]
-        colors = rgb.reshape(ids.shape[0], num_samples, num_channels)
-        chunks.append(composite(sigma, colors, t_vals, ray_far, chunk_bg))
 
-    full_bg = background.expand(num_rays, num_channels)
+def _gather_chunks(chunks, ray_ids, background, origins, num_samples) -> RenderOutput:
+    """The chunks' RenderOutputs scattered back to all R rays of origins [R, 3] (background and
+    zeros for the skipped ones)."""
+    num_rays, dtype, device = origins.shape[0], origins.dtype, origins.device
+    full_bg = background.expand(num_rays, background.shape[-1])
     zeros = torch.zeros(num_rays, dtype=dtype, device=device)
     zeros_s = torch.zeros(num_rays, num_samples, dtype=dtype, device=device)
     if not chunks:
@@ -248,6 +213,71 @@ def render_rays(
         weights=gather("weights", zeros_s),
         t_vals=gather("t_vals", zeros_s),
     )
+
+
+def render_rays(
+    field_fn: FieldFn,
+    sdf_fn: SdfFn | None,
+    origins: torch.Tensor,
+    directions: torch.Tensor,
+    near: torch.Tensor,
+    far: torch.Tensor,
+    config: RenderConfig,
+    density: LaplaceDensity,
+    *,
+    hit: torch.Tensor | None = None,
+    background: torch.Tensor | None = None,
+    generator: torch.Generator | None = None,
+) -> RenderOutput:
+    """Volume-render rays: ``c = int_near^far T(t) sigma(r(t)) c(r(t), d) dt`` over a background.
+
+    Only rays with ``hit`` are processed, in chunks of ``config.chunk_size``: samples are placed
+    by ``config.sampler`` (:func:`place_samples`, using ``sdf_fn`` and the density's current
+    beta, without gradients), ``field_fn`` is evaluated there, ``sigma = density(sdf)`` and the
+    samples are composited (:func:`composite`). Other rays cost nothing and get the background,
+    zero opacity, depth and weights.
+
+    Differentiable w.r.t. the field outputs (hence the field's parameters), the density's beta
+    and the background. *Not* differentiable w.r.t. the sample positions ``t``: they are chosen
+    under ``torch.no_grad`` (points ``o + t d`` still carry gradients of ``origins`` and
+    ``directions``, if those require them).
+
+    field_fn: points [N, 3] metres, directions [N, 3] -> (sdf [N] metres, rgb [N, C]).
+    sdf_fn: points [N, 3] -> sdf [N] metres, for sample placement; may be None for 'uniform'.
+    origins: [R, 3] metres. directions: [R, 3] unit length.
+    near, far: [R] metres along the ray (e.g. from
+        :func:`~lisa_hand.geometry.rays.ray_sphere_bounds`).
+    density: the VolSDF density (its ``beta`` drives the samplers).
+    hit: [R] bool, rays to process; None means ``far > near``.
+    background: [C] or [R, C]; None uses ``config.background``.
+    generator: random generator for stratified sampling (on the rays' device).
+    Returns RenderOutput with rgb [R, C], opacity [R], depth [R], weights [R, S], t_vals [R, S]
+    (``S = config.samples_per_ray``; zeros for skipped rays).
+    """
+    hit, background = _check_rays_and_background(
+        origins, directions, near, far, config, hit, background
+    )
+    num_channels = background.shape[-1]
+    num_samples = config.samples_per_ray
+    beta = density.beta.detach()
+    ray_ids = torch.nonzero(hit).squeeze(-1)
+    chunks = []
+    for start in range(0, ray_ids.shape[0], config.chunk_size):
+        ids = ray_ids[start : start + config.chunk_size]
+        ray_o, ray_d, ray_far = origins[ids], directions[ids], far[ids]
+        t_vals = place_samples(
+            config, sdf_fn, ray_o, ray_d, near[ids], ray_far, beta, generator
+        ).detach()
+        points = ray_o[:, None, :] + t_vals[..., None] * ray_d[:, None, :]
+        view_dirs = ray_d[:, None, :].expand(-1, num_samples, -1)
+        sdf, rgb = call_field(
+            field_fn, points.reshape(-1, 3), view_dirs.reshape(-1, 3), num_channels
+        )
+        sigma = density(sdf).reshape(ids.shape[0], num_samples)
+        chunk_bg = background if background.dim() == 1 else background[ids]
+        colors = rgb.reshape(ids.shape[0], num_samples, num_channels)
+        chunks.append(composite(sigma, colors, t_vals, ray_far, chunk_bg))
+    return _gather_chunks(chunks, ray_ids, background, origins, num_samples)
 
 
 def apply_gain_bias(rgb: torch.Tensor, gain: torch.Tensor, bias: torch.Tensor) -> torch.Tensor:

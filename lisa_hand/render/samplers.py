@@ -2,23 +2,23 @@
 
 All samplers return sorted ``t_vals [R, S]`` inside ``[near, far]`` and are *not* differentiable:
 they run under ``torch.no_grad`` and only choose where the field is evaluated afterwards. The
-SDF callbacks take ``points [N, 3]`` (metres) and return ``sdf [N]`` (metres, negative inside).
-Ray directions must have unit length so that ``t`` is a distance in metres (the SDF bounds below
-compare ``t`` intervals with signed distances).
+SDF callbacks (:class:`~lisa_hand.geometry.fields.SdfFn`) take ``points [N, 3]`` (metres) and
+return ``sdf [N]`` (metres, negative inside), checked by
+:func:`~lisa_hand.geometry.fields.call_sdf`. Ray directions must have unit length so that ``t``
+is a distance in metres (the SDF bounds below compare ``t`` intervals with signed distances).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
 
+from ..geometry.fields import SdfFn, call_sdf
 from .density import volsdf_density
 
 __all__ = [
-    "SdfFn",
     "ErrorBoundedSamples",
     "uniform_samples",
     "error_bounded_sampling",
@@ -27,10 +27,6 @@ __all__ = [
     "opacity_error_bound",
     "distance_lower_bound",
 ]
-
-SdfFn = Callable[[torch.Tensor], torch.Tensor]
-"""``sdf_fn(points [N, 3] metres) -> sdf [N] metres`` (negative inside)."""
-
 
 def _check_rays(origins, directions, near, far) -> None:
     if origins.dim() != 2 or origins.shape[-1] != 3:
@@ -54,21 +50,10 @@ def _check_near_far(near, far) -> None:
         )
 
 
-def _call_sdf(sdf_fn: SdfFn, points: torch.Tensor) -> torch.Tensor:
-    """sdf_fn on points [N, 3] -> [N] in the points' dtype, with its output shape checked."""
-    sdf = sdf_fn(points)
-    if not isinstance(sdf, torch.Tensor) or sdf.shape != points.shape[:1]:
-        raise ValueError(
-            f"sdf_fn must return a tensor of shape [N]=({points.shape[0]},) for points [N, 3], "
-            f"got {getattr(sdf, 'shape', type(sdf).__name__)}"
-        )
-    return sdf.to(points.dtype)
-
-
 def _eval_sdf(sdf_fn: SdfFn, origins, directions, t_vals) -> torch.Tensor:
     """sdf at ``o + t d`` for t_vals [R, M] -> [R, M] (same dtype as t_vals)."""
     points = origins[:, None, :] + t_vals[..., None] * directions[:, None, :]
-    return _call_sdf(sdf_fn, points.reshape(-1, 3)).reshape(t_vals.shape)
+    return call_sdf(sdf_fn, points.reshape(-1, 3)).reshape(t_vals.shape)
 
 
 def uniform_samples(
@@ -299,19 +284,45 @@ def error_bounded_sampling(
     num_rays, dtype, device = origins.shape[0], origins.dtype, origins.device
     beta_t = torch.as_tensor(beta, dtype=dtype, device=device).detach().reshape(1, 1)
     beta_t = beta_t.expand(num_rays, 1)
-    log_eps = math.log1p(eps)
-
-    def lemma2_beta(t_vals: torch.Tensor) -> torch.Tensor:
-        deltas = t_vals[:, 1:] - t_vals[:, :-1]
-        return torch.sqrt((deltas * deltas).sum(-1, keepdim=True) / (4.0 * log_eps))
-
     unit = torch.linspace(0.0, 1.0, num_samples_eval, dtype=dtype, device=device)
     t_bound = near[:, None] + (far - near)[:, None] * unit
     sdf_bound = _eval_sdf(sdf_fn, origins, directions, t_bound)
-    beta_plus = torch.maximum(lemma2_beta(t_bound), beta_t)
+    bound_set = _refine_bound_set(
+        sdf_fn, origins, directions, t_bound, sdf_bound, beta_t, eps, num_bisection, max_iters
+    )
+    t_bound, sdf_bound, beta_plus, converged, num_bound = bound_set
+    error_bound, _ = opacity_error_bound(t_bound, sdf_bound, beta_plus)
+    t_vals = _final_samples(
+        t_bound, sdf_bound, beta_plus, num_bound, num_samples, num_samples_extra, stratified,
+        generator,
+    )
+    return ErrorBoundedSamples(
+        t_vals=t_vals,
+        t_bound=t_bound,
+        sdf_bound=sdf_bound,
+        beta_plus=beta_plus[:, 0],
+        error_bound=error_bound,
+        converged=converged,
+        num_bound=num_bound,
+    )
+
+
+def _refine_bound_set(
+    sdf_fn, origins, directions, t_bound, sdf_bound, beta_t, eps, num_bisection, max_iters
+):
+    """Steps 2 and 3 of :func:`error_bounded_sampling` (VolSDF Algorithm 1): ``beta+`` and the
+    upsampling of T until the bound holds for the target beta or ``max_iters`` run out.
+
+    t_bound, sdf_bound: [R, M0] the initial T and its sdf. beta_t: [R, 1] the target beta.
+    Returns ``(t_bound [R, M], sdf_bound [R, M], beta_plus [R, 1], converged [R] bool,
+    num_bound [R] long)``.
+    """
+    num_rays, device = t_bound.shape[0], t_bound.device
+    num_samples_eval = t_bound.shape[1]
+    log_eps = math.log1p(eps)
+    beta_plus = torch.maximum(_lemma2_beta(t_bound, log_eps), beta_t)
     converged = torch.zeros(num_rays, dtype=torch.bool, device=device)
     num_bound = torch.full((num_rays,), num_samples_eval, dtype=torch.long, device=device)
-
     for iteration in range(max_iters):
         # Only unconverged rays are worked on; converged ones keep their T and beta+ = beta.
         rows = torch.nonzero(~converged).squeeze(-1)
@@ -321,17 +332,9 @@ def error_bounded_sampling(
         d_star = distance_lower_bound(t_rows, sdf_rows)
         bound_of = _ErrorBoundTerms(t_rows, sdf_rows, d_star)
         rows_converged = bound_of(beta_rows)[0] <= eps
-        # After upsampling the previous beta+ may no longer satisfy the bound; Lemma 2 on the
-        # new T always does.
-        high = beta_plus[rows]
-        high_fails = bound_of(high)[0] > eps
-        high = torch.where(high_fails[:, None], lemma2_beta(t_rows), high)
-        low = beta_rows.clone()
-        for _ in range(num_bisection):
-            mid = 0.5 * (low + high)
-            ok = (bound_of(mid)[0] <= eps)[:, None]
-            high = torch.where(ok, mid, high)
-            low = torch.where(ok, low, mid)
+        high = _bisect_beta_plus(
+            bound_of, beta_rows, beta_plus[rows], t_rows, eps, log_eps, num_bisection
+        )
         beta_rows_plus = torch.where(rows_converged[:, None], beta_rows, high)
         beta_plus[rows] = beta_rows_plus
         converged[rows] = rows_converged
@@ -340,23 +343,73 @@ def error_bounded_sampling(
 
         # Upsample the unconverged rays where the error bound is largest (VolSDF Algorithm 1).
         keep = ~rows_converged
-        rows, t_rows, sdf_rows = rows[keep], t_rows[keep], sdf_rows[keep]
-        _, per_section = bound_of(beta_rows_plus)
-        per_section = per_section[keep]
-        unit_new = _unit_positions(rows.shape[0], num_samples_eval, False, None, t_rows)
-        t_new = _sample_inverse_cdf(t_rows, per_section + 1e-6, unit_new)
-        sdf_new = _eval_sdf(sdf_fn, origins[rows], directions[rows], t_new)
-        t_rows, order = torch.sort(torch.cat([t_rows, t_new], dim=-1), dim=-1)
-        sdf_rows = torch.cat([sdf_rows, sdf_new], dim=-1).gather(-1, order)
-        # Other rays are padded with copies of their last sample (t = far): zero-length sections
-        # that change neither the bound nor the weights.
-        t_bound = torch.cat([t_bound, t_bound[:, -1:].expand(-1, num_samples_eval)], dim=-1)
-        sdf_bound = torch.cat([sdf_bound, sdf_bound[:, -1:].expand(-1, num_samples_eval)], dim=-1)
-        t_bound[rows] = t_rows
-        sdf_bound[rows] = sdf_rows
+        rows = rows[keep]
+        per_section = bound_of(beta_rows_plus)[1][keep]
+        t_bound, sdf_bound = _upsample_bound_set(
+            sdf_fn, origins, directions, t_bound, sdf_bound, rows, t_rows[keep],
+            sdf_rows[keep], per_section, num_samples_eval,
+        )
         num_bound[rows] += num_samples_eval
+    return t_bound, sdf_bound, beta_plus, converged, num_bound
 
-    error_bound, _ = opacity_error_bound(t_bound, sdf_bound, beta_plus)
+
+def _lemma2_beta(t_vals: torch.Tensor, log_eps: float) -> torch.Tensor:
+    """VolSDF Lemma 2's ``beta+ = sqrt(sum delta^2 / (4 log(1 + eps)))`` of t_vals [R, M]:
+    [R, 1] metres, a scale for which the error bound is ``<= eps`` whatever the SDF."""
+    deltas = t_vals[:, 1:] - t_vals[:, :-1]
+    return torch.sqrt((deltas * deltas).sum(-1, keepdim=True) / (4.0 * log_eps))
+
+
+def _bisect_beta_plus(bound_of, low, high, t_rows, eps, log_eps, num_bisection):
+    """Lower ``beta+`` by bisection on ``(beta, beta+)`` keeping ``B_{T, beta+} <= eps``.
+
+    bound_of: the rays' :class:`_ErrorBoundTerms`. low: [R, 1] the target beta. high: [R, 1]
+    the previous ``beta+`` (replaced by Lemma 2 on the current T where it no longer satisfies
+    the bound after upsampling). t_rows: [R, M] the rays' T. Returns the new ``beta+`` [R, 1].
+    """
+    high_fails = bound_of(high)[0] > eps
+    high = torch.where(high_fails[:, None], _lemma2_beta(t_rows, log_eps), high)
+    low = low.clone()
+    for _ in range(num_bisection):
+        mid = 0.5 * (low + high)
+        ok = (bound_of(mid)[0] <= eps)[:, None]
+        high = torch.where(ok, mid, high)
+        low = torch.where(ok, low, mid)
+    return high
+
+
+def _upsample_bound_set(
+    sdf_fn, origins, directions, t_bound, sdf_bound, rows, t_rows, sdf_rows, per_section,
+    num_samples_eval,
+):
+    """Add ``num_samples_eval`` samples to the T of the rays ``rows`` where their error bound is
+    largest (inverting the bound's CDF at bin midpoints; the SDF is evaluated there).
+
+    t_bound, sdf_bound: [R, M] every ray's T and its sdf. rows: [K] the rays to upsample;
+    t_rows, sdf_rows: [K, M] their T; per_section: [K, M-1] their per-section bounds.
+    Returns ``(t_bound, sdf_bound)`` [R, M + num_samples_eval]: the other rays are padded with
+    copies of their last sample (t = far): zero-length sections that change neither the bound
+    nor the weights.
+    """
+    unit_new = _unit_positions(rows.shape[0], num_samples_eval, False, None, t_rows)
+    t_new = _sample_inverse_cdf(t_rows, per_section + 1e-6, unit_new)
+    sdf_new = _eval_sdf(sdf_fn, origins[rows], directions[rows], t_new)
+    t_rows, order = torch.sort(torch.cat([t_rows, t_new], dim=-1), dim=-1)
+    sdf_rows = torch.cat([sdf_rows, sdf_new], dim=-1).gather(-1, order)
+    t_bound = torch.cat([t_bound, t_bound[:, -1:].expand(-1, num_samples_eval)], dim=-1)
+    sdf_bound = torch.cat([sdf_bound, sdf_bound[:, -1:].expand(-1, num_samples_eval)], dim=-1)
+    t_bound[rows] = t_rows
+    sdf_bound[rows] = sdf_rows
+    return t_bound, sdf_bound
+
+
+def _final_samples(
+    t_bound, sdf_bound, beta_plus, num_bound, num_samples, num_samples_extra, stratified,
+    generator,
+):
+    """VolSDF Algorithm 1's last step: ``num_samples`` samples inverting the opacity
+    ``O_hat_{T, beta+}`` plus ``num_samples_extra`` members of each ray's T, sorted: [R, S]."""
+    num_rays, dtype, device = t_bound.shape[0], t_bound.dtype, t_bound.device
     weights = _section_weights(t_bound, sdf_bound, beta_plus)
     # A floor of total mass 1e-3, spread by length, keeps the pdf positive on empty rays.
     section = t_bound[:, 1:] - t_bound[:, :-1]
@@ -375,15 +428,7 @@ def error_bounded_sampling(
         pick = torch.round(frac * (num_bound[:, None] - 1).to(dtype)).long()
         t_vals = torch.cat([t_vals, t_bound.gather(-1, pick)], dim=-1)
     t_vals, _ = torch.sort(t_vals, dim=-1)
-    return ErrorBoundedSamples(
-        t_vals=t_vals,
-        t_bound=t_bound,
-        sdf_bound=sdf_bound,
-        beta_plus=beta_plus[:, 0],
-        error_bound=error_bound,
-        converged=converged,
-        num_bound=num_bound,
-    )
+    return t_vals
 
 
 def error_bounded_samples(
@@ -449,12 +494,44 @@ def sphere_traced_samples(
             f"need num_samples >= 1, num_uniform >= 0, num_steps >= 1, got {num_samples}, "
             f"{num_uniform}, {num_steps}"
         )
-    num_rays, dtype, device = origins.shape[0], origins.dtype, origins.device
+    dtype, device = origins.dtype, origins.device
     beta_value = torch.as_tensor(beta, dtype=dtype, device=device).detach()
     shell = band_outside * beta_value
     step_min = min_step * beta_value
     tolerance = hit_tolerance * beta_value
+    t_enter, t_leave, t_hit = _trace_shell(
+        sdf_fn, origins, directions, near, far, shell, step_min, tolerance, num_steps
+    )
 
+    entered = torch.isfinite(t_enter)
+    hit = torch.isfinite(t_hit)
+    band_start = torch.maximum(t_enter - step_min, near)
+    band_end = torch.where(hit, t_hit + band_inside * beta_value, t_leave)
+    band_end = torch.minimum(band_end, far)
+    band_start = torch.where(entered, band_start, near)
+    band_end = torch.where(entered, torch.maximum(band_end, band_start), far)
+
+    total = num_samples + num_uniform
+    in_band = uniform_samples(band_start, band_end, num_samples, stratified, generator)
+    if num_uniform > 0:
+        coarse = uniform_samples(near, far, num_uniform, stratified, generator)
+        in_band = torch.cat([in_band, coarse], dim=-1)
+    everywhere = uniform_samples(near, far, total, stratified, generator)
+    t_vals = torch.where(entered[:, None], in_band, everywhere)
+    return torch.sort(t_vals, dim=-1).values
+
+
+def _trace_shell(sdf_fn, origins, directions, near, far, shell, step_min, tolerance, num_steps):
+    """The sphere-tracing walk of :func:`sphere_traced_samples`.
+
+    Steps ``sdf - shell`` outside the shell ``sdf <= shell``, ``sdf`` inside it (at least
+    ``step_min``), on the still-active rays, until the surface (``sdf <= tolerance``), ``far``
+    or ``num_steps``. shell, step_min, tolerance: [] metres.
+    Returns ``(t_enter [R], t_leave [R], t_hit [R])`` metres: the first entry into the shell
+    (inf: never), the band end of a ray that does not hit (its last exit from the shell, or
+    ``far`` while it is still inside or still marching), the surface hit (inf: none).
+    """
+    num_rays, device = origins.shape[0], origins.device
     t_cur = near.clone()
     t_enter = torch.full_like(near, math.inf)  # first entry into the shell
     t_leave = far.clone()  # band end for rays that never hit
@@ -466,7 +543,7 @@ def sphere_traced_samples(
             break
         t_act = t_cur[active]
         points = origins[active] + t_act[:, None] * directions[active]
-        sdf = _call_sdf(sdf_fn, points)
+        sdf = call_sdf(sdf_fn, points)
         in_shell = sdf <= shell
         t_enter[active] = torch.where(
             in_shell, torch.minimum(t_enter[active], t_act), t_enter[active]
@@ -486,20 +563,4 @@ def sphere_traced_samples(
     # Rays still marching when the steps ran out (e.g. grazing the shell at the minimum step)
     # have not seen the rest of the ray: their band runs up to far, not to their last exit.
     t_leave[active] = far[active]
-
-    entered = torch.isfinite(t_enter)
-    hit = torch.isfinite(t_hit)
-    band_start = torch.maximum(t_enter - step_min, near)
-    band_end = torch.where(hit, t_hit + band_inside * beta_value, t_leave)
-    band_end = torch.minimum(band_end, far)
-    band_start = torch.where(entered, band_start, near)
-    band_end = torch.where(entered, torch.maximum(band_end, band_start), far)
-
-    total = num_samples + num_uniform
-    in_band = uniform_samples(band_start, band_end, num_samples, stratified, generator)
-    if num_uniform > 0:
-        coarse = uniform_samples(near, far, num_uniform, stratified, generator)
-        in_band = torch.cat([in_band, coarse], dim=-1)
-    everywhere = uniform_samples(near, far, total, stratified, generator)
-    t_vals = torch.where(entered[:, None], in_band, everywhere)
-    return torch.sort(t_vals, dim=-1).values
+    return t_enter, t_leave, t_hit

@@ -17,22 +17,12 @@ from pathlib import Path
 import torch
 
 from ..geometry.cameras import Camera, intrinsics_from_fov, look_at
+from ..geometry.fields import FieldFn, NormalFn, SdfFn
 from ..utils.io import atomic_path
 from .density import LaplaceDensity
-from .image import (
-    ImageOutput,
-    ImageRenderConfig,
-    NormalFn,
-    OccupancyGrid,
-    build_occupancy_grid,
-    grid_threshold,
-    image_to_uint8,
-    normals_to_rgb,
-    render_image,
-    save_image_outputs,
-)
-from .renderer import FieldFn
-from .samplers import SdfFn
+from .image import ImageOutput, ImageRenderConfig, grid_threshold, render_image
+from .occupancy import OccupancyGrid, build_occupancy_grid
+from .saving import image_to_uint8, normals_to_rgb, save_image_outputs
 
 __all__ = [
     "FRAME_KINDS",
@@ -42,6 +32,7 @@ __all__ = [
     "render_views",
     "save_gif",
     "save_video",
+    "mp4_backend",
 ]
 
 FRAME_KINDS = ("rgb", "normals", "rgb+normals")
@@ -231,7 +222,8 @@ def render_views(
     normal_fn: NormalFn | None = None,
     progress: bool = False,
 ) -> list[dict[str, Path]]:
-    """Render novel views and write each one's files (:func:`save_image_outputs`: RGB, normal
+    """Render novel views and write each one's files
+    (:func:`~lisa_hand.render.saving.save_image_outputs`: RGB, normal
     map, mask PNGs and depth .npy) into ``out_dir``, named after the camera (``view000`` when it
     has no name). Returns the written paths, one dict per camera."""
     cameras = list(cameras)
@@ -294,7 +286,7 @@ def save_gif(path: str | os.PathLike, frames: Sequence, fps: float = 24.0) -> Pa
     return path
 
 
-def _mp4_backend() -> str | None:
+def mp4_backend() -> str | None:
     """'pyav' or 'FFMPEG' when imageio can write MP4 here, else None (nothing is downloaded)."""
     import importlib.util
 
@@ -320,7 +312,7 @@ def save_video(path: str | os.PathLike, frames: Sequence, fps: float = 24.0) -> 
     frames = _check_frames(frames)
     if not fps > 0:
         raise ValueError(f"fps must be > 0, got {fps!r}")
-    backend = _mp4_backend()
+    backend = mp4_backend()
     if backend is None:
         raise OSError(
             f"{path}: writing MP4 needs the 'av' or 'imageio-ffmpeg' package, neither is "

@@ -1,4 +1,4 @@
-"""Training checkpoints: atomic, finite-checked, and complete enough to resume exactly.
+"""Writing training checkpoints: atomic, finite-checked, and complete enough to resume exactly.
 
 A checkpoint holds the model, optimizer and LR-scheduler states, the number of completed steps,
 the run's resolved config, and the random state of every rank (torch CPU, CUDA, numpy, python
@@ -10,8 +10,11 @@ Files are written through a temporary file, flushed to disk and renamed (``atomi
 crash or ``kill -9`` at any moment leaves the previous checkpoint or the new one, never half of
 one. A model state with a NaN or inf is refused before anything is written.
 
-Files are read with ``torch.load(weights_only=True)``: a checkpoint cannot run code on load.
-Anything put in ``extra`` must therefore be tensors, numbers, strings, lists, tuples or dicts.
+The file format (:class:`~lisa_hand.model.checkpoint.Checkpoint`) and its reading
+(:func:`~lisa_hand.model.checkpoint.load_checkpoint`) live in :mod:`lisa_hand.model.checkpoint`,
+below training, since inference loads models from training runs. Files are read with
+``torch.load(weights_only=True)``: a checkpoint cannot run code on load. Anything put in
+``extra`` must therefore be tensors, numbers, strings, lists, tuples or dicts.
 """
 
 from __future__ import annotations
@@ -20,34 +23,24 @@ import os
 import random
 import shutil
 from collections.abc import Mapping
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
+from ..model.checkpoint import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, Checkpoint
 from ..utils.io import atomic_path
 
 __all__ = [
-    "CHECKPOINT_FORMAT",
-    "CHECKPOINT_VERSION",
-    "LAST_CHECKPOINT",
     "NonFiniteError",
-    "Checkpoint",
     "capture_rng_state",
     "restore_rng_state",
     "check_finite_state",
     "save_checkpoint",
     "copy_checkpoint",
-    "load_checkpoint",
     "remove_stale_temporaries",
 ]
-
-CHECKPOINT_FORMAT = "lisa_hand.checkpoint"
-CHECKPOINT_VERSION = 1
-LAST_CHECKPOINT = "last.pt"
-"""File name of the most recent checkpoint inside a run folder."""
 
 
 class NonFiniteError(ValueError):
@@ -56,30 +49,6 @@ class NonFiniteError(ValueError):
     A ``ValueError`` so that the command line prints it as one line: it is most often caused by
     the configuration (learning rate too high, a loss weight, bad data).
     """
-
-
-@dataclass
-class Checkpoint:
-    """Everything needed to resume a run (or to rebuild its model)."""
-
-    step: int
-    """Number of completed optimizer steps (= the 0-based index of the next step)."""
-    model: dict[str, torch.Tensor]
-    """``state_dict()`` of the (unwrapped) model."""
-    optimizer: dict[str, Any] | None = None
-    """``state_dict()`` of the optimizer."""
-    scheduler: dict[str, Any] | None = None
-    """``state_dict()`` of the LR scheduler."""
-    rng: list[dict[str, Any]] = field(default_factory=list)
-    """Random state of every rank, in rank order (``capture_rng_state``)."""
-    config: dict[str, Any] | None = None
-    """The run's resolved config (``config_to_dict``): rebuild the model from it."""
-    trainer: dict[str, Any] | None = None
-    """The training engine's config (``config_to_dict(TrainerConfig)``)."""
-    extra: dict[str, Any] = field(default_factory=dict)
-    """Anything else the caller wants kept (plain data and tensors only)."""
-    path: Path | None = None
-    """File it was loaded from (None for one built in memory)."""
 
 
 # ------------------------------------------------------------------------------------------------
@@ -203,44 +172,6 @@ def copy_checkpoint(src: str | os.PathLike, dst: str | os.PathLike) -> Path:
     with atomic_path(dst) as tmp:
         shutil.copyfile(src, tmp)
     return dst
-
-
-def load_checkpoint(path: str | os.PathLike, map_location: Any = "cpu") -> Checkpoint:
-    """Read a checkpoint written by ``save_checkpoint``.
-
-    A missing file raises ``FileNotFoundError``; a truncated, corrupt or foreign file (not
-    written by this module) raises ``ValueError``; both name the file.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such checkpoint file")
-    try:
-        payload = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as exc:  # torch raises RuntimeError, UnpicklingError, EOFError, ...
-        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ValueError(f"{path}: not a readable checkpoint (truncated, corrupt or not a "
-                         f"torch file): {reason}") from None
-    if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
-        raise ValueError(f"{path}: not a lisa_hand training checkpoint (no "
-                         f"format={CHECKPOINT_FORMAT!r} marker)")
-    version = payload.get("version")
-    if not isinstance(version, int) or version > CHECKPOINT_VERSION:
-        raise ValueError(f"{path}: checkpoint version {version!r} is newer than this code "
-                         f"understands ({CHECKPOINT_VERSION}); update lisa_hand")
-    for key, kind in (("step", int), ("model", dict)):
-        if not isinstance(payload.get(key), kind):
-            raise ValueError(f"{path}: checkpoint is missing or has a bad {key!r} entry")
-    return Checkpoint(
-        step=payload["step"],
-        model=payload["model"],
-        optimizer=payload.get("optimizer"),
-        scheduler=payload.get("scheduler"),
-        rng=list(payload.get("rng") or []),
-        config=payload.get("config"),
-        trainer=payload.get("trainer"),
-        extra=dict(payload.get("extra") or {}),
-        path=path,
-    )
 
 
 def remove_stale_temporaries(path: str | os.PathLike) -> list[Path]:

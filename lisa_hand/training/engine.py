@@ -26,17 +26,17 @@ for bit on CPU).
 
 Several processes: launch with ``torchrun``; every rank draws the same global batch from the
 generator and keeps its slice (``distributed.shard``); see ``distributed`` for the loss scaling.
+
+Beside this module: the loop's settings, optimizer and schedule in ``training.config``, the step
+checks and NaN guard in ``training.guard``, the log and progress bar in ``training.progress``,
+the Ctrl-C / SIGTERM handling in ``training.stop``, checkpoint writing in ``training.checkpoint``.
 """
 
 from __future__ import annotations
 
-import json
-import math
 import os
 import random
-import signal
 import sys
-import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -47,20 +47,18 @@ import numpy as np
 import torch
 from torch import nn
 
+from ..model.checkpoint import LAST_CHECKPOINT, Checkpoint, load_checkpoint
 from ..utils.config import config_to_dict, save_config
-from ..utils.io import atomic_path, ensure_writable_dir
+from ..utils.io import ensure_writable_dir
 from .checkpoint import (
-    LAST_CHECKPOINT,
-    Checkpoint,
-    NonFiniteError,
     capture_rng_state,
     check_finite_state,
     copy_checkpoint,
-    load_checkpoint,
     remove_stale_temporaries,
     restore_rng_state,
     save_checkpoint,
 )
+from .config import TrainerConfig, build_optimizer, build_scheduler
 from .distributed import (
     DistContext,
     allreduce_gradients,
@@ -70,124 +68,24 @@ from .distributed import (
     init_distributed,
     wrap_ddp,
 )
+from .guard import check_finite_step, check_step_output
+from .progress import Progress, RunLog
+from .stop import StopRequest
 
 __all__ = [
-    "TrainerConfig",
     "StepContext",
     "StepInfo",
     "TrainResult",
     "StepFn",
     "Hook",
-    "NonFiniteError",
     "Trainer",
     "train",
-    "lr_factor",
     "seed_everything",
     "CONFIG_FILE",
-    "LOG_FILE",
 ]
 
 CONFIG_FILE = "config.json"
 """The run's resolved config, written into the run folder at start."""
-LOG_FILE = "log.jsonl"
-"""One JSON object per logged step: step, lr, grad_norm, seconds, losses."""
-
-LR_SCHEDULES = ("constant", "cosine", "exponential")
-OPTIMIZERS = ("adam", "adamw", "sgd")
-
-
-@dataclass(frozen=True)
-class TrainerConfig:
-    """Settings of the training loop (the model, data and losses have their own configs)."""
-
-    steps: int = 10_000
-    """Total number of optimizer steps of the run (a resumed run continues up to it)."""
-    lr: float = 5e-4
-    """Peak learning rate (of every parameter group the default optimizer builds)."""
-    lr_schedule: Literal["constant", "cosine", "exponential"] = "constant"
-    """Learning-rate decay over the run: 'constant', 'cosine' (to lr * lr_final_factor at the
-    last step) or 'exponential' (geometric, to lr * lr_final_factor at the last step)."""
-    lr_final_factor: float = 0.1
-    """Learning rate at the end of the run, as a fraction of ``lr`` (cosine, exponential)."""
-    warmup_steps: int = 0
-    """Linear warm-up from lr / warmup_steps to lr over the first steps (0: none)."""
-    optimizer: Literal["adam", "adamw", "sgd"] = "adam"
-    """Optimizer built when the caller gives no ``optimizer_fn``."""
-    betas: tuple[float, float] = (0.9, 0.999)
-    """Adam(W) moment decay rates (SGD: betas[0] is the momentum)."""
-    weight_decay: float = 0.0
-    """Weight decay of the default optimizer (decoupled for 'adamw')."""
-    grad_clip: float = 0.0
-    """Clip the global gradient norm to this value (0: no clipping)."""
-    checkpoint_every: int = 1000
-    """Write ``last.pt`` every this many steps (and always at the end); 0: only at the end."""
-    keep_every: int = 0
-    """Also keep a copy ``step_XXXXXXXX.pt`` every this many steps (0: keep only last.pt)."""
-    log_every: int = 1
-    """Append the losses to ``log.jsonl`` every this many steps (and at the last step)."""
-    print_every: int = 100
-    """When the progress bar is on but stderr is not a terminal, print a line of losses every
-    this many steps instead (0: never)."""
-    seed: int = 0
-    """Seed of the data generator and of the global RNGs at the start of a fresh run."""
-    device: str = "auto"
-    """'auto' (CUDA when available, else CPU), 'cpu', 'cuda' or 'cuda:N'. Under torchrun each
-    rank uses cuda:LOCAL_RANK."""
-    progress: bool = True
-    """Show a progress bar with the losses (rank 0, terminals only)."""
-    grad_sync: Literal["ddp", "allreduce"] = "ddp"
-    """Several processes: 'ddp' wraps the model in DistributedDataParallel (the step function
-    must call ``ctx.model(...)``, i.e. the wrapper's forward, once per step); 'allreduce'
-    averages the gradients after backward, whatever the step function called."""
-    find_unused_parameters: bool = False
-    """'ddp' mode: let a step leave some parameters without a gradient (DDP's
-    ``find_unused_parameters``), as LISA's steps do (culled bones, pose offsets before their
-    refinement starts)."""
-
-    def __post_init__(self) -> None:
-        self.validate()
-
-    def validate(self) -> None:
-        """Raise ``ValueError`` naming the first bad field."""
-        def positive_int(name: str, allow_zero: bool) -> None:
-            value = getattr(self, name)
-            low = 0 if allow_zero else 1
-            if not isinstance(value, int) or isinstance(value, bool) or value < low:
-                kind = "a non-negative" if allow_zero else "a positive"
-                raise ValueError(f"{name} must be {kind} int, got {value!r}")
-
-        positive_int("steps", allow_zero=False)
-        for name in ("warmup_steps", "checkpoint_every", "keep_every", "print_every"):
-            positive_int(name, allow_zero=True)
-        positive_int("log_every", allow_zero=False)
-        if not isinstance(self.seed, int) or isinstance(self.seed, bool):
-            raise ValueError(f"seed must be an int, got {self.seed!r}")
-        if not (isinstance(self.lr, (int, float)) and math.isfinite(self.lr) and self.lr > 0):
-            raise ValueError(f"lr must be a positive finite number, got {self.lr!r}")
-        if self.lr_schedule not in LR_SCHEDULES:
-            raise ValueError(f"lr_schedule must be one of {LR_SCHEDULES}, got "
-                             f"{self.lr_schedule!r}")
-        if not (isinstance(self.lr_final_factor, (int, float))
-                and 0 < self.lr_final_factor <= 1):
-            raise ValueError(f"lr_final_factor must be in (0, 1], got {self.lr_final_factor!r}")
-        if self.optimizer not in OPTIMIZERS:
-            raise ValueError(f"optimizer must be one of {OPTIMIZERS}, got {self.optimizer!r}")
-        if (len(self.betas) != 2
-                or not all(isinstance(b, (int, float)) and 0 <= b < 1 for b in self.betas)):
-            raise ValueError(f"betas must be two numbers in [0, 1), got {self.betas!r}")
-        if not (isinstance(self.weight_decay, (int, float)) and self.weight_decay >= 0):
-            raise ValueError(f"weight_decay must be >= 0, got {self.weight_decay!r}")
-        if not (isinstance(self.grad_clip, (int, float)) and self.grad_clip >= 0
-                and math.isfinite(self.grad_clip)):
-            raise ValueError(f"grad_clip must be >= 0 and finite (0: off), got "
-                             f"{self.grad_clip!r}")
-        if not isinstance(self.device, str) or not self.device:
-            raise ValueError(f"device must be 'auto', 'cpu', 'cuda' or 'cuda:N', got "
-                             f"{self.device!r}")
-        if self.grad_sync not in ("ddp", "allreduce"):
-            raise ValueError(f"grad_sync must be 'ddp' or 'allreduce', got {self.grad_sync!r}")
-        if not isinstance(self.progress, bool):
-            raise ValueError(f"progress must be a bool, got {self.progress!r}")
 
 
 @dataclass
@@ -261,44 +159,11 @@ class TrainResult:
         return ran / self.seconds if self.seconds > 0 else 0.0
 
 
-def lr_factor(step: int, config: TrainerConfig) -> float:
-    """Learning rate of step ``step`` (0-based) as a fraction of ``config.lr``.
-
-    warm-up: ``(step + 1) / warmup_steps`` for ``step < warmup_steps``, else 1; times the decay
-    at progress ``p = step / (steps - 1)``: constant 1, exponential ``f ** p``, cosine
-    ``f + (1 - f) (1 + cos(pi p)) / 2`` with ``f = lr_final_factor``.
-    """
-    warm = (step + 1) / config.warmup_steps if step < config.warmup_steps else 1.0
-    progress = min(max(step / max(config.steps - 1, 1), 0.0), 1.0)
-    final = config.lr_final_factor
-    if config.lr_schedule == "exponential":
-        decay = final ** progress
-    elif config.lr_schedule == "cosine":
-        decay = final + (1.0 - final) * 0.5 * (1.0 + math.cos(math.pi * progress))
-    else:
-        decay = 1.0
-    return warm * decay
-
-
 def seed_everything(seed: int) -> None:
     """Seed torch (CPU and CUDA), numpy's global generator and python's ``random``."""
     random.seed(seed)
     np.random.seed(seed % 2**32)
     torch.manual_seed(seed)
-
-
-def _default_optimizer(model: nn.Module, config: TrainerConfig) -> torch.optim.Optimizer:
-    params = [p for p in model.parameters() if p.requires_grad]
-    if not params:
-        raise ValueError("the model has no trainable parameters")
-    if config.optimizer == "adam":
-        return torch.optim.Adam(params, lr=config.lr, betas=config.betas,
-                                weight_decay=config.weight_decay)
-    if config.optimizer == "adamw":
-        return torch.optim.AdamW(params, lr=config.lr, betas=config.betas,
-                                 weight_decay=config.weight_decay)
-    return torch.optim.SGD(params, lr=config.lr, momentum=config.betas[0],
-                           weight_decay=config.weight_decay)
 
 
 def _flat_diff(a: Any, b: Any, prefix: str = "") -> list[str]:
@@ -382,12 +247,9 @@ class Trainer:
 
             self.model = model.to(self.device)
             self.optimizer = (optimizer_fn(self.model) if optimizer_fn is not None
-                              else _default_optimizer(self.model, config))
-            if scheduler_fn is not None:
-                self.scheduler = scheduler_fn(self.optimizer)
-            else:
-                self.scheduler = torch.optim.lr_scheduler.LambdaLR(
-                    self.optimizer, lambda step: lr_factor(step, config))
+                              else build_optimizer(self.model, config))
+            self.scheduler = (scheduler_fn(self.optimizer) if scheduler_fn is not None
+                              else build_scheduler(self.optimizer, config))
             self.generator = torch.Generator().manual_seed(config.seed)
             self.step = 0
             self.resumed_from = self._resume(resume)
@@ -403,7 +265,7 @@ class Trainer:
             if self._owns_dist:
                 cleanup(self.dist)
             raise
-        self._stop_signal: int | None = None
+        self._stop = StopRequest(self._note)
         self._last_checkpoint: Path | None = None
         self._saved_step = self.step if self.resumed_from is not None else -1
 
@@ -539,58 +401,6 @@ class Trainer:
                 "DistributedDataParallel wrapper), or use grad_sync='allreduce'")
 
     # --------------------------------------------------------------------------------------------
-    # log
-
-    def _open_log(self) -> Any:
-        if not self.dist.is_main:
-            return None
-        path = self.out_dir / LOG_FILE
-        if self.step == 0:
-            return open(path, "w")
-        # Resumed: drop the lines of steps the checkpoint does not contain (written after it
-        # and before the kill), so that the log reads like one uninterrupted run.
-        kept = []
-        if path.is_file():
-            for line in path.read_text().splitlines():
-                try:
-                    entry = json.loads(line)
-                except json.JSONDecodeError:
-                    continue  # a line cut by the kill
-                if isinstance(entry, dict) and entry.get("step", math.inf) < self.step:
-                    kept.append(line)
-        with atomic_path(path) as tmp:
-            tmp.write_text("".join(line + "\n" for line in kept))
-        return open(path, "a")
-
-    # --------------------------------------------------------------------------------------------
-    # signals
-
-    def _install_signal_handlers(self) -> dict[int, Any]:
-        if threading.current_thread() is not threading.main_thread():
-            return {}
-        previous = {}
-
-        def handler(signum: int, frame: Any) -> None:
-            if self._stop_signal is not None and signum == signal.SIGINT:
-                raise KeyboardInterrupt  # second Ctrl-C: abort now, no checkpoint
-            self._stop_signal = signum
-            self._note(f"received {signal.Signals(signum).name}: stopping at the end of the "
-                       "current step and writing a checkpoint (Ctrl-C again to abort without "
-                       "one)")
-
-        for signum in (signal.SIGINT, signal.SIGTERM):
-            try:
-                previous[signum] = signal.signal(signum, handler)
-            except (ValueError, OSError):
-                pass
-        return previous
-
-    @staticmethod
-    def _restore_signal_handlers(previous: dict[int, Any]) -> None:
-        for signum, old in previous.items():
-            signal.signal(signum, old)
-
-    # --------------------------------------------------------------------------------------------
     # the loop
 
     def run(self) -> TrainResult:
@@ -617,60 +427,28 @@ class Trainer:
         if self.resumed_from is not None:
             self._note(f"resuming from {self.resumed_from} at step {start}")
 
-        log = self._open_log()
-        show_bar = config.progress and self.dist.is_main and sys.stderr.isatty()
-        print_lines = config.progress and self.dist.is_main and not show_bar
-        bar = None
-        if show_bar:
-            from tqdm.auto import tqdm
-
-            bar = tqdm(total=config.steps, initial=start, desc="train", dynamic_ncols=True,
-                       file=sys.stderr)
-        previous_handlers = self._install_signal_handlers()
+        log = RunLog(self.out_dir, start, self.dist.is_main)
+        progress = Progress(config, start, self.dist.is_main)
         params = [p for p in self.model.parameters() if p.requires_grad]
         losses: dict[str, float] = {}
         status: Literal["completed", "interrupted"] = "completed"
         began = time.perf_counter()
         try:
-            while self.step < config.steps:
-                if self._stop_signal is not None and not self.dist.is_distributed:
-                    # One process: a stop requested between steps (e.g. during a hook) stops
-                    # before the next step. Several: the request travels with the next step's
-                    # collective so that every rank stops after the same step.
-                    status = "interrupted"
-                    break
-                step = self.step
-                losses, lr, grad_norm, stop = self._one_step(step, params)
-                self.step = step + 1
-                done = self.step
-                if log is not None and (done % config.log_every == 0 or done == config.steps):
-                    entry = {"step": step, "lr": lr, "grad_norm": grad_norm,
-                             "seconds": round(time.perf_counter() - began, 4), "losses": losses}
-                    log.write(json.dumps(entry) + "\n")
-                    log.flush()
-                if bar is not None:
-                    bar.set_postfix_str(_format_losses(losses, lr), refresh=False)
-                    bar.update(1)
-                elif print_lines and config.print_every and (
-                        done % config.print_every == 0 or done == config.steps):
-                    print(f"step {done}/{config.steps} {_format_losses(losses, lr)}",
-                          file=sys.stderr, flush=True)
-                written = None
-                if done == config.steps or (config.checkpoint_every
-                                            and done % config.checkpoint_every == 0):
-                    written = self.save()
-                info = StepInfo(step, losses, lr, grad_norm, written, self)
-                for hook in self.hooks:
-                    hook(info)
-                if stop:
-                    status = "interrupted"
-                    break
+            with self._stop:
+                while self.step < config.steps:
+                    if self._stop.signal is not None and not self.dist.is_distributed:
+                        # One process: a stop requested between steps (e.g. during a hook)
+                        # stops before the next step. Several: the request travels with the
+                        # next step's collective so that every rank stops after the same step.
+                        status = "interrupted"
+                        break
+                    losses, stop = self._step_and_report(log, progress, began, params)
+                    if stop:
+                        status = "interrupted"
+                        break
         finally:
-            self._restore_signal_handlers(previous_handlers)
-            if bar is not None:
-                bar.close()
-            if log is not None:
-                log.close()
+            progress.close()
+            log.close()
         seconds = time.perf_counter() - began
         if status == "interrupted":
             if self._saved_step != self.step:
@@ -680,6 +458,28 @@ class Trainer:
         return TrainResult(status, self.step, start, losses, self._last_checkpoint,
                            self.resumed_from, seconds)
 
+    def _step_and_report(
+        self, log: RunLog, progress: Progress, began: float, params: list[nn.Parameter]
+    ) -> tuple[dict[str, float], bool]:
+        """One step, then its log line, progress, checkpoint and hooks. -> (losses, stop)."""
+        config = self.config
+        step = self.step
+        losses, lr, grad_norm, stop = self._one_step(step, params)
+        self.step = step + 1
+        done = self.step
+        if done % config.log_every == 0 or done == config.steps:
+            log.write({"step": step, "lr": lr, "grad_norm": grad_norm,
+                       "seconds": round(time.perf_counter() - began, 4), "losses": losses})
+        progress.update(done, losses, lr)
+        written = None
+        if done == config.steps or (config.checkpoint_every
+                                    and done % config.checkpoint_every == 0):
+            written = self.save()
+        info = StepInfo(step, losses, lr, grad_norm, written, self)
+        for hook in self.hooks:
+            hook(info)
+        return losses, stop
+
     def _one_step(
         self, step: int, params: list[nn.Parameter]
     ) -> tuple[dict[str, float], float, float, bool]:
@@ -688,7 +488,7 @@ class Trainer:
         ctx = StepContext(step, self.config.steps, self.generator, self.wrapped, self.device,
                           self.dist)
         out = self.step_fn(ctx)
-        names, values, total = self._check_losses(out, step)
+        names, values, total = check_step_output(out, step)
         total.backward()
         if self.dist.is_distributed and self.config.grad_sync == "allreduce":
             allreduce_gradients(params, self.dist)
@@ -699,7 +499,7 @@ class Trainer:
                              for g in grads]))
         else:
             grad_norm = torch.zeros((), dtype=torch.float64, device=self.device)
-        stop_flag = 1.0 if self._stop_signal is not None else 0.0
+        stop_flag = 1.0 if self._stop.signal is not None else 0.0
         # One vector, one collective and one device->host copy per step: the losses (averaged
         # over ranks), the gradient norm (identical on every rank) and the stop request.
         vector = torch.cat([
@@ -715,7 +515,8 @@ class Trainer:
         host = vector.tolist()
         losses = dict(zip(names, host[:-2], strict=True))
         norm, stop = host[-2], host[-1] > 0
-        self._guard(step, losses, norm, params)
+        check_finite_step(step, losses, norm, self.model, params,
+                          self._last_checkpoint or self.resumed_from)
         if self.config.grad_clip > 0:
             scale = min(1.0, self.config.grad_clip / (norm + 1e-6))
             if scale < 1.0:
@@ -724,73 +525,6 @@ class Trainer:
         self.optimizer.step()
         self.scheduler.step()
         return losses, lr, norm, stop
-
-    @staticmethod
-    def _check_losses(
-        out: Any, step: int
-    ) -> tuple[list[str], list[torch.Tensor], torch.Tensor]:
-        if not isinstance(out, Mapping) or "total" not in out:
-            raise ValueError(f"step {step}: step_fn must return a dict with a 'total' loss "
-                             f"tensor, got {type(out).__name__}"
-                             + (f" with keys {list(out)}" if isinstance(out, Mapping) else ""))
-        total = out["total"]
-        if not torch.is_tensor(total) or total.numel() != 1:
-            raise ValueError(f"step {step}: step_fn's 'total' must be a scalar tensor, got "
-                             f"{type(total).__name__}"
-                             + (f" of shape {list(total.shape)}" if torch.is_tensor(total)
-                                else ""))
-        if not total.requires_grad:
-            raise ValueError(f"step {step}: step_fn's 'total' does not require grad (computed "
-                             "under no_grad, or from no trainable parameter)")
-        names, values = [], []
-        for name, value in out.items():
-            if torch.is_tensor(value):
-                if value.numel() != 1:
-                    raise ValueError(f"step {step}: loss {name!r} must be a scalar, got shape "
-                                     f"{list(value.shape)}")
-                values.append(value.detach().reshape(()))
-            elif isinstance(value, (int, float)) and not isinstance(value, bool):
-                values.append(torch.tensor(float(value), dtype=torch.float64))
-            else:
-                raise ValueError(f"step {step}: loss {name!r} must be a scalar tensor or a "
-                                 f"number, got {type(value).__name__}")
-            names.append(str(name))
-        return names, values, total.reshape(())
-
-    def _guard(self, step: int, losses: dict[str, float], grad_norm: float,
-               params: list[nn.Parameter]) -> None:
-        """Stop with a clear message when a loss or a gradient is NaN/inf (before the update)."""
-        if all(math.isfinite(v) for v in losses.values()) and math.isfinite(grad_norm):
-            return
-        if self._last_checkpoint is not None or self.resumed_from is not None:
-            last = self._last_checkpoint or self.resumed_from
-            where = f"the last good checkpoint is {last}"
-        else:
-            where = "no checkpoint was written yet"
-        # Name a specific term before 'total' (which is non-finite whenever a term is).
-        bad = sorted((k for k, v in losses.items() if not math.isfinite(v)),
-                     key=lambda k: k == "total")
-        if bad:
-            what = f"loss {bad[0]!r} is {losses[bad[0]]}"
-            if len(bad) > 1:
-                what += f" (also non-finite: {', '.join(f'{k}={losses[k]}' for k in bad[1:])})"
-        else:
-            names = {id(p): n for n, p in self.model.named_parameters()}
-            bad_params = [names.get(id(p), "?") for p in params
-                          if p.grad is not None and not bool(torch.isfinite(p.grad).all())]
-            what = (f"the gradient is non-finite (norm {grad_norm}) in "
-                    f"{', '.join(repr(n) for n in bad_params[:5]) or 'another rank'}, "
-                    f"while the losses are finite")
-        raise NonFiniteError(
-            f"training diverged at step {step}: {what}. Stopped without updating the weights; "
-            f"{where}. Lower the learning rate (lr), set grad_clip, or check the data and the "
-            "loss weights.")
-
-
-def _format_losses(losses: Mapping[str, float], lr: float) -> str:
-    parts = [f"{k}={v:.4g}" for k, v in losses.items()]
-    parts.append(f"lr={lr:.3g}")
-    return " ".join(parts)
 
 
 def train(

@@ -42,54 +42,30 @@ from pathlib import Path
 from typing import Any
 
 import torch
-import torch.nn.functional as F
-from torch import nn
 
-from ..data.datasets import SPLITS, RayBatch, RayFrames, ScanFrames
+from ..data.datasets import SPLITS, RayFrames, ScanFrames
 from ..fields.config import FieldConfig
-from ..fields.latents import LatentTable
-from ..model.lisa import FrameState, LisaModel, region_bounds
-from ..model.losses import color_loss, eikonal_loss, latent_loss, skinning_loss
-from ..render import LaplaceDensity, RenderConfig, calibrate, ray_sphere_bounds, render_rays
-from ..skeleton import NUM_JOINTS, POSE_DIM
+from ..model.checkpoint import IMAGE_KIND, load_run_checkpoint
+from ..render import RenderConfig
+from ..skeleton import NUM_JOINTS
 from ..utils.config import config_from_dict
+from .config import TrainerConfig, build_optimizer, check_non_negative, check_positive_int
 from .distributed import DistContext, shard_slice, unwrap
-from .engine import StepContext, Trainer, TrainerConfig, TrainResult
-from .prior import (
-    PriorModel,
-    _check_non_negative,
-    _check_positive_int,
-    _check_resumed_extra,
-    _optimizer_fn,
-    _seeded,
-    _weighted_total,
-    load_prior,
-    load_run_checkpoint,
-)
+from .engine import StepContext, Trainer, TrainResult
+from .image_model import ImageBatch, ImageModel, geometry_from_prior, geometry_mismatch
+from .prior import PriorModel, load_prior
+from .runs import check_resumed_extra, seeded, weighted_total
 
 __all__ = [
-    "IMAGE_KIND",
-    "NON_GEOMETRY_FIELDS",
     "ImageTrainConfig",
-    "ImageBatch",
-    "ImageModel",
-    "build_image_model",
+    "pose_refine_step",
     "resolve_prior",
+    "build_image_model",
+    "load_image_data",
+    "sample_image_batch",
     "train_images",
     "load_image_model",
-    "geometry_from_prior",
-    "pose_refine_step",
-    "select_frame",
 ]
-
-IMAGE_KIND = "lisa-images"
-"""``Checkpoint.extra["kind"]`` of an image run."""
-
-NON_GEOMETRY_FIELDS = (
-    "use_color", "color_hidden", "color_depth", "color_dim", "inference_precision",
-)
-"""The :class:`FieldConfig` fields that do not define the geometry (the colour MLPs, the
-inference precision): an image run keeps its own; all others come from the prior."""
 
 
 def _default_image_field() -> FieldConfig:
@@ -197,7 +173,7 @@ class ImageTrainConfig:
         if self.split not in SPLITS:
             raise ValueError(f"split must be one of {SPLITS}, got {self.split!r}")
         for name in ("num_rays", "num_frames"):
-            _check_positive_int(self, name)
+            check_positive_int(self, name)
         if self.num_rays % self.num_frames:
             raise ValueError(f"num_rays ({self.num_rays}) must be a multiple of num_frames "
                              f"({self.num_frames})")
@@ -218,7 +194,7 @@ class ImageTrainConfig:
                              f"{self.pose_refine_start!r}")
         for name in ("lambda_col", "lambda_eik", "lambda_w", "lambda_reg", "lambda_mask",
                      "latent_init_std", "beta_min"):
-            _check_non_negative(self, name)
+            check_non_negative(self, name)
         if not self.beta_init > self.beta_min:
             raise ValueError(f"beta_init ({self.beta_init!r}) must be > beta_min "
                              f"({self.beta_min!r})")
@@ -245,239 +221,6 @@ def pose_refine_step(config: ImageTrainConfig) -> int:
     return math.ceil(config.pose_refine_start * config.trainer.steps)
 
 
-def geometry_from_prior(prior: FieldConfig, field: FieldConfig) -> FieldConfig:
-    """``field`` with every geometry setting (all but :data:`NON_GEOMETRY_FIELDS`) taken from
-    ``prior``."""
-    kept = {name: getattr(field, name) for name in NON_GEOMETRY_FIELDS}
-    return dataclasses.replace(prior, **kept)
-
-
-def _geometry_mismatch(prior: FieldConfig, field: FieldConfig) -> list[str]:
-    return [f.name for f in dataclasses.fields(FieldConfig) if f.name not in NON_GEOMETRY_FIELDS
-            and getattr(prior, f.name) != getattr(field, f.name)]
-
-
-# ------------------------------------------------------------------------------------------------
-# Frame-state helpers
-
-
-def select_frame(state: FrameState, index: int) -> FrameState:
-    """The one-frame state of frame ``index`` of a batched :class:`FrameState` (differentiable).
-
-    Every tensor of a state (and of its kinematics) has the frame axis first.
-    """
-
-    def take(value: Any) -> Any:
-        if isinstance(value, torch.Tensor):
-            return value[index:index + 1]
-        if dataclasses.is_dataclass(value) and not isinstance(value, type):
-            return dataclasses.replace(value, **{f.name: take(getattr(value, f.name))
-                                                 for f in dataclasses.fields(value)})
-        return value
-
-    return take(state)
-
-
-# ------------------------------------------------------------------------------------------------
-# The model
-
-
-@dataclass(eq=False)
-class ImageBatch:
-    """What one step of image training consumes. B frames (the rays' frames)."""
-
-    rays: RayBatch
-    """R rays per frame."""
-    skin_points: torch.Tensor
-    """[B, Nw, 3] world metres, scan points for L_w."""
-    skin_weights: torch.Tensor
-    """[B, Nw, 16] their pseudo-ground-truth skinning weights."""
-    uniform_unit: torch.Tensor
-    """[B, Nu, 3] in [0, 1): uniform points in the region box (scaled to it in the model)."""
-    eikonal_pick: torch.Tensor
-    """[B, Ne, 2] in [0, 1): which hit ray and which of its samples for each ray Eikonal point."""
-    seeds: torch.Tensor
-    """[B] long, seed of each frame's stratified ray sampling (per frame, so that a frame
-    renders the same whichever process gets it)."""
-
-    def select(self, index: slice) -> ImageBatch:
-        return dataclasses.replace(
-            self, rays=self.rays.select(index), skin_points=self.skin_points[index],
-            skin_weights=self.skin_weights[index], uniform_unit=self.uniform_unit[index],
-            eikonal_pick=self.eikonal_pick[index], seeds=self.seeds[index])
-
-    def to(self, device: torch.device | str, dtype: torch.dtype | None = None) -> ImageBatch:
-        def move(tensor: torch.Tensor) -> torch.Tensor:
-            return tensor.to(device=device, dtype=dtype or tensor.dtype)
-
-        return dataclasses.replace(
-            self, rays=self.rays.to(device, dtype), skin_points=move(self.skin_points),
-            skin_weights=move(self.skin_weights), uniform_unit=move(self.uniform_unit),
-            eikonal_pick=move(self.eikonal_pick))
-
-    @property
-    def num_frames(self) -> int:
-        return self.rays.num_frames
-
-
-class ImageModel(nn.Module):
-    """Everything an image run learns.
-
-    field: :class:`LisaModel` with colour. shape_codes, color_codes: :class:`LatentTable`
-    [S, D]. density: :class:`LaplaceDensity`. gain, bias: [C, 3] per camera and channel.
-    pose_offsets: [F, 48] radians; translation_offsets: [F, 3] metres (per training frame).
-    subject_ids [S], camera_names [C], frame_keys [F] name the rows.
-    """
-
-    def __init__(
-        self,
-        field_config: FieldConfig,
-        subject_ids: list[str],
-        camera_names: list[str],
-        frame_keys: list[str],
-        *,
-        latent_init_std: float = 0.01,
-        beta_init: float = 0.003,
-        beta_min: float = 1e-4,
-        init_rest_joints: torch.Tensor | None = None,
-    ) -> None:
-        super().__init__()
-        if not subject_ids or not camera_names or not frame_keys:
-            raise ValueError("subject_ids, camera_names and frame_keys must not be empty")
-        self.field = LisaModel(field_config, init_rest_joints=init_rest_joints)
-        self.shape_codes = LatentTable(len(subject_ids), field_config.shape_dim, latent_init_std)
-        self.color_codes = LatentTable(len(subject_ids), field_config.color_dim, latent_init_std)
-        self.density = LaplaceDensity(beta_init, beta_min)
-        self.gain = nn.Parameter(torch.ones(len(camera_names), 3))
-        self.bias = nn.Parameter(torch.zeros(len(camera_names), 3))
-        self.pose_offsets = nn.Parameter(torch.zeros(len(frame_keys), POSE_DIM))
-        self.translation_offsets = nn.Parameter(torch.zeros(len(frame_keys), 3))
-        self.subject_ids = list(subject_ids)
-        self.camera_names = list(camera_names)
-        self.frame_keys = list(frame_keys)
-
-    def mean_calibration(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """Gain [3] and bias [3] averaged over the cameras (LISA's calibration at inference)."""
-        return self.gain.mean(dim=0), self.bias.mean(dim=0)
-
-    @torch.no_grad()
-    def init_from_prior(self, prior: PriorModel) -> list[str]:
-        """Copy the prior's SDF and skinning MLPs and shape codes; -> the subjects that got the
-        prior's mean code (not in the prior). The geometry configs must match."""
-        mismatch = _geometry_mismatch(prior.field.config, self.field.config)
-        if mismatch:
-            raise ValueError(f"the prior's field differs from this model's in {mismatch}")
-        prior_state = prior.field.state_dict()
-        geometry = {k: v for k, v in prior_state.items() if not k.startswith("color_mlp.")}
-        missing, unexpected = self.field.load_state_dict(geometry, strict=False)
-        missing = [k for k in missing if not k.startswith("color_mlp.")]
-        if missing or unexpected:
-            raise ValueError(f"the prior's weights do not fit: missing {missing}, unexpected "
-                             f"{unexpected}")
-        mean = prior.shape_codes.mean_code()
-        unseen = []
-        for row, subject in enumerate(self.subject_ids):
-            if subject in prior.subject_ids:
-                code = prior.shape_codes.weight[prior.subject_ids.index(subject)]
-            else:
-                code = mean
-                unseen.append(subject)
-            self.shape_codes.weight[row] = code.to(self.shape_codes.weight)
-        return unseen
-
-    def frame_parameters(
-        self, frame_index: torch.Tensor, pose: torch.Tensor, translation: torch.Tensor,
-        refine_pose: bool, refine_translation: bool = True,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The given pose [B, 48] and translation [B, 3] plus the frames' learned offsets (only
-        with ``refine_pose``; otherwise the offsets are not used and get no gradient)."""
-        if refine_pose:
-            pose = pose + self.pose_offsets[frame_index]
-            if refine_translation:
-                translation = translation + self.translation_offsets[frame_index]
-        return pose, translation
-
-    def forward(
-        self,
-        batch: ImageBatch,
-        *,
-        render: RenderConfig,
-        refine_pose: bool = False,
-        refine_translation: bool = True,
-        background: tuple[float, float, float] = (0.0, 0.0, 0.0),
-    ) -> dict[str, torch.Tensor]:
-        """The loss terms of one batch, each averaged over it (see the module docstring).
-
-        -> {"col", "eik", "w", "reg", "mask"} scalar tensors.
-        """
-        rays = batch.rays
-        device, dtype = rays.origins.device, rays.origins.dtype
-        pose, translation = self.frame_parameters(rays.frame_index, rays.pose, rays.translation,
-                                                  refine_pose, refine_translation)
-        shape = self.shape_codes(rays.subject_index)
-        color = self.color_codes(rays.subject_index)
-        state = self.field.prepare(pose, translation, rays.rest_joints, shape, color)
-        low, high = region_bounds(state, self.field)
-        centre, radius = 0.5 * (low + high), 0.5 * (high - low).norm(dim=-1)
-        background_rgb = torch.tensor(background, dtype=dtype, device=device)
-        black = torch.zeros(3, dtype=dtype, device=device)
-        seeds = batch.seeds.tolist()
-        predictions, opacities, ray_points = [], [], []
-        for frame in range(rays.num_frames):
-            generator = None
-            if render.stratified:
-                generator = torch.Generator(device=device).manual_seed(seeds[frame])
-            frame_state = select_frame(state, frame)
-            origins, directions = rays.origins[frame], rays.directions[frame]
-            near, far, hit = ray_sphere_bounds(origins, directions, centre[frame], radius[frame])
-            out = render_rays(self.field.field_fn(frame_state), self.field.sdf_fn(frame_state),
-                              origins, directions, near, far, render, self.density, hit=hit,
-                              background=black, generator=generator)
-            camera = rays.camera_index[frame]
-            predictions.append(calibrate(out.rgb, out.opacity, self.gain[camera],
-                                         self.bias[camera], background_rgb))
-            opacities.append(out.opacity)
-            ray_points.append(_pick_ray_samples(origins, directions, out.t_vals, hit,
-                                                batch.eikonal_pick[frame], centre[frame]))
-        prediction = torch.stack(predictions)  # [B, R, 3]
-        opacity = torch.stack(opacities)  # [B, R]
-
-        uniform = low[:, None] + batch.uniform_unit * (high - low)[:, None]
-        num_skin = batch.skin_points.shape[1]
-        points = torch.cat([batch.skin_points, torch.stack(ray_points), uniform], dim=1)
-        zero = prediction.new_zeros(())
-        eik = weights = zero
-        if points.shape[1]:
-            geometry = self.field.field(state, points, with_color=False, with_gradient=True)
-            if points.shape[1] > num_skin:
-                eik = eikonal_loss(geometry.sdf_grad[:, num_skin:])
-            if num_skin and geometry.weights is not None:
-                weights = skinning_loss(geometry.weights[:, :num_skin], batch.skin_weights)
-        mask = F.binary_cross_entropy(opacity.clamp(1e-5, 1.0 - 1e-5), rays.in_mask.to(dtype))
-        return {
-            "col": color_loss(prediction.reshape(-1, 3), rays.rgb.reshape(-1, 3)),
-            "eik": eik,
-            "w": weights,
-            "reg": latent_loss(shape, color),
-            "mask": mask,
-        }
-
-
-def _pick_ray_samples(origins, directions, t_vals, hit, pick, fallback) -> torch.Tensor:
-    """Points at random samples of the rays that hit the bounds: [R, S] t_vals -> [Ne, 3].
-
-    pick: [Ne, 2] in [0, 1) (ray among the hit rays, sample along it); no hit: ``fallback`` [3].
-    """
-    hit_rays = hit.nonzero()[:, 0]
-    num_hit, num_samples = hit_rays.numel(), t_vals.shape[1]
-    if num_hit == 0:
-        return fallback.expand(pick.shape[0], 3)
-    ray = hit_rays[(pick[:, 0] * num_hit).long().clamp_max(num_hit - 1)]
-    sample = (pick[:, 1] * num_samples).long().clamp_max(num_samples - 1)
-    t = t_vals[ray, sample].detach()
-    return (origins[ray] + t[:, None] * directions[ray]).detach()
-
-
 # ------------------------------------------------------------------------------------------------
 # Training
 
@@ -501,7 +244,7 @@ def resolve_prior(
         config = dataclasses.replace(config, field=geometry_from_prior(prior_model.field.config,
                                                                        config.field))
     else:
-        mismatch = _geometry_mismatch(prior_model.field.config, config.field)
+        mismatch = geometry_mismatch(prior_model.field.config, config.field)
         if mismatch:
             raise ValueError(f"prior {source}: its field differs in {mismatch}; set "
                              "field_from_prior=true or the same field values")
@@ -523,6 +266,72 @@ def build_image_model(
     if prior_model is not None:
         unseen = model.init_from_prior(prior_model)
     return model, unseen
+
+
+def load_image_data(
+    data_dir: str | os.PathLike, config: ImageTrainConfig
+) -> tuple[RayFrames, ScanFrames | None]:
+    """The rays of ``data_dir``'s split and, for L_w (``lambda_w > 0`` with skinning points),
+    its scans (their points and template weights), else None."""
+    rays = RayFrames(data_dir, config.split, max_band_px=config.max_band_px,
+                     background_per_view=config.background_per_view, seed=config.trainer.seed)
+    if not (config.lambda_w > 0 and config.skinning_points):
+        return rays, None
+    try:
+        return rays, ScanFrames(data_dir, config.split)
+    except FileNotFoundError as exc:
+        raise FileNotFoundError(f"{exc} (L_w reads the frames' scan.npz: points and "
+                                "template_weights; set lambda_w=0 to train without)") from None
+
+
+def sample_image_batch(
+    rays: RayFrames, scans: ScanFrames | None, config: ImageTrainConfig,
+    generator: torch.Generator,
+) -> ImageBatch:
+    """The global batch of one step (``config.num_frames`` frames), drawn from ``generator``
+    only: the rays, the skinning points of the same frames (none without ``scans``), the
+    uniform and ray Eikonal picks and the frames' render seeds, in this order."""
+    num_global = config.num_frames
+    ray_batch = rays.sample_rays(config.num_rays, generator, config.mask_fraction,
+                                 config.band_px, num_frames=num_global)
+    if scans is not None:
+        scan_batch = scans.sample(num_global, config.skinning_points, 0, generator,
+                                  frames=ray_batch.frame_index)
+        skin_points, skin_weights = scan_batch.surface_points, scan_batch.surface_weights
+    else:
+        skin_points = torch.zeros(num_global, 0, 3)
+        skin_weights = torch.zeros(num_global, 0, NUM_JOINTS)
+    return ImageBatch(
+        rays=ray_batch,
+        skin_points=skin_points,
+        skin_weights=skin_weights,
+        uniform_unit=torch.rand(num_global, config.eikonal_uniform_points, 3,
+                                generator=generator),
+        eikonal_pick=torch.rand(num_global, config.eikonal_ray_points, 2,
+                                generator=generator),
+        seeds=torch.randint(0, 2**62, (num_global,), generator=generator),
+    )
+
+
+def _image_step_fn(rays: RayFrames, scans: ScanFrames | None, config: ImageTrainConfig):
+    """The engine's step function of an image run: sample, keep this rank's frames, render and
+    weigh the losses (plus ``beta`` for the log)."""
+    weights = config.loss_weights()
+    num_global = config.num_frames
+    refine_from = pose_refine_step(config)
+
+    def step_fn(ctx: StepContext) -> dict[str, torch.Tensor]:
+        batch = sample_image_batch(rays, scans, config, ctx.generator)
+        bare = unwrap(ctx.model)
+        local = batch.select(shard_slice(num_global, ctx.dist)).to(ctx.device, bare.field.dtype)
+        terms = ctx.model(local, render=config.render, refine_pose=ctx.step >= refine_from,
+                          refine_translation=config.refine_translation,
+                          background=config.background)
+        out = weighted_total(terms, weights, local.num_frames, num_global, ctx.dist)
+        out["beta"] = bare.density.beta.detach()
+        return out
+
+    return step_fn
 
 
 def train_images(
@@ -551,63 +360,20 @@ def train_images(
     if not isinstance(config, ImageTrainConfig):
         raise TypeError(f"config must be an ImageTrainConfig, got {type(config).__name__}")
     config, prior_model, prior_source = resolve_prior(config, prior)
-    weights = config.loss_weights()
-    if not weights:
+    if not config.loss_weights():
         raise ValueError("every loss weight is 0: nothing to train")
-    rays = RayFrames(data_dir, config.split, max_band_px=config.max_band_px,
-                     background_per_view=config.background_per_view, seed=config.trainer.seed)
-    scans = None
-    num_skin = config.skinning_points if config.lambda_w > 0 else 0
-    if num_skin:
-        try:
-            scans = ScanFrames(data_dir, config.split)
-        except FileNotFoundError as exc:
-            raise FileNotFoundError(f"{exc} (L_w reads the frames' scan.npz: points and "
-                                    "template_weights; set lambda_w=0 to train without)") \
-                from None
-    model, _ = _seeded(config.trainer.seed, lambda: build_image_model(rays, config, prior_model))
-    num_global = config.num_frames
-    refine_from = pose_refine_step(config)
-
-    def step_fn(ctx: StepContext) -> dict[str, torch.Tensor]:
-        generator = ctx.generator
-        ray_batch = rays.sample_rays(config.num_rays, generator, config.mask_fraction,
-                                     config.band_px, num_frames=num_global)
-        if scans is not None:
-            scan_batch = scans.sample(num_global, num_skin, 0, generator,
-                                      frames=ray_batch.frame_index)
-            skin_points, skin_weights = scan_batch.surface_points, scan_batch.surface_weights
-        else:
-            skin_points = torch.zeros(num_global, 0, 3)
-            skin_weights = torch.zeros(num_global, 0, NUM_JOINTS)
-        batch = ImageBatch(
-            rays=ray_batch,
-            skin_points=skin_points,
-            skin_weights=skin_weights,
-            uniform_unit=torch.rand(num_global, config.eikonal_uniform_points, 3,
-                                    generator=generator),
-            eikonal_pick=torch.rand(num_global, config.eikonal_ray_points, 2,
-                                    generator=generator),
-            seeds=torch.randint(0, 2**62, (num_global,), generator=generator),
-        )
-        bare = unwrap(ctx.model)
-        local = batch.select(shard_slice(num_global, ctx.dist)).to(ctx.device, bare.field.dtype)
-        terms = ctx.model(local, render=config.render, refine_pose=ctx.step >= refine_from,
-                          refine_translation=config.refine_translation,
-                          background=config.background)
-        out = _weighted_total(terms, weights, local.num_frames, num_global, ctx.dist)
-        out["beta"] = bare.density.beta.detach()
-        return out
-
+    rays, scans = load_image_data(data_dir, config)
+    model, _ = seeded(config.trainer.seed, lambda: build_image_model(rays, config, prior_model))
     extra = {"kind": IMAGE_KIND, "subject_ids": list(rays.subject_ids),
              "camera_names": list(rays.camera_names), "frame_keys": rays.table.frame_keys,
              "data_dir": str(Path(data_dir)), "prior": prior_source}
     group_lrs = {("shape_codes", "color_codes"): config.latent_lr,
                  ("pose_offsets", "translation_offsets"): config.pose_lr}
-    trainer = Trainer(model, step_fn, config.trainer, out_dir, run_config=config,
-                      optimizer_fn=_optimizer_fn(config.trainer, group_lrs), resume=resume,
-                      hooks=hooks, extra_state=extra, dist=dist)
-    _check_resumed_extra(trainer, extra)
+    trainer = Trainer(model, _image_step_fn(rays, scans, config), config.trainer, out_dir,
+                      run_config=config, resume=resume, hooks=hooks, extra_state=extra,
+                      dist=dist,
+                      optimizer_fn=lambda bare: build_optimizer(bare, config.trainer, group_lrs))
+    check_resumed_extra(trainer, extra)
     return trainer.run()
 
 

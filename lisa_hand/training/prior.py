@@ -27,9 +27,7 @@ The paper gives no loss weights; the defaults here were chosen on the synthetic 
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -40,25 +38,21 @@ from torch import nn
 from ..data.datasets import SPLITS, ScanBatch, ScanFrames
 from ..fields.config import FieldConfig
 from ..fields.latents import LatentTable
+from ..model.checkpoint import PRIOR_KIND, load_run_checkpoint
 from ..model.lisa import LisaModel
 from ..model.losses import eikonal_loss, latent_loss, normal_loss, skinning_loss, surface_loss
 from ..utils.config import config_from_dict
-from .checkpoint import LAST_CHECKPOINT, Checkpoint, load_checkpoint
-from .distributed import DistContext, global_mean, shard_slice, unwrap
-from .engine import StepContext, Trainer, TrainerConfig, TrainResult
+from .config import TrainerConfig, build_optimizer, check_non_negative, check_positive_int
+from .distributed import DistContext, shard_slice, unwrap
+from .engine import StepContext, Trainer, TrainResult
+from .runs import check_resumed_extra, seeded, weighted_total
 
 __all__ = [
-    "PRIOR_KIND",
     "PriorConfig",
     "PriorModel",
     "train_prior",
     "load_prior",
-    "load_run_checkpoint",
-    "batch_mean",
 ]
-
-PRIOR_KIND = "lisa-prior"
-"""``Checkpoint.extra["kind"]`` of a prior run."""
 
 
 def _default_prior_field() -> FieldConfig:
@@ -69,19 +63,6 @@ def _default_prior_trainer() -> TrainerConfig:
     return TrainerConfig(steps=20_000, lr=5e-4, lr_schedule="cosine", checkpoint_every=1000,
                          print_every=100, grad_sync="ddp",
                          find_unused_parameters=True)
-
-
-def _check_positive_int(config: Any, name: str) -> None:
-    value = getattr(config, name)
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise ValueError(f"{name} must be a positive int, got {value!r}")
-
-
-def _check_non_negative(config: Any, name: str) -> None:
-    value = getattr(config, name)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) \
-            or not (math.isfinite(value) and value >= 0):
-        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
 
 
 @dataclass(frozen=True)
@@ -140,7 +121,7 @@ class PriorConfig:
         if self.split not in SPLITS:
             raise ValueError(f"split must be one of {SPLITS}, got {self.split!r}")
         for name in ("frames_per_step", "surface_points"):
-            _check_positive_int(self, name)
+            check_positive_int(self, name)
         if isinstance(self.space_points, bool) or not isinstance(self.space_points, int) \
                 or self.space_points < 0:
             raise ValueError(f"space_points must be an int >= 0, got {self.space_points!r}")
@@ -148,7 +129,7 @@ class PriorConfig:
             raise ValueError(f"near_fraction must be in [0, 1], got {self.near_fraction!r}")
         for name in ("uniform_margin", "lambda_surf", "lambda_normal", "lambda_eik", "lambda_w",
                      "lambda_reg", "lambda_sdf", "latent_init_std"):
-            _check_non_negative(self, name)
+            check_non_negative(self, name)
         if self.latent_lr is not None and not (self.latent_lr > 0):
             raise ValueError(f"latent_lr must be > 0 or None, got {self.latent_lr!r}")
 
@@ -157,16 +138,6 @@ class PriorConfig:
         weights = {"surf": self.lambda_surf, "normal": self.lambda_normal, "eik": self.lambda_eik,
                    "w": self.lambda_w, "reg": self.lambda_reg, "sdf": self.lambda_sdf}
         return {name: value for name, value in weights.items() if value > 0}
-
-
-def batch_mean(local_mean: torch.Tensor, num_local: int, num_global: int,
-               dist: DistContext) -> torch.Tensor:
-    """This rank's share of a mean over the global batch, from the mean over its own frames.
-
-    Every frame of a step has the same number of points, so the global mean is the mean of the
-    per-rank means weighted by their frame counts; see :func:`distributed.global_mean`.
-    """
-    return global_mean(local_mean.reshape(1) * num_local, num_global, dist)
 
 
 class PriorModel(nn.Module):
@@ -239,67 +210,6 @@ class PriorModel(nn.Module):
 # Training
 
 
-def _optimizer_fn(trainer_config: TrainerConfig,
-                  group_lrs: Mapping[tuple[str, ...], float | None]):
-    """The engine's optimizer (Adam, AdamW or SGD of ``trainer_config``), with one parameter
-    group per tuple of top-level module names and its own learning rate (None: the trainer's);
-    the other parameters form the first group."""
-
-    def build(model: nn.Module) -> torch.optim.Optimizer:
-        groups: dict[tuple[str, ...] | None, list[nn.Parameter]] = {None: []}
-        for name, param in model.named_parameters():
-            if param.requires_grad:
-                top = name.split(".")[0]
-                key = next((names for names in group_lrs if top in names), None)
-                groups.setdefault(key, []).append(param)
-        param_groups = [{"params": params} if key is None else
-                        {"params": params, "lr": group_lrs[key] or trainer_config.lr}
-                        for key, params in groups.items() if params]
-        kind = trainer_config.optimizer
-        options = {"lr": trainer_config.lr, "weight_decay": trainer_config.weight_decay}
-        if kind == "adam":
-            return torch.optim.Adam(param_groups, betas=trainer_config.betas, **options)
-        if kind == "adamw":
-            return torch.optim.AdamW(param_groups, betas=trainer_config.betas, **options)
-        return torch.optim.SGD(param_groups, momentum=trainer_config.betas[0], **options)
-
-    return build
-
-
-def _seeded(seed: int, build):
-    """``build()`` with the global torch RNG seeded (the initial weights depend on the seed
-    only), leaving the caller's RNG state untouched."""
-    with torch.random.fork_rng(devices=[]):
-        torch.manual_seed(seed)
-        return build()
-
-
-def _weighted_total(terms: Mapping[str, torch.Tensor], weights: Mapping[str, float],
-                    num_local: int, num_global: int,
-                    dist: DistContext) -> dict[str, torch.Tensor]:
-    out: dict[str, torch.Tensor] = {}
-    total = None
-    for name, weight in weights.items():
-        value = batch_mean(terms[name], num_local, num_global, dist)
-        out[name] = value
-        total = weight * value if total is None else total + weight * value
-    return {"total": total, **out}
-
-
-def _check_resumed_extra(trainer: Trainer, expected: Mapping[str, Any]) -> None:
-    """A resumed run must have the same subjects (cameras, frames) as its checkpoint."""
-    if trainer.resumed_from is None:
-        return
-    for key, value in expected.items():
-        if key in ("data_dir", "prior"):
-            continue
-        saved = trainer.resumed_extra.get(key)
-        if saved is not None and saved != value:
-            raise ValueError(f"{trainer.resumed_from}: the checkpoint was trained with another "
-                             f"{key} ({saved!r}, now {value!r}); use --no-resume or another "
-                             "output folder")
-
-
 def train_prior(
     data_dir: str | os.PathLike,
     out_dir: str | os.PathLike,
@@ -323,7 +233,7 @@ def train_prior(
     if not isinstance(config, PriorConfig):
         raise TypeError(f"config must be a PriorConfig, got {type(config).__name__}")
     scans = ScanFrames(data_dir, config.split)
-    model = _seeded(config.trainer.seed, lambda: PriorModel(
+    model = seeded(config.trainer.seed, lambda: PriorModel(
         config.field, scans.subject_ids, latent_init_std=config.latent_init_std,
         init_rest_joints=scans.table.rest_joints.mean(dim=0)))
     weights = config.loss_weights()
@@ -338,38 +248,20 @@ def train_prior(
         local = batch.select(shard_slice(num_global, ctx.dist))
         local = local.to(ctx.device, unwrap(ctx.model).field.dtype)
         terms = ctx.model(local)
-        return _weighted_total(terms, weights, local.num_frames, num_global, ctx.dist)
+        return weighted_total(terms, weights, local.num_frames, num_global, ctx.dist)
 
     extra = {"kind": PRIOR_KIND, "subject_ids": list(scans.subject_ids),
              "data_dir": str(Path(data_dir))}
+    group_lrs = {("shape_codes",): config.latent_lr}
     trainer = Trainer(model, step_fn, config.trainer, out_dir, run_config=config,
-                      optimizer_fn=_optimizer_fn(config.trainer,
-                                                 {("shape_codes",): config.latent_lr}),
+                      optimizer_fn=lambda bare: build_optimizer(bare, config.trainer, group_lrs),
                       resume=resume, hooks=hooks, extra_state=extra, dist=dist)
-    _check_resumed_extra(trainer, extra)
+    check_resumed_extra(trainer, extra)
     return trainer.run()
 
 
 # ------------------------------------------------------------------------------------------------
 # Loading
-
-
-def load_run_checkpoint(run: str | os.PathLike, kind: str) -> Checkpoint:
-    """The checkpoint of a run folder (``RUN/last.pt``) or a checkpoint file, checked to be of
-    ``kind`` (``Checkpoint.extra["kind"]``)."""
-    path = Path(run)
-    if path.is_dir():
-        path = path / LAST_CHECKPOINT
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: no checkpoint in this run folder (has the run "
-                                    "written one yet?)")
-    ckpt = load_checkpoint(path)
-    found = ckpt.extra.get("kind")
-    if found != kind:
-        raise ValueError(f"{path}: expected a {kind!r} checkpoint, got {found!r}")
-    if ckpt.config is None:
-        raise ValueError(f"{path}: the checkpoint holds no run config")
-    return ckpt
 
 
 def load_prior(run: str | os.PathLike, map_location: Any = "cpu") -> PriorModel:

@@ -8,7 +8,6 @@ import shutil
 
 import numpy as np
 import pytest
-import torch
 
 from lisa_hand.cli import fit_images, main
 from lisa_hand.data.layout import write_image
@@ -16,7 +15,8 @@ from lisa_hand.data.meshio import load_mesh, save_mesh
 from lisa_hand.inference import mesh_hand
 from lisa_hand.model.trained import export_trained
 from lisa_hand.skeleton.params import read_params
-from tests.fitting.test_images import render_frame, tiny_model, true_hand, write_frame
+from lisa_hand.utils.threads import cpu_threads
+from tests.fitting.image_scene import render_frame, tiny_model, true_hand, write_frame
 
 FAST = ["--keypoint-iters", "60", "--color-iters", "4", "--rays", "64", "--res", "32",
         "--device", "cpu", "--no-progress"]
@@ -24,10 +24,8 @@ FAST = ["--keypoint-iters", "60", "--color-iters", "4", "--rays", "64", "--res",
 
 @pytest.fixture(scope="module", autouse=True)
 def _one_thread():
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)  # the CPU is shared
-    yield
-    torch.set_num_threads(previous)
+    with cpu_threads(1):  # the CPU is shared
+        yield
 
 
 @pytest.fixture()
@@ -95,6 +93,24 @@ def test_one_view_without_keypoints_or_psnr(lisa, files, tmp_path, capsys):
     assert metrics["views"] == ["cam001"] and metrics["keypoint_error_px"] is None
     assert "psnr_db" not in metrics and "v2v_recon_to_scan_mm" not in metrics
     assert read_params(out / "params.json").extra["views"] == ["cam001"]
+
+
+def test_keypoints_far_outside_the_image_are_dropped(lisa, files, tmp_path, capsys):
+    frame = tmp_path / "frame"
+    shutil.copytree(files["frame"], frame)
+    data = json.loads((frame / "keypoints.json").read_text())
+    for index in (4, 8):  # two finger tips marked visible, thousands of pixels away
+        data["views"]["cam000"]["keypoints"][index] = [31000.0, -9000.0]
+    (frame / "keypoints.json").write_text(json.dumps(data))
+    out = tmp_path / "out"
+    run_ok(lisa, ["fit-images", str(frame), "--out", str(out), "--model", str(files["model"]),
+                  "--no-psnr", *FAST])
+    printed = capsys.readouterr().out
+    assert "view cam000: 2 keypoint(s) marked visible lie more than 10% of the image" in printed
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["keypoint_error_px"] < 2.0  # the other keypoints, fitted as before
+    notes = read_params(out / "params.json").extra["input"]["notes"]
+    assert any(note.endswith("are left out (thumb_tip, index_tip)") for note in notes)
 
 
 def _corrupt_model(files, tmp_path):

@@ -6,7 +6,6 @@ import json
 
 import numpy as np
 import pytest
-import torch
 
 from lisa_hand.cli import fit_points as fit_points_cli
 from lisa_hand.cli import main as cli_main
@@ -14,6 +13,7 @@ from lisa_hand.data.meshio import load_mesh, save_mesh
 from lisa_hand.data.scans import ScanConfig
 from lisa_hand.model.trained import export_trained
 from lisa_hand.skeleton.params import read_params
+from lisa_hand.utils.threads import cpu_threads
 from tests.fitting.test_points import scan_of, surface, tiny_model, true_hand
 
 FAST_ARGS = ["--iterations", "15", "--restarts", "1", "--res", "40", "--no-progress"]
@@ -38,16 +38,14 @@ def lisa():
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     """A tiny colour model, a scan of its own surface (with normals) and the true mesh."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
     root = tmp_path_factory.mktemp("fit_points")
-    model = tiny_model(color=True)
-    truth = true_hand(model, seed=2)
-    points, normals, _ = scan_of(model, truth, ScanConfig(num_points=600), seed=2)
-    export_trained(model, root / "tiny.pt")
-    np.savez(root / "scan.npz", points=points, normals=normals)
-    save_mesh(root / "truth.ply", surface(model, truth))
-    torch.set_num_threads(previous)
+    with cpu_threads(1):
+        model = tiny_model(color=True)
+        truth = true_hand(model, seed=2)
+        points, normals, _ = scan_of(model, truth, ScanConfig(num_points=600), seed=2)
+        export_trained(model, root / "tiny.pt")
+        np.savez(root / "scan.npz", points=points, normals=normals)
+        save_mesh(root / "truth.ply", surface(model, truth))
     return root, points
 
 
@@ -87,6 +85,25 @@ def test_millimetre_cloud_is_converted(lisa, files, capsys):
     assert sorted(p.name for p in out.iterdir()) == ["mesh.ply", "params.json"]
     translation = read_params(out / "params.json").translation.numpy()
     assert np.linalg.norm(translation - points.mean(0)) < 0.1  # metres, not millimetres
+
+
+def test_side_left_fits_a_left_hand(lisa, files, capsys):
+    root, points = files
+    left = points * np.array([-1.0, 1.0, 1.0], dtype=points.dtype)  # the mirror image
+    np.save(root / "left.npy", left)
+    out = root / "out_left"
+    assert lisa(["fit-points", str(root / "left.npy"), "--out", str(out), "--model",
+                 str(root / "tiny.pt"), "--side", "left", "--field-iters", "15", "--restarts",
+                 "1", "--res", "40", "--no-progress"]) == 0
+    assert "fitted" in capsys.readouterr().out
+    params = read_params(out / "params.json")
+    assert params.side == "left"
+    # The mesh of the left hand lies on the left cloud (mirrored by the mesher).
+    vertices = load_mesh(out / "mesh.ply").vertices
+    assert np.linalg.norm(vertices.mean(0) - left.mean(0)) < 0.02
+    assert lisa(["fit-points", str(root / "left.npy"), "--out", str(root / "bad_side"),
+                 "--side", "middle", *FAST_ARGS]) == 2
+    assert not (root / "bad_side").exists()
 
 
 def test_bad_inputs_give_one_line_errors(lisa, files, capsys):

@@ -14,12 +14,14 @@ from typer.testing import CliRunner
 
 from lisa_hand.bench.field import BENCH_REST_JOINTS
 from lisa_hand.cli import animate, blend, main, mesh, render
+from lisa_hand.cli.options import parse_image_size, read_cameras
 from lisa_hand.data.meshio import load_mesh
 from lisa_hand.fields import FieldConfig
 from lisa_hand.metrics import mesh_distances
 from lisa_hand.model.lisa import LisaModel
 from lisa_hand.model.trained import TrainedModel, export_trained
 from lisa_hand.skeleton.params import HandParams, read_params, write_params
+from lisa_hand.utils.threads import cpu_threads
 
 VERBS = (mesh, render, animate, blend)
 TINY_FIELD = dict(sdf_hidden=32, sdf_depth=2, skinning_hidden=32, skinning_depth=1,
@@ -31,10 +33,8 @@ PADDING = "0.08"  # metres: the untrained blob reaches 7 cm past the skeleton
 
 @pytest.fixture(scope="module", autouse=True)
 def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # the CPU is shared
-    yield
-    torch.set_num_threads(threads)
+    with cpu_threads(1):  # the CPU is shared
+        yield
 
 
 @pytest.fixture(scope="module")
@@ -208,6 +208,24 @@ def test_blend_then_mesh(app, files, tmp_path):
     torch.testing.assert_close(mixed.color_code, 0.5 * (a.color_code + b.color_code))
     assert mixed.model == a.model and mixed.extra["blend"]["b"] == str(files["b"])
     run(app, ["mesh", swapped, "--res", 16, "--padding", PADDING, "--out", tmp_path / "m.ply"])
+
+
+def test_image_sizes_and_camera_files(tmp_path):
+    assert parse_image_size("64x48") == (64, 48) and parse_image_size(" 8X4 ") == (8, 4)
+    with pytest.raises(ValueError, match="resolution must look like"):
+        parse_image_size("512by512")
+    with pytest.raises(ValueError, match="--resolution must be between"):
+        parse_image_size("0x10", "--resolution")
+    path = tmp_path / "cams.json"
+    path.write_text(json.dumps([{"name": "c", "K": [[40, 0, 20], [0, 40, 10], [0, 0, 1]],
+                                 "R": np.eye(3).tolist(), "t": [0, 0, 1], "width": 40,
+                                 "height": 20}]))
+    (camera,) = read_cameras(path, (20, 10))
+    assert (camera.width, camera.height) == (20, 10)
+    torch.testing.assert_close(camera.K, torch.tensor([[20.0, 0, 10], [0, 20, 5], [0, 0, 1]]))
+    path.write_text("[]")
+    with pytest.raises(ValueError, match="holds no camera"):
+        read_cameras(path)
 
 
 @pytest.fixture()

@@ -6,6 +6,7 @@ import trimesh
 import typer
 from typer.testing import CliRunner
 
+from lisa_hand.cli import main as cli_main
 from lisa_hand.cli.metrics import register
 from lisa_hand.data.layout import write_image, write_mask
 from lisa_hand.metrics import lpips_unavailable_reason
@@ -63,19 +64,24 @@ def test_metrics_detects_millimetres_and_points(app, spheres):
               "--json", str(out)]
     )
     assert result.exit_code == 0, result.output
-    assert "scan_mm.npy: bounding box over 2 units across, read as millimetres" in result.output
+    assert ("scan_mm.npy: the point set is 183.6 units across: read as millimetres"
+            in result.output)
     assert "n/a" in result.output and "has no faces" in result.output
     values = json.loads(out.read_text())
     assert values["v2s_recon_to_scan_mm"] is None
     assert values["v2v_recon_to_scan_mm"] == pytest.approx(3.0, abs=1e-5)
-    # Forcing metres on the millimetre file: read as a 53 m sphere, as asked.
+    # Forcing metres on the millimetre file would read a 184 m hand (53 m distances): refused,
+    # naming the file and the unit that fits.
+    out.unlink()
     forced = CliRunner().invoke(
         app, ["metrics", str(tmp_path / "recon.ply"), str(tmp_path / "scan_mm.npy"),
               "--units", "m", "--json", str(out)]
     )
-    assert forced.exit_code == 0, forced.output
-    assert "millimetres" not in forced.output
-    assert json.loads(out.read_text())["v2v_recon_to_scan_mm"] == pytest.approx(52950.0, abs=1e-3)
+    assert forced.exit_code != 0 and isinstance(forced.exception, ValueError)
+    assert "scan_mm.npy: the point set is 183.6 units across: as metres that is 184 m, too large " \
+        "for a hand" in str(forced.exception)
+    assert "looks like millimetres: pass --units mm" in str(forced.exception)
+    assert not out.exists()
 
 
 def test_metrics_missing_file_is_an_error(app, tmp_path):
@@ -140,3 +146,72 @@ def test_metrics_rejects_mixed_inputs_and_bad_masks(app, images, spheres):
                                       str(tmp_path / "scan.ply"), "--mask",
                                       str(images / "mask.png")])
     assert isinstance(meshes.exception, ValueError) and "images only" in str(meshes.exception)
+
+
+def lisa(argv: list[str], capsys) -> tuple[int, str, str]:
+    """Run ``lisa`` as the console script does -> (exit status, stdout, stderr)."""
+    try:
+        cli_main.main(argv)
+        code = 0
+    except SystemExit as exit_:
+        code = exit_.code
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def assert_one_line_error(result: tuple[int, str, str], message: str) -> None:
+    code, _, err = result
+    assert code == 2, result
+    assert err.startswith("lisa: error: ") and err.endswith("\n") and err.count("\n") == 1, err
+    assert message in err, err
+
+
+def test_metrics_reads_centimetres_and_refuses_a_unit_that_makes_no_hand(spheres, capsys):
+    tmp_path, _, outer = spheres
+    np.save(tmp_path / "scan_cm.npy", 100.0 * outer.vertices)  # 18 units across
+    np.save(tmp_path / "scan_mm.npy", 1000.0 * outer.vertices)
+    code, out, _ = lisa(["metrics", str(tmp_path / "recon.ply"), str(tmp_path / "scan_cm.npy")],
+                        capsys)
+    assert code == 0
+    assert "scan_cm.npy: the point set is 18.36 units across: read as centimetres" in out
+    assert "V2V recon -> scan     3.0000" in out
+    assert_one_line_error(
+        lisa(["metrics", str(tmp_path / "recon.ply"), str(tmp_path / "scan_mm.npy"), "--units",
+              "m"], capsys),
+        "scan_mm.npy: the point set is 183.6 units across: as metres that is 184 m")
+    assert_one_line_error(
+        lisa(["metrics", str(tmp_path / "scan_cm.npy"), str(tmp_path / "recon.ply"), "--units",
+              "cm"], capsys),
+        "recon.ply: the mesh is 0.1732 units across: as centimetres that is 1.73 mm, too small "
+        "for a hand")
+    code, out, _ = lisa(["metrics", str(tmp_path / "scan_cm.npy"), str(tmp_path / "scan_cm.npy"),
+                         "--units", "cm"], capsys)
+    assert code == 0 and "V2V recon -> scan     0.0000" in out
+
+
+def test_metrics_bad_paths_are_one_line_errors_before_the_work(spheres, images, capsys):
+    tmp_path, _, _ = spheres
+    recon, scan = str(tmp_path / "recon.ply"), str(tmp_path / "scan.ply")
+    (tmp_path / "taken").mkdir()
+    (tmp_path / "afile").write_text("x")
+    (tmp_path / "folder.ply").mkdir()
+    (tmp_path / "faces.ply").write_text("ply\nformat ascii 1.0\nelement face 1\nproperty list "
+                                        "uchar int vertex_indices\nend_header\n3 0 1 2\n")
+    (images / "corrupt.png").write_bytes(b"\x89PNG\r\n\x1a\n not really")
+    (images / "text.png").write_text("not an image")
+    cases = [
+        ([recon, scan, "--json", str(tmp_path / "taken")], "taken: is a folder, expected a file"),
+        ([recon, scan, "--json", str(tmp_path / "afile" / "m.json")],
+         "afile/m.json: cannot write here: "),
+        ([str(tmp_path / "folder.ply"), scan], "folder.ply: is a directory, expected a file"),
+        ([recon, str(tmp_path / "faces.ply")], "faces.ply: the PLY has 1 face(s) but no vertex"),
+        ([str(images / "corrupt.png"), str(images / "target.png")],
+         "corrupt.png: not a readable image"),
+        ([str(images / "text.png"), str(images / "target.png")],
+         "text.png: not a readable image (not a PNG or JPEG file, or a corrupt one)"),
+        ([str(images / "pred.png"), str(images / "target.png"), "--json", str(tmp_path / "taken")],
+         "taken: is a folder, expected a file"),
+    ]
+    for arguments, message in cases:
+        assert_one_line_error(lisa(["metrics", *arguments], capsys), message)
+    assert sorted(p.name for p in (tmp_path / "taken").iterdir()) == []

@@ -9,16 +9,9 @@ import pytest
 import torch
 import trimesh
 
-from lisa_hand.data.images import (
-    GainBias,
-    GainBiasConfig,
-    MeshRayCaster,
-    ShadingConfig,
-    project_keypoints,
-    render_views,
-    sphere_trace_views,
-    vertex_normals,
-)
+from lisa_hand.data.images import project_keypoints, render_views, sphere_trace_views
+from lisa_hand.data.raycast import MeshRayCaster, vertex_normals
+from lisa_hand.data.shading import GainBias, GainBiasConfig, ShadingConfig
 from lisa_hand.geometry import Camera, intrinsics_from_fov, look_at, project_points
 
 RADIUS = 0.1

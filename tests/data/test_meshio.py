@@ -192,3 +192,52 @@ def test_errors_name_the_file(tmp_path):
     (tmp_path / "bad_index.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n")
     with pytest.raises(ValueError, match=r"bad_index\.obj.*faces index"):
         load_mesh(tmp_path / "bad_index.obj")
+
+
+PLY_ASCII = "ply\nformat ascii 1.0\n"
+PLY_XYZ = "property float x\nproperty float y\nproperty float z\n"
+PLY_FACE = "element face 1\nproperty list uchar int vertex_indices\n"
+
+
+def test_ply_faces_without_vertices_say_so(tmp_path):
+    (tmp_path / "faces.ply").write_text(PLY_ASCII + PLY_FACE + "end_header\n3 0 1 2\n")
+    (tmp_path / "zero.ply").write_text(PLY_ASCII + "element vertex 0\n" + PLY_XYZ + PLY_FACE
+                                       + "end_header\n3 0 1 2\n")
+    for name, message in (("faces.ply", "has 1 face(s) but no vertex element"),
+                          ("zero.ply", "has no vertices (element vertex 0) but 1 face(s)")):
+        for reader in (load_mesh, meshio.read_ply_vertices):
+            with pytest.raises(ValueError) as info:
+                reader(tmp_path / name)
+            assert str(info.value).startswith(f"{tmp_path / name}: the PLY {message}"), (
+                reader, str(info.value))
+    # An ASCII PLY with no vertices and no faces is an empty mesh (as a binary one is), but
+    # no cloud of points.
+    (tmp_path / "empty.ply").write_text(PLY_ASCII + "element vertex 0\n" + PLY_XYZ
+                                        + "element face 0\nproperty list uchar int "
+                                          "vertex_indices\nend_header\n")
+    empty = load_mesh(tmp_path / "empty.ply")
+    assert empty.num_vertices == 0 and empty.num_faces == 0
+    with pytest.raises(ValueError, match=r"empty\.ply: the PLY has no vertices \(element vertex "
+                                         r"0\)$"):
+        meshio.read_ply_vertices(tmp_path / "empty.ply")
+
+
+def test_read_ply_vertices_reads_only_the_vertex_element(tmp_path):
+    mesh = random_mesh(num_weights=2)
+    save_mesh(tmp_path / "hand.ply", mesh)
+    table = meshio.read_ply_vertices(tmp_path / "hand.ply")
+    assert table.dtype.names == ("x", "y", "z", "red", "green", "blue", "w0", "w1")
+    np.testing.assert_array_equal(table["y"], mesh.vertices[:, 1])
+    # Truncated inside the faces: the vertices are all there.
+    data = (tmp_path / "hand.ply").read_bytes()
+    (tmp_path / "cut.ply").write_bytes(data[: len(data) - 50])
+    assert len(meshio.read_ply_vertices(tmp_path / "cut.ply")) == mesh.num_vertices
+    (tmp_path / "short.ply").write_bytes(data[: data.index(b"end_header") + 20])
+    with pytest.raises(ValueError, match=r"short\.ply: PLY file is truncated"):
+        meshio.read_ply_vertices(tmp_path / "short.ply")
+
+
+def test_a_folder_is_not_a_missing_file(tmp_path):
+    (tmp_path / "hand.ply").mkdir()
+    with pytest.raises(IsADirectoryError, match=r"hand\.ply: is a directory, expected a file"):
+        load_mesh(tmp_path / "hand.ply")

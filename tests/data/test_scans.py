@@ -11,6 +11,7 @@ import torch
 import trimesh
 
 from lisa_hand.data.scans import ScanConfig, sample_surface, sdf_samples, simulate_scan
+from lisa_hand.handmodel import SurfaceSamples
 
 RADIUS = 0.1
 
@@ -33,7 +34,9 @@ def mesh_distance(points, vertices, faces):
 
 def test_sample_surface_on_the_faces_with_outward_unit_normals(sphere):
     vertices, faces = sphere
-    points, normals, face_ids = sample_surface(vertices, faces, 5000, np.random.default_rng(0))
+    samples = sample_surface(vertices, faces, 5000, np.random.default_rng(0))
+    points, normals, face_ids = samples.points, samples.normals, samples.face_ids
+    assert samples.weights is None and samples.colors is None  # a mesh knows neither
     assert points.shape == (5000, 3) and normals.shape == (5000, 3) and face_ids.shape == (5000,)
     assert points.dtype == np.float32 and face_ids.dtype == np.int64
     assert np.abs(mesh_distance(points, vertices, faces)).max() < 1e-6
@@ -51,6 +54,16 @@ def test_sample_surface_on_the_faces_with_outward_unit_normals(sphere):
     face_normal = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     face_normal /= np.linalg.norm(face_normal, axis=1, keepdims=True)
     np.testing.assert_allclose(flat.normals, face_normal, atol=1e-6)
+
+
+def test_mesh_and_hand_samples_are_one_type(sphere):
+    samples = sample_surface(*sphere, 10, 0)
+    assert type(samples) is SurfaceSamples  # the open hand's type (lisa_hand.handmodel)
+    visible = samples.points[:, 2] > 0
+    picked = samples.select(visible)
+    np.testing.assert_array_equal(picked.face_ids, samples.face_ids[visible])
+    joined = SurfaceSamples.concatenate([picked, samples.select(~visible)])
+    assert joined.points.shape == (10, 3) and joined.face_ids.dtype == np.int64
 
 
 def test_sample_surface_is_area_weighted_and_uniform_in_each_triangle():

@@ -24,8 +24,9 @@ from lisa_hand.data.layout import (
 )
 from lisa_hand.data.meshio import load_mesh
 from lisa_hand.data.scans import ScanConfig
-from lisa_hand.data.synth import (
+from lisa_hand.data.synth.dataset import (
     SynthConfig,
+    dataset_rig,
     parse_resolution,
     split_subjects,
     synthesize,
@@ -230,6 +231,16 @@ def test_different_seed_differs(tiny, tmp_path):
     for name in ("s000/subject.json", "s000/f000/params.json", "s000/f000/images/cam000.png",
                  "s000/f000/scan.npz"):
         assert (tiny / name).read_bytes() != (other / name).read_bytes(), name
+
+
+def test_dataset_rig_cannot_be_changed_by_a_caller():
+    cameras, gain_bias = dataset_rig(TINY)
+    names, gains = [camera.name for camera in cameras], gain_bias.gain.copy()
+    cameras.clear()
+    gain_bias.gain[:] = 0.0
+    again_cameras, again = dataset_rig(TINY)
+    assert [camera.name for camera in again_cameras] == names
+    np.testing.assert_array_equal(again.gain, gains)
 
 
 def test_split_rule():

@@ -11,13 +11,13 @@ import json
 import math
 
 import pytest
-import torch
 
 from lisa_hand.cli import main as cli_main
 from lisa_hand.evaluation.methods import METHODS, check_model_method
 from lisa_hand.evaluation.quick import quick_config, quick_models
 from lisa_hand.evaluation.tables import DISTANCES, build_results, markdown_tables, run_eval
 from lisa_hand.model.trained import load_trained
+from lisa_hand.utils.threads import cpu_threads
 
 pytestmark = pytest.mark.usefixtures("one_thread")
 
@@ -25,8 +25,8 @@ pytestmark = pytest.mark.usefixtures("one_thread")
 @pytest.fixture(scope="module")
 def quick(tmp_path_factory):
     """The quick mode's dataset and models (10 training steps each)."""
-    torch.set_num_threads(1)
-    return quick_models(tmp_path_factory.mktemp("quick"), steps=10, log=lambda line: None)
+    with cpu_threads(1):
+        return quick_models(tmp_path_factory.mktemp("quick"), steps=10, log=lambda line: None)
 
 
 def test_quick_models_are_the_paper_baselines(quick):

@@ -34,14 +34,50 @@ def test_fit_recovers_a_template_hand():
     points = trimesh.Trimesh(vertices, faces, process=False).sample(8000, seed=5)
 
     fit = fit_template_points(points, template, TemplateFitConfig(seed=1))
-    fitted, _ = template_mesh(template, fit.pose, fit.betas, fit.translation)
+    hand = fit.params
+    fitted, _ = template_mesh(template, hand.pose, hand.betas, hand.translation)
     distances = mesh_distances(fitted, faces, vertices, faces)
     assert distances.v2s_scan_to_recon_mm < 1.0 and distances.v2s_recon_to_scan_mm < 1.0
-    rotation = axis_angle_to_matrix(fit.pose[:3].double())
+    rotation = axis_angle_to_matrix(hand.pose[:3].double())
     truth = axis_angle_to_matrix(pose[:3].double())
     angle = torch.arccos(((rotation.T @ truth).trace() - 1).clamp(-2, 2) / 2)
     assert float(angle) < np.radians(5.0)
     assert fit.seconds > 0 and np.isfinite(fit.energy)
+    # The one hand state: the template's skeleton for the fitted betas, no LISA codes.
+    assert hand.side == "right" and hand.model == "template" and hand.shape_code.numel() == 0
+    rest_joints = template.to(dtype=torch.float32).rest_joints(hand.betas[None])[0]
+    assert torch.allclose(hand.rest_joints, rest_joints)
+    assert hand.extra["fit"]["energy"] == fit.energy
+
+
+def test_a_left_hand_fits_as_the_mirror_of_the_right_one():
+    import trimesh
+
+    from lisa_hand.skeleton import mirror_points
+
+    template = load_template()
+    pose = named_pose("relaxed").clone()
+    pose[:3] = torch.tensor([0.3, 1.2, -0.4])
+    translation = torch.tensor([0.01, 0.02, 0.3])
+    vertices, faces = template_mesh(template, pose, torch.zeros(template.num_betas), translation)
+    points = trimesh.Trimesh(vertices, faces, process=False).sample(3000, seed=2)
+    config = TemplateFitConfig(rigid_iters=40, full_iters=60, seed=1)
+    right = fit_template_points(points, template, config)
+    left_points = mirror_points(torch.from_numpy(points)).numpy()
+    left = fit_template_points(left_points, template, config, side="left")
+    assert left.params.side == "left" and left.energy == pytest.approx(right.energy, rel=1e-5)
+    # The left mesh is the mirror of the right one, its faces still turned outwards.
+    left_mesh = trimesh.Trimesh(*template_mesh(template, left.params.pose, left.params.betas,
+                                               left.params.translation, side="left"),
+                                process=False)
+    right_mesh = trimesh.Trimesh(*template_mesh(template, right.params.pose,
+                                                right.params.betas, right.params.translation),
+                                 process=False)
+    assert np.allclose(left_mesh.vertices, right_mesh.vertices * [-1.0, 1.0, 1.0], atol=1e-5)
+    assert left_mesh.volume > 0 and left_mesh.volume == pytest.approx(right_mesh.volume,
+                                                                      rel=1e-4)
+    with pytest.raises(ValueError, match="side"):
+        fit_template_points(points, template, config, side="up")
 
 
 def test_fit_rejects_bad_points():

@@ -12,15 +12,11 @@ import torch
 
 from lisa_hand.data.scans import ScanConfig, simulate_scan
 from lisa_hand.fields.config import FieldConfig
-from lisa_hand.fitting.io import prepare_point_cloud, read_point_cloud
-from lisa_hand.fitting.points import (
-    FitPointsConfig,
-    _CloudDistance,
-    candidate_rotations,
-    cube_rotations,
-    fit_points,
-    robust_loss,
-)
+from lisa_hand.fitting.points.cloud import CloudDistance
+from lisa_hand.fitting.points.fit import FitPointsConfig, fit_points
+from lisa_hand.fitting.points.global_pose import cloud_candidate_rotations, cube_rotations
+from lisa_hand.fitting.points.io import prepare_point_cloud, read_point_cloud
+from lisa_hand.fitting.robust import robust_loss
 from lisa_hand.geometry import axis_angle_to_matrix
 from lisa_hand.geometry.meshing import extract_mesh
 from lisa_hand.model.lisa import LisaModel
@@ -102,8 +98,8 @@ def sdf_at(model: TrainedModel, params: HandParams, points) -> torch.Tensor:
         return field.sdf_fn(state)(torch.as_tensor(points, dtype=torch.float32))
 
 
-FAST = dict(align_iterations=20, align_keep=6, num_restarts=2, pose_iterations=20,
-            iterations=40, points_per_iteration=128, proxy_points=300, init_poses=("zero",),
+FAST = dict(align_iters=20, align_keep=6, num_restarts=2, pose_iters=20,
+            field_iters=40, points_per_iteration=128, proxy_points=300, init_poses=("zero",),
             fit_betas=False)
 
 
@@ -146,13 +142,13 @@ def test_cube_rotations_are_the_24_proper_ones():
     assert len({tuple(r.flatten().tolist()) for r in rotations}) == 24
 
 
-def test_candidate_rotations_contain_the_true_rotation():
+def test_cloud_candidate_rotations_contain_the_true_rotation():
     generator = torch.Generator().manual_seed(0)
     proxy = torch.randn(500, 3, generator=generator, dtype=torch.float64) * torch.tensor(
         [0.08, 0.03, 0.01], dtype=torch.float64)  # three distinct spreads
     truth = axis_angle_to_matrix(torch.tensor([0.4, -2.0, 1.1], dtype=torch.float64))
     cloud = proxy @ truth.T + torch.tensor([0.1, 0.2, 0.3], dtype=torch.float64)
-    candidates = candidate_rotations(cloud, proxy)
+    candidates = cloud_candidate_rotations(cloud, proxy)
     errors = (candidates - truth).flatten(1).abs().amax(1)
     assert float(errors.min()) < 1e-9
 
@@ -161,7 +157,7 @@ def test_cloud_distance_grid_matches_brute_force():
     generator = torch.Generator().manual_seed(1)
     cloud = torch.rand(400, 3, generator=generator) * 0.1
     queries = torch.rand(1, 300, 3, generator=generator) * 0.14 - 0.02
-    grid = _CloudDistance(cloud)
+    grid = CloudDistance(cloud)
     exact = torch.cdist(queries[0], cloud).amin(-1)
     approx = grid(queries)[0]
     # Within one cell diagonal (2 mm * sqrt(3)) plus interpolation slack.
@@ -288,8 +284,8 @@ def test_fit_recovers_pose_from_a_rotated_start():
     true_vertices = surface(model, truth).vertices[truth_surface.numpy()]
     assert float(sdf_at(model, fitted, true_vertices).abs().mean()) < 0.0007
     stages = [step.stage for step in steps]
-    assert stages.count("align") == FAST["align_iterations"]
-    assert stages.count("field") == FAST["iterations"]
+    assert stages.count("align") == FAST["align_iters"]
+    assert stages.count("field") == FAST["field_iters"]
     assert fitted.extra["fit"]["num_points"] == len(points)
     assert steps[-1].params().pose.shape == (48,)
 
@@ -303,7 +299,7 @@ def test_partial_scan_and_outliers():
     inliers = points[~is_outlier]
     errors = {}
     for loss in ("geman_mcclure", "l1"):
-        config = FitPointsConfig(**dict(FAST, iterations=60), robust_loss=loss)
+        config = FitPointsConfig(**dict(FAST, field_iters=60), robust_loss=loss)
         fitted = fit_points(model, points, None, config, rest_joints=truth.rest_joints).params
         errors[loss] = float(sdf_at(model, fitted, inliers).abs().mean())
     # One view with 20% outliers: the robust fit puts the seen side on the surface; the

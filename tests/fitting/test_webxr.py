@@ -19,8 +19,8 @@ import numpy as np
 import pytest
 
 from lisa_hand.bench.fit import WEBXR_POSES, pose_webxr_hand
-from lisa_hand.fitting.io import fit_point_file, prepare_point_cloud, read_point_cloud
-from lisa_hand.fitting.points import FitPointsConfig
+from lisa_hand.fitting.points.fit import FitPointsConfig
+from lisa_hand.fitting.points.io import fit_point_file, prepare_point_cloud, read_point_cloud
 from lisa_hand.model.trained import export_trained
 from lisa_hand.skeleton import forward_kinematics
 from lisa_hand.skeleton.params import read_params
@@ -84,7 +84,7 @@ def test_fit_points_on_the_real_obj(tmp_path):
     model_path, _ = export_trained(tiny_model(), tmp_path / "tiny.pt")
     out = tmp_path / "fit"
     notes: list[str] = []
-    config = FitPointsConfig(iterations=60, points_per_iteration=256, fit_betas=False)
+    config = FitPointsConfig(field_iters=60, points_per_iteration=256, fit_betas=False)
     report = fit_point_file(WEBXR / "right_hand.obj", out, model_path=model_path,
                             gt_path=WEBXR / "right_hand.obj", resolution=32, config=config,
                             device="cpu", log=notes.append)

@@ -10,6 +10,7 @@ from lisa_hand.handmodel import (
     Appearance,
     HandShape,
     OpenHand,
+    SurfaceSamples,
     named_pose,
     sample_hand,
 )
@@ -54,7 +55,7 @@ def test_gradient_norm_is_close_to_one_near_the_surface(relaxed, relaxed_mesh):
 
 
 def test_sdf_sign_and_distance(relaxed, hand):
-    skel = hand.template.skeleton
+    skel = hand.parts.skeleton
     palm_center = 0.5 * (skel.joints[0] + skel.joints[FINGER_JOINTS["middle"][0]])
     inside = relaxed.transforms[0, :3, :3] @ palm_center + relaxed.transforms[0, :3, 3]
     assert relaxed.sdf(inside[None]).item() < -0.008  # deep inside the palm
@@ -138,6 +139,18 @@ def test_surface_samples(relaxed):
     assert torch.equal(samples.points, again.points)
 
 
+def test_surface_samples_select_and_concatenate(relaxed):
+    samples = relaxed.surface_samples(200, torch.Generator().manual_seed(4), voxel_size=0.004)
+    first, rest = samples.select(slice(0, 50)), samples.select(torch.arange(50, 200))
+    assert first.points.shape == (50, 3) and rest.weights.shape == (150, 16)
+    joined = SurfaceSamples.concatenate([first, rest])
+    for name in ("points", "normals", "weights", "colors"):
+        assert torch.equal(getattr(joined, name), getattr(samples, name))
+    assert joined.face_ids is None
+    with pytest.raises(ValueError, match="different attributes"):
+        SurfaceSamples.concatenate([samples, SurfaceSamples(samples.points, samples.normals)])
+
+
 def test_albedo_palm_lighter_and_skin_tones_ordered():
     light = OpenHand(appearance=Appearance(skin_tone=0.1)).posed(dtype=F64)
     dark = OpenHand(appearance=Appearance(skin_tone=0.9)).posed(dtype=F64)
@@ -197,8 +210,8 @@ def test_pose_dependent_deformation_is_not_rigid(hand):
     pip = FINGER_JOINTS["middle"][1]
     # The palmar side of the flexed PIP joint fills in (bulges) relative to the straight finger.
     rest_point = (
-        hand.template.skeleton.joints[pip]
-        - 0.8 * hand.template.skeleton.dorsal[pip] * (hand.template.skeleton.radii[pip, 0])
+        hand.parts.skeleton.joints[pip]
+        - 0.8 * hand.parts.skeleton.dorsal[pip] * (hand.parts.skeleton.radii[pip, 0])
     )
     for posed in (flat, fist):
         transform = posed.transforms[pip]

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import ast
 import dataclasses
+import inspect
+import textwrap
 
 import numpy as np
 import pytest
@@ -12,11 +15,25 @@ from lisa_hand.handmodel import HandShape, rest_skeleton, sample_shape
 from lisa_hand.skeleton import FINGER_JOINTS
 
 
+def _field_docstrings(cls: type) -> dict[str, str]:
+    """The docstring written under each annotated field of a dataclass's body."""
+    (body,) = ast.parse(textwrap.dedent(inspect.getsource(cls))).body
+    docs = {}
+    for statement, following in zip(body.body, body.body[1:] + [None], strict=True):
+        if isinstance(statement, ast.AnnAssign) and isinstance(statement.target, ast.Name):
+            is_doc = (isinstance(following, ast.Expr) and isinstance(following.value, ast.Constant)
+                      and isinstance(following.value.value, str))
+            docs[statement.target.id] = following.value.value.strip() if is_doc else ""
+    return docs
+
+
 def test_at_least_ten_documented_parameters():
     fields = dataclasses.fields(HandShape)
     assert len(fields) >= 10
+    docs = _field_docstrings(HandShape)
+    assert list(docs) == [field.name for field in fields]
     for field in fields:
-        assert field.name in HandShape.__doc__ or field.type is not None
+        assert docs[field.name], f"HandShape.{field.name} has no docstring"
 
 
 def test_sampled_shapes_cover_adult_hands_and_are_seeded():

@@ -13,13 +13,9 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from lisa_hand.handmodel import named_pose, sample_hand
-from lisa_hand.handmodel.template import (
-    MeshTemplate,
-    build_template,
-    load_template,
-    save_template,
-    template_from_mano,
-)
+from lisa_hand.handmodel.template import MeshTemplate, load_template, save_template
+from lisa_hand.handmodel.template_build import build_template
+from lisa_hand.handmodel.template_mano import template_from_mano
 from lisa_hand.skeleton import KEYPOINT_SOURCES, PARENTS, ManoLayer, load_mano_pkl, mirror_points
 from tests.skeleton.synthetic_mano import write_synthetic_mano
 
@@ -45,10 +41,29 @@ def _mesh(vertices: torch.Tensor, faces: torch.Tensor) -> trimesh.Trimesh:
 # The shipped asset
 
 
-def test_shipped_asset_is_package_data_and_cached(template):
+def test_shipped_asset_is_package_data_and_read_once(template):
     resource = importlib.resources.files("lisa_hand") / "assets" / "template.npz"
     assert resource.is_file() and len(resource.read_bytes()) < 1_000_000
-    assert load_template() is template  # lru_cache on the default
+    again = load_template()  # from the cache, not the file: the same values
+    assert again is not template
+    for name in ("v_template", "faces", "weights", "joint_regressor", "shapedirs"):
+        torch.testing.assert_close(getattr(again, name), getattr(template, name), rtol=0, atol=0)
+    torch.testing.assert_close(again.source.vertices, template.source.vertices, rtol=0, atol=0)
+    assert again.info == template.info and again.fingertip_ids == template.fingertip_ids
+
+
+def test_the_cached_template_cannot_be_changed_by_a_caller():
+    first = load_template()
+    expected = {name: getattr(first, name).clone()
+                for name in ("v_template", "weights", "joint_regressor", "shapedirs")}
+    for name in expected:
+        getattr(first, name).add_(1.0)  # in place, as a careless caller might
+    first.source.joints.zero_()
+    first.info["num_subjects"] = -1
+    second = load_template()
+    for name, value in expected.items():
+        torch.testing.assert_close(getattr(second, name), value, rtol=0, atol=0)
+    assert second.source.joints.abs().sum() > 0 and second.info["num_subjects"] == 200
 
 
 def test_shapes_dtypes_and_invariants(template):
@@ -234,6 +249,16 @@ def test_build_template_tiny_is_deterministic_and_valid(tmp_path):
     torch.testing.assert_close(again.fit_betas(hand), betas, rtol=0, atol=0)
     rebuilt = build_template(**kwargs)
     torch.testing.assert_close(rebuilt.shapedirs, built.shapedirs, rtol=0, atol=0)
+
+
+def test_asset_entry_point_refuses_bad_arguments_in_one_line(tmp_path, capsys):
+    from lisa_hand.handmodel.build_template_asset import main
+
+    out = tmp_path / "template.npz"
+    assert main(["--out", str(out), "--subjects", "3", "--betas", "10", "--held-out", "0"]) == 1
+    error = capsys.readouterr().err
+    assert error.startswith("error: num_subjects must be an int >= 12") and error.count("\n") == 1
+    assert not out.exists()
 
 
 # ----------------------------------------------------------------------------------------------

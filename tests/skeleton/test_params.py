@@ -1,4 +1,4 @@
-"""params.json: round trip and clear errors (lisa_hand.params)."""
+"""params.json: round trip and clear errors (lisa_hand.skeleton.params)."""
 
 from __future__ import annotations
 

@@ -4,13 +4,13 @@ configurations of the two trainers."""
 from __future__ import annotations
 
 import pytest
-import torch
 
 from lisa_hand.fields.config import FieldConfig
 from lisa_hand.render import RenderConfig
-from lisa_hand.training.engine import TrainerConfig
+from lisa_hand.training.config import TrainerConfig
 from lisa_hand.training.images import ImageTrainConfig
 from lisa_hand.training.prior import PriorConfig
+from lisa_hand.utils.threads import cpu_threads
 
 from .tiny_dataset import write_tiny_dataset
 
@@ -21,8 +21,16 @@ TINY_FIELD = dict(sdf_hidden=32, sdf_depth=2, skinning_hidden=32, skinning_depth
 @pytest.fixture(scope="session")
 def tiny_data(tmp_path_factory):
     """A dataset of 3 subjects (s000, s001 train; s002 val) x 2 frames x 3 views of 64 x 48."""
-    torch.set_num_threads(1)  # the CPU is shared: one thread per test process
-    return write_tiny_dataset(tmp_path_factory.mktemp("tiny") / "data")
+    with cpu_threads(1):  # the CPU is shared: one thread per test process
+        return write_tiny_dataset(tmp_path_factory.mktemp("tiny") / "data")
+
+
+@pytest.fixture(autouse=True)
+def _one_thread_per_training_test():
+    """Every training test on one torch thread (restored after it): the CPU is shared with the
+    test's subprocesses."""
+    with cpu_threads(1):
+        yield
 
 
 def tiny_trainer(**kwargs) -> TrainerConfig:

@@ -11,11 +11,10 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import torch
-
 from lisa_hand.training.distributed import cleanup, init_distributed
 from lisa_hand.training.images import train_images
 from lisa_hand.training.prior import train_prior
+from lisa_hand.utils.threads import single_thread_worker
 
 from .conftest import tiny_image_config, tiny_prior_config, tiny_trainer
 
@@ -28,7 +27,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=3)
     parser.add_argument("--grad-sync", default="allreduce")
     args = parser.parse_args(argv)
-    torch.set_num_threads(1)
+    single_thread_worker()  # this whole process: one torch thread
     trainer = tiny_trainer(steps=args.steps, grad_sync=args.grad_sync,
                            find_unused_parameters=args.grad_sync == "ddp")
     dist = init_distributed("cpu")

@@ -9,13 +9,11 @@ import numpy as np
 import pytest
 import torch
 
+from lisa_hand.model.checkpoint import CHECKPOINT_VERSION, Checkpoint, load_checkpoint
 from lisa_hand.training.checkpoint import (
-    CHECKPOINT_VERSION,
-    Checkpoint,
     NonFiniteError,
     capture_rng_state,
     check_finite_state,
-    load_checkpoint,
     remove_stale_temporaries,
     restore_rng_state,
     save_checkpoint,

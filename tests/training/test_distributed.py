@@ -11,6 +11,7 @@ from pathlib import Path
 import pytest
 import torch
 
+from lisa_hand.training.config import TrainerConfig
 from lisa_hand.training.distributed import (
     DistContext,
     global_mean,
@@ -21,7 +22,7 @@ from lisa_hand.training.distributed import (
     unwrap,
     wrap_ddp,
 )
-from lisa_hand.training.engine import TrainerConfig, train
+from lisa_hand.training.engine import train
 
 from .toy import GLOBAL_BATCH, make_model, make_step_fn, target_fn
 

@@ -12,15 +12,11 @@ import signal
 import pytest
 import torch
 
-from lisa_hand.training.checkpoint import NonFiniteError, load_checkpoint
-from lisa_hand.training.engine import (
-    CONFIG_FILE,
-    LOG_FILE,
-    Trainer,
-    TrainerConfig,
-    lr_factor,
-    train,
-)
+from lisa_hand.model.checkpoint import load_checkpoint
+from lisa_hand.training.checkpoint import NonFiniteError
+from lisa_hand.training.config import TrainerConfig, lr_factor
+from lisa_hand.training.engine import CONFIG_FILE, Trainer, train
+from lisa_hand.training.progress import LOG_FILE
 from lisa_hand.utils.config import load_config
 
 from .toy import GLOBAL_BATCH, REG_WEIGHT, make_model, make_step_fn, target_fn
@@ -122,7 +118,7 @@ def test_run_folder_config_log_and_checkpoints(tmp_path):
 
 
 def test_run_config_is_saved_and_checkpointed(tmp_path):
-    from .test_config import RunCfg
+    from ..utils.test_config import RunCfg
 
     run_config = RunCfg(name="toy", training=_config(steps=3))
     train(make_model(0), make_step_fn(), run_config.training, tmp_path, run_config=run_config,

@@ -13,18 +13,17 @@ import torch
 
 from lisa_hand.data.datasets import RayFrames, read_frame_table
 from lisa_hand.fields.config import FieldConfig
+from lisa_hand.model.checkpoint import IMAGE_KIND, load_checkpoint
 from lisa_hand.model.lisa import LisaModel, region_bounds
 from lisa_hand.render.renderer import calibrate
 from lisa_hand.skeleton import forward_kinematics
-from lisa_hand.training.checkpoint import load_checkpoint
+from lisa_hand.training.image_model import select_frame
 from lisa_hand.training.images import (
-    IMAGE_KIND,
     ImageTrainConfig,
     build_image_model,
     load_image_model,
     pose_refine_step,
     resolve_prior,
-    select_frame,
     train_images,
 )
 from lisa_hand.training.prior import load_prior, train_prior

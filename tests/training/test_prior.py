@@ -11,15 +11,10 @@ import pytest
 import torch
 
 from lisa_hand.fields.config import FieldConfig
-from lisa_hand.training.checkpoint import load_checkpoint
+from lisa_hand.model.checkpoint import PRIOR_KIND, load_checkpoint
 from lisa_hand.training.distributed import DistContext
-from lisa_hand.training.prior import (
-    PRIOR_KIND,
-    PriorConfig,
-    batch_mean,
-    load_prior,
-    train_prior,
-)
+from lisa_hand.training.prior import PriorConfig, load_prior, train_prior
+from lisa_hand.training.runs import batch_mean
 from lisa_hand.utils.config import apply_overrides, load_config
 
 from .conftest import tiny_prior_config, tiny_trainer

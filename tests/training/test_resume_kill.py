@@ -11,8 +11,10 @@ from pathlib import Path
 
 import torch
 
-from lisa_hand.training.checkpoint import load_checkpoint
-from lisa_hand.training.engine import LOG_FILE, TrainerConfig, train
+from lisa_hand.model.checkpoint import load_checkpoint
+from lisa_hand.training.config import TrainerConfig
+from lisa_hand.training.engine import train
+from lisa_hand.training.progress import LOG_FILE
 
 from .toy import make_model, make_step_fn
 
@@ -39,8 +41,8 @@ def test_kill_9_then_resume_equals_an_uninterrupted_run(tmp_path):
     assert "resuming from" in resumed.stderr and "at step 20" in resumed.stderr
     final = torch.load(run / "final.pt")
 
-    # The uninterrupted reference, in this process (same settings as the toy script).
-    torch.set_num_threads(1)
+    # The uninterrupted reference, in this process (same settings as the toy script; the
+    # training folder's autouse fixture runs every test on one thread, as the script does).
     config = TrainerConfig(steps=40, lr=1e-2, lr_schedule="cosine", checkpoint_every=10,
                            device="cpu", progress=False, seed=5)
     model = make_model(0)

@@ -9,7 +9,7 @@ import typer
 from typer.testing import CliRunner
 
 from lisa_hand.cli import train as train_cli
-from lisa_hand.training.checkpoint import load_checkpoint
+from lisa_hand.model.checkpoint import load_checkpoint
 from lisa_hand.training.images import ImageTrainConfig
 from lisa_hand.training.prior import PriorConfig
 from lisa_hand.utils.config import config_to_dict, load_config

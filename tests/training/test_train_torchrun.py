@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from lisa_hand.training.checkpoint import load_checkpoint
+from lisa_hand.model.checkpoint import load_checkpoint
 from lisa_hand.training.images import train_images
 from lisa_hand.training.prior import train_prior
 

@@ -1,4 +1,4 @@
-"""Loading trained runs for inference and exporting them (lisa_hand.trained)."""
+"""Loading trained runs for inference and exporting them (lisa_hand.model.trained)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import pytest
 import torch
 
 from lisa_hand.model.trained import DEFAULT_BETA, export_trained, load_trained
-from lisa_hand.training.images import train_images
+from lisa_hand.training.images import load_image_model, train_images
 from lisa_hand.training.prior import train_prior
 
 from .conftest import tiny_image_config, tiny_prior_config, tiny_trainer
@@ -21,6 +21,15 @@ def _sdf(model, points):
     return out.sdf[0], None if out.rgb is None else out.rgb[0]
 
 
+def _sdf_of(field, model, points):
+    """The SDF of ``field`` with ``model``'s first codes, as :func:`_sdf`."""
+    codes = model.shape_codes[:1]
+    color = None if model.color_codes is None else model.color_codes[:1]
+    rest = torch.tensor([[0.0, 0.0, 0.0]]).repeat(16, 1) + torch.linspace(0, 0.1, 16)[:, None]
+    state = field.prepare(torch.zeros(1, 48), None, rest, codes, color)
+    return field.field(state, points[None]).sdf[0]
+
+
 def test_image_run_loads_exports_and_reloads(tiny_data, tmp_path):
     config = tiny_image_config(trainer=tiny_trainer(steps=2))
     train_images(tiny_data, tmp_path / "run", config)
@@ -29,6 +38,15 @@ def test_image_run_loads_exports_and_reloads(tiny_data, tmp_path):
     assert model.shape_codes.shape == (2, 8) and model.gain.shape == (3,)
     points = torch.randn(200, 3, generator=torch.Generator().manual_seed(0)) * 0.05
     sdf, rgb = _sdf(model, points)
+    # model/ reads the run without the training code: the same numbers as the training model
+    # (beta restates render.LaplaceDensity's parameterisation).
+    trained = load_image_model(tmp_path / "run")
+    gain, bias = trained.mean_calibration()
+    assert model.beta == float(trained.density.beta.detach())
+    assert torch.equal(model.gain, gain.detach()) and torch.equal(model.bias, bias.detach())
+    assert torch.equal(model.shape_codes, trained.shape_codes.weight.detach())
+    assert torch.equal(model.color_codes, trained.color_codes.weight.detach())
+    assert torch.equal(_sdf(model, points)[0], _sdf_of(trained.field, model, points))
 
     path, worst = export_trained(model, tmp_path / "model.pt")
     assert worst == 0.0

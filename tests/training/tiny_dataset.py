@@ -4,7 +4,7 @@ The hand is an analytic stand-in: one capsule around each region segment of LISA
 (:func:`lisa_hand.fields.bones.bone_segments`: five palm capsules from the wrist to the finger
 bases, one per finger bone, the last one extended past its joint), posed rigidly with the bone
 transforms of :func:`lisa_hand.skeleton.forward_kinematics`, united with ``min``. Each frame is
-meshed with :func:`lisa_hand.meshing.extract_mesh`, scanned with
+meshed with :func:`lisa_hand.geometry.meshing.extract_mesh`, scanned with
 :func:`lisa_hand.data.scans.simulate_scan` (plus :func:`~lisa_hand.data.scans.sdf_samples` from
 the analytic SDF) and rendered with :func:`lisa_hand.data.images.render_views` into the cameras
 of :func:`lisa_hand.geometry.cameras.make_rig` with a random per-camera gain and bias. Skinning
@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from lisa_hand.data.images import GainBiasConfig, render_views
+from lisa_hand.data.images import render_views
 from lisa_hand.data.layout import (
     FORMAT_NAME,
     FORMAT_VERSION,
@@ -34,6 +34,7 @@ from lisa_hand.data.layout import (
     write_npz,
 )
 from lisa_hand.data.scans import ScanConfig, sdf_samples, simulate_scan
+from lisa_hand.data.shading import GainBiasConfig
 from lisa_hand.fields.bones import SEGMENT_BONES, bone_segments, segment_distances
 from lisa_hand.geometry.cameras import make_rig, save_cameras
 from lisa_hand.geometry.meshing import extract_mesh

@@ -20,8 +20,10 @@ import numpy as np
 import torch
 from torch import nn
 
+from lisa_hand.training.config import TrainerConfig
 from lisa_hand.training.distributed import cleanup, global_mean, init_distributed, shard, unwrap
-from lisa_hand.training.engine import StepContext, StepInfo, TrainerConfig, train
+from lisa_hand.training.engine import StepContext, StepInfo, train
+from lisa_hand.utils.threads import single_thread_worker
 
 GLOBAL_BATCH = 25
 """Odd on purpose: two ranks get 12 and 13 items, which exercises ``global_mean``'s scaling."""
@@ -96,7 +98,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--global-rngs", action="store_true")
     parser.add_argument("--lr", type=float, default=1e-2)
     args = parser.parse_args(argv)
-    torch.set_num_threads(1)
+    single_thread_worker()  # this whole process: one torch thread
     dtype = getattr(torch, args.dtype)
     dist = init_distributed("cpu")
     try:

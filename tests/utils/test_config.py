@@ -10,7 +10,7 @@ from typing import Literal
 
 import pytest
 
-from lisa_hand.training.engine import TrainerConfig
+from lisa_hand.training.config import TrainerConfig
 from lisa_hand.utils.config import (
     apply_overrides,
     config_from_dict,

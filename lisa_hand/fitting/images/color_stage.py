@@ -1,0 +1,341 @@
+"""The colour stage of the image fit (:func:`fit_color`; paper Section 4.3: 5k iterations):
+pose, translation, template betas, LISA's shape code ``beta+`` and colour code ``gamma`` by
+volume rendering.
+
+Each iteration draws ``num_rays`` camera rays (:class:`RayPool`), ``mask_fraction`` of them
+through the mask and a band of ``band_px`` pixels around it (a view without a mask: the box
+around the projected template), renders them with VolSDF
+(:func:`lisa_hand.render.render_rays`, the model's ``field_fn`` with bone culling and
+``LaplaceDensity(model.beta)``), applies the model's mean colour calibration
+(:func:`lisa_hand.render.renderer.calibrate`) and minimises
+
+    L = rgb_weight L_col + latent_weight L_reg + joints_weight L_joints' + mask_weight L_mask
+
+* ``L_col``: L1 colour loss of the rays (Eq. 13) against
+  :func:`lisa_hand.fitting.images.views.fit_target` (black outside a mask).
+* ``L_reg = |beta+|_2 + |gamma|_2`` (Eq. 16).
+* ``L_joints'``: the keypoint stage's keypoint L1 (pixels) with its pose and shape priors (no
+  silhouette terms: the geometry is now LISA's).
+* ``L_mask`` (NOT in the paper; ``mask_weight = 0`` turns it off): binary cross-entropy between
+  the rays' opacity and the mask.
+
+The network's weights stay fixed; the codes start from the ``start`` hand's (usually the mean
+of the training subjects' codes, :func:`with_mean_codes`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from ...geometry.rays import ray_box_bounds
+from ...model.lisa import region_bounds
+from ...model.losses import color_loss, latent_loss
+from ...render import LaplaceDensity, render_rays
+from ...render.renderer import calibrate
+from ...skeleton.params import HandParams
+from ..priors import prior_mean_fingers
+from ..stages import HistoryRecord, StageReport, decay_schedule, progress_bar, template_on
+from .config import FitImagesConfig
+from .terms import ViewData, hand_priors, keypoint_l1, keypoint_px
+from .views import ImageView, background_colour, check_views, fit_target
+
+__all__ = ["RayPool", "template_boxes", "with_mean_codes", "fit_color"]
+
+Box = tuple[float, float, float, float]
+
+
+class RayPool:
+    """Candidate rays of all views: the mask plus a band (or, without a mask, a box around the
+    projected template), and the background pixels; drawn uniformly within each pool.
+
+    views: the views (one device). band_px: width of the band around each mask, pixels.
+    boxes: per view, None (it has a mask) or the box (u0, v0, u1, v1) pixels to draw from.
+    """
+
+    def __init__(self, views: Sequence[ImageView], band_px: int,
+                 boxes: Sequence[Box | None]) -> None:
+        device = views[0].rgb.device
+        world_from_pixel, centres, backgrounds = [], [], []
+        near_parts, far_parts = [], []
+        for index, (view, box) in enumerate(zip(views, boxes, strict=True)):
+            camera = view.camera
+            world_from_pixel.append((camera.R.double().T @ torch.linalg.inv(camera.K.double()))
+                                    .float())
+            centres.append(camera.center.float())
+            backgrounds.append(background_colour(view))
+            near, in_mask, target = _view_pixels(view, band_px, box)
+            has_mask = view.mask is not None
+            for part, chosen in ((near_parts, near), (far_parts, ~near)):
+                pixel = torch.from_numpy(np.flatnonzero(chosen)).to(device)
+                part.append((torch.full_like(pixel, index), pixel, target[pixel],
+                             torch.from_numpy(in_mask[chosen]).to(device),
+                             torch.full(pixel.shape, has_mask, dtype=torch.bool, device=device)))
+        self.world_from_pixel = torch.stack(world_from_pixel)  # [C, 3, 3]
+        self.centre = torch.stack(centres)  # [C, 3]
+        self.background = torch.stack(backgrounds)  # [C, 3]
+        self.width = torch.tensor([v.width for v in views], device=device)
+        self.near = [torch.cat(values) for values in zip(*near_parts, strict=True)]
+        self.far = [torch.cat(values) for values in zip(*far_parts, strict=True)]
+
+    def sample(self, num_rays: int, mask_fraction: float, generator: torch.Generator
+               ) -> dict[str, torch.Tensor]:
+        """-> origins, directions [R, 3] (world, metres / unit); target, background [R, 3];
+        in_mask, has_mask [R] bool."""
+        num_near_pool, num_far_pool = self.near[0].numel(), self.far[0].numel()
+        num_near = int(round(mask_fraction * num_rays)) if num_far_pool else num_rays
+        if num_near_pool == 0:
+            num_near = 0
+        picks = []
+        for pool, count, size in ((self.near, num_near, num_near_pool),
+                                  (self.far, num_rays - num_near, num_far_pool)):
+            if count:
+                index = torch.randint(0, size, (count,), generator=generator)
+                picks.append([value[index.to(value.device)] for value in pool])
+        view, pixel, target, in_mask, has_mask = (torch.cat(v) for v in zip(*picks, strict=True))
+        width = self.width[view]
+        uv = torch.stack([(pixel % width).float() + 0.5,
+                          torch.div(pixel, width, rounding_mode="floor").float() + 0.5], dim=-1)
+        homogeneous = torch.cat([uv, torch.ones_like(uv[:, :1])], dim=-1)
+        directions = (self.world_from_pixel[view] @ homogeneous[..., None])[..., 0]
+        directions = directions / directions.norm(dim=-1, keepdim=True)
+        return {"origins": self.centre[view], "directions": directions, "target": target,
+                "background": self.background[view], "in_mask": in_mask,
+                "has_mask": has_mask}
+
+
+def _view_pixels(view: ImageView, band_px: int, box: Box | None
+                 ) -> tuple[np.ndarray, np.ndarray, torch.Tensor]:
+    """A view's flat pixels: near [H W] bool (the mask and its band, or the box), in_mask
+    [H W] bool, target [H W, 3] colours."""
+    from scipy.ndimage import distance_transform_edt
+
+    height, width = view.height, view.width
+    if view.mask is not None:
+        mask = view.mask.cpu().numpy()
+        distance = distance_transform_edt(~mask).reshape(-1)
+        return distance <= band_px, mask.reshape(-1), fit_target(view).reshape(-1, 3)
+    columns = np.arange(width) + 0.5
+    rows = np.arange(height) + 0.5
+    inside_u = (columns >= box[0]) & (columns <= box[2])
+    inside_v = (rows >= box[1]) & (rows <= box[3])
+    near = (inside_v[:, None] & inside_u[None, :]).reshape(-1)
+    return near, np.zeros(height * width, dtype=bool), view.rgb.reshape(-1, 3)
+
+
+@contextlib.contextmanager
+def _frozen(module: torch.nn.Module) -> Iterator[None]:
+    """Freeze a module's parameters (no weight gradients are computed) and restore them."""
+    flags = [(p, p.requires_grad) for p in module.parameters()]
+    for parameter, _ in flags:
+        parameter.requires_grad_(False)
+    try:
+        yield
+    finally:
+        for parameter, flag in flags:
+            parameter.requires_grad_(flag)
+
+
+def template_boxes(template: Any, views: Sequence[ImageView], hand: HandParams,
+                   margin: float) -> list[Box | None]:
+    """For each view without a mask: the box (u0, v0, u1, v1) pixels around the projected
+    template of ``hand`` (pose, translation, betas), grown by ``margin`` of its size on each
+    side; None for the views with a mask."""
+    device = views[0].rgb.device
+    boxes: list[Box | None] = []
+    with torch.no_grad():
+        vertices = template.forward(hand.pose[None].to(device), hand.betas[None].to(device),
+                                    hand.translation[None].to(device)).vertices[0]
+    for view in views:
+        if view.mask is not None:
+            boxes.append(None)
+            continue
+        pixels, _ = view.camera.project(vertices)
+        low, high = pixels.amin(0), pixels.amax(0)
+        grow = margin * (high - low)
+        low, high = (low - grow).tolist(), (high + grow).tolist()
+        boxes.append((low[0], low[1], high[0], high[1]))
+    return boxes
+
+
+def with_mean_codes(hand: HandParams, model: Any) -> HandParams:
+    """``hand`` with the model's mean shape and colour codes (the training subjects' mean, where
+    the colour stage starts) and ``model=str(model.source)``."""
+    return HandParams(pose=hand.pose, translation=hand.translation,
+                      rest_joints=hand.rest_joints, shape_code=model.mean_shape_code(),
+                      color_code=model.mean_color_code(), betas=hand.betas, side=hand.side,
+                      model=str(model.source), extra=dict(hand.extra))
+
+
+def _check_start(model: Any, start: HandParams) -> None:
+    if not isinstance(start, HandParams):
+        raise TypeError(f"start must be a HandParams, got {type(start).__name__}")
+    if start.betas is None:
+        raise ValueError("start.betas is None: the colour stage fits the template's betas "
+                         "(start from the keypoint stage's hand)")
+    sizes = {"shape_code": (start.shape_code, model.mean_shape_code()),
+             "color_code": (start.color_code, model.mean_color_code())}
+    for name, (code, mean) in sizes.items():
+        if code is None or code.numel() != mean.numel():
+            got = "none" if code is None else f"{code.numel()} values"
+            raise ValueError(f"start.{name} has {got}, but model {model.source}'s codes have "
+                             f"{mean.numel()}: start from with_mean_codes(hand, model)")
+
+
+def _unknowns(start: HandParams, device: torch.device, config: FitImagesConfig
+              ) -> dict[str, torch.Tensor]:
+    """The stage's unknowns on ``device``, with gradients (the betas only with a rate)."""
+    def free(value: torch.Tensor, flag: bool = True) -> torch.Tensor:
+        return value.to(device).float().clone().requires_grad_(flag)
+
+    return {"pose": free(start.pose), "translation": free(start.translation),
+            "betas": free(start.betas, config.color_betas_lr > 0),
+            "shape_code": free(start.shape_code), "color_code": free(start.color_code)}
+
+
+def _optimizer(unknowns: dict[str, torch.Tensor], config: FitImagesConfig
+               ) -> torch.optim.Optimizer:
+    groups = [{"params": [unknowns["pose"]], "lr": config.color_pose_lr},
+              {"params": [unknowns["translation"]], "lr": config.color_translation_lr},
+              {"params": [unknowns["shape_code"], unknowns["color_code"]],
+               "lr": config.latent_lr}]
+    if config.color_betas_lr > 0:
+        groups.append({"params": [unknowns["betas"]], "lr": config.color_betas_lr})
+    return torch.optim.Adam(groups)
+
+
+class _Renderer:
+    """One iteration's loss terms: rays rendered with the current unknowns, and the joint
+    loss."""
+
+    def __init__(self, model: Any, views: Sequence[ImageView], template: Any,
+                 config: FitImagesConfig, start: HandParams) -> None:
+        device = views[0].rgb.device
+        self.model, self.template, self.config = model, template, config
+        self.generator = torch.Generator().manual_seed(config.seed + 1)
+        self.render_generator = torch.Generator(device=device).manual_seed(config.seed + 2)
+        self.data = ViewData(views, config.coverage_pixels, self.generator)
+        self.mean_fingers = prior_mean_fingers(config.prior_pose, device)
+        self.pool = RayPool(views, config.band_px, template_boxes(template, views, start,
+                                                                  config.no_mask_margin))
+        self.density = LaplaceDensity(beta_init=float(model.beta), beta_min=0.0).to(device)
+        self.density.requires_grad_(False)
+        self.gain = model.gain.to(device).float()
+        self.bias = model.bias.to(device).float()
+
+    def terms(self, unknowns: dict[str, torch.Tensor]
+              ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """-> ({"col", "reg", "joints", "mask"} scalars, keypoint pixels [1, C, 21, 2])."""
+        config, field_model = self.config, self.model.field
+        pose, translation, betas = (unknowns[k] for k in ("pose", "translation", "betas"))
+        shape_code, color_code = unknowns["shape_code"], unknowns["color_code"]
+        rest_joints = self.template.rest_joints(betas[None])
+        state = field_model.prepare(pose[None], translation[None], rest_joints,
+                                    shape_code[None], color_code[None])
+        low, high = region_bounds(state, field_model)
+        rays = self.pool.sample(config.num_rays, config.mask_fraction, self.generator)
+        near, far, hit = ray_box_bounds(rays["origins"], rays["directions"], low[0], high[0])
+        hit = hit & (far > near)
+        out = render_rays(field_model.field_fn(state), field_model.sdf_fn(state),
+                          rays["origins"], rays["directions"], near, far, config.render,
+                          self.density, hit=hit, background=self.gain.new_zeros(3),
+                          generator=self.render_generator)
+        prediction = calibrate(out.rgb, out.opacity, self.gain, self.bias, rays["background"])
+        terms = {"col": color_loss(prediction, rays["target"]),
+                 "reg": latent_loss(shape_code[None], color_code[None])}
+        posed = self.template.forward(pose[None], betas[None], translation[None])
+        pixels, _ = self.data.project(posed.keypoints)
+        terms["joints"] = (keypoint_l1(pixels, self.data)
+                           + hand_priors(pose[None], betas[None], config, self.mean_fingers))[0]
+        has_mask = rays["has_mask"]
+        if config.mask_weight > 0 and bool(has_mask.any()):
+            opacity = out.opacity[has_mask].clamp(1e-5, 1.0 - 1e-5)
+            terms["mask"] = F.binary_cross_entropy(opacity, rays["in_mask"][has_mask].float())
+        else:
+            terms["mask"] = prediction.new_zeros(())
+        return terms, pixels
+
+
+def fit_color(
+    model: Any,
+    views: Sequence[ImageView],
+    start: HandParams,
+    config: FitImagesConfig | None = None,
+    template: Any = None,
+    progress: bool = False,
+) -> tuple[HandParams, StageReport]:
+    """The colour stage: pose, translation, betas, shape and colour codes from the colour loss
+    (see the module docstring).
+
+    model: a :class:`lisa_hand.model.trained.TrainedModel` with colour, on the views' device.
+    views: as for :func:`lisa_hand.fitting.images.keypoint_stage.fit_keypoints`.
+    start: the hand to start from (a right hand: pose, translation, betas, and codes of this
+        model, e.g. ``with_mean_codes(keypoint_hand, model)``).
+    -> (hand, report): the fitted right hand (rest_joints ``template.rest_joints(betas)``,
+    ``model=str(model.source)``) and the :class:`StageReport` ("color"): history records with
+    "energy" (the weighted total ``L``), its unweighted terms "col", "reg", "joints", "mask"
+    and "kp_px" (mean keypoint error, pixels) per iteration, the final keypoint error and the
+    last iteration's total loss (``loss``, ``energies == [loss]``; NaN without iterations).
+    """
+    began = time.perf_counter()
+    config = FitImagesConfig() if config is None else config
+    views = check_views(views)
+    if not model.has_color:
+        raise ValueError(f"model {model.source}: it has no colour (a geometry-only prior); "
+                         "fitting to images needs a model trained on images (lisa train)")
+    _check_start(model, start)
+    device = views[0].rgb.device
+    template = template_on(template, device)
+    renderer = _Renderer(model, views, template, config, start)
+    unknowns = _unknowns(start, device, config)
+    optimizer = _optimizer(unknowns, config)
+    schedule = decay_schedule(optimizer, config.color_iters, config.final_lr_fraction)
+    history: list[HistoryRecord] = []
+    weights = {"col": config.rgb_weight, "reg": config.latent_weight,
+               "joints": config.joints_weight, "mask": config.mask_weight}
+    bar = progress_bar(progress, config.color_iters, "colour")
+    with _frozen(model.field):
+        for iteration in range(config.color_iters):
+            optimizer.zero_grad(set_to_none=True)
+            terms, pixels = renderer.terms(unknowns)
+            total = (weights["col"] * terms["col"] + weights["reg"] * terms["reg"]
+                     + weights["joints"] * terms["joints"] + weights["mask"] * terms["mask"])
+            total.backward()
+            optimizer.step()
+            schedule.step()
+            record: HistoryRecord = {"stage": "color", "iteration": iteration,
+                                     "energy": float(total.detach())}
+            for name, value in terms.items():
+                record[name] = float(value.detach())
+            record["kp_px"] = float(keypoint_px(pixels.detach(), renderer.data)[0])
+            history.append(record)
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(col=f"{record['col']:.4f}")
+    if bar is not None:
+        bar.close()
+    return _finish(model, template, renderer.data, unknowns, history, began)
+
+
+def _finish(model: Any, template: Any, data: ViewData, unknowns: dict[str, torch.Tensor],
+            history: list[HistoryRecord], began: float) -> tuple[HandParams, StageReport]:
+    """The fitted hand and the stage's report."""
+    fitted = {name: value.detach() for name, value in unknowns.items()}
+    with torch.no_grad():
+        rest_joints = template.rest_joints(fitted["betas"][None])[0]
+        posed = template.forward(fitted["pose"][None], fitted["betas"][None],
+                                 fitted["translation"][None])
+        error = float(keypoint_px(data.project(posed.keypoints)[0], data)[0])
+    hand = HandParams(pose=fitted["pose"], translation=fitted["translation"],
+                      rest_joints=rest_joints, shape_code=fitted["shape_code"],
+                      color_code=fitted["color_code"], betas=fitted["betas"],
+                      model=str(model.source))
+    loss = float(history[-1]["energy"]) if history else float("nan")
+    return hand, StageReport(stage="color", seconds=time.perf_counter() - began, loss=loss,
+                             energies=[loss], history=history, keypoint_error_px=error)

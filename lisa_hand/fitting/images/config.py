@@ -1,0 +1,154 @@
+"""Settings of the image fit (:class:`FitImagesConfig`), shared by its stages.
+
+Names follow the fitters' common scheme: ``<term>_weight`` for the weight of a loss term,
+``pose_weight`` / ``limit_weight`` / ``betas_weight`` for the priors of
+:mod:`lisa_hand.fitting.priors`, ``prior_pose`` for the finger prior's mean, ``<stage>_iters``
+for the iterations of a stage, ``num_threads``, ``device`` and ``seed``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from ...render import RenderConfig
+from ...utils.config import check_int_fields
+from ..priors import PRIOR_POSES
+
+__all__ = ["FitImagesConfig", "default_render"]
+
+
+def default_render() -> RenderConfig:
+    """The colour stage's ray sampling: a band of 16 samples around the sphere-traced surface
+    (16 tracing steps) + 8 uniform ones, stratified."""
+    return RenderConfig(sampler="sphere_traced", num_samples=16, num_samples_extra=8,
+                        sphere_num_steps=16, stratified=True)
+
+
+@dataclass(frozen=True)
+class FitImagesConfig:
+    """Settings of :func:`lisa_hand.fitting.images.fit.fit_images` (defaults: about 1-2 minutes on
+    2 CPU cores)."""
+
+    keypoint_iters: int = 400
+    """Keypoint stage iterations (pose from keypoints and masks; the paper uses 1000)."""
+    color_iters: int = 300
+    """Colour stage iterations (pose, shape and colour; the paper uses 5000). 0 skips it."""
+    num_rays: int = 512
+    """Colour stage: camera rays rendered per iteration, over all views."""
+    mask_fraction: float = 0.9
+    """Colour stage: fraction of the rays through the mask and the band around it (the rest
+    through the background)."""
+    band_px: int = 4
+    """Colour stage: width of the band around the mask, pixels."""
+    no_mask_margin: float = 0.15
+    """Colour stage, views without a mask: rays are drawn in the box around the projected
+    template grown by this fraction of its size on each side."""
+    render: RenderConfig = field(default_factory=default_render)
+    """Colour stage: ray sampling (VolSDF; default: :func:`default_render`)."""
+    rotation_pool: int = 2048
+    """Keypoint stage: random global rotations scored (without optimisation) to choose the
+    restarts."""
+    restarts: int = 12
+    """Keypoint stage: the best-scoring rotations of the pool that are optimised (rigidly
+    first)."""
+    restart_separation_deg: float = 20.0
+    """Keypoint stage: the restarts differ by at least this angle, degrees."""
+    keep_restarts: int = 3
+    """Keypoint stage: candidates kept after the rigid phase."""
+    rigid_fraction: float = 0.3
+    """Keypoint stage: fraction of the iterations with only rotation and translation free."""
+    finger_restart_fraction: float = 0.25
+    """Keypoint stage: fraction of the iterations, at the end, in which every finger whose
+    keypoints are off by more than ``finger_restart_px`` is also restarted from the flat,
+    relaxed and fist poses (the best of these and of the unchanged hand wins)."""
+    finger_restart_px: float = 2.0
+    """Keypoint stage: mean error (pixels) of a finger's visible keypoints that triggers its
+    restart."""
+    keypoint_pose_lr: float = 0.03
+    """Keypoint stage: Adam learning rate of the pose, radians."""
+    keypoint_translation_lr: float = 0.005
+    """Keypoint stage: Adam learning rate of the translation, metres."""
+    keypoint_betas_lr: float = 0.05
+    """Keypoint stage: Adam learning rate of the template's betas."""
+    color_pose_lr: float = 0.004
+    """Colour stage: Adam learning rate of the pose, radians."""
+    color_translation_lr: float = 0.0005
+    """Colour stage: Adam learning rate of the translation, metres."""
+    color_betas_lr: float = 0.01
+    """Colour stage: Adam learning rate of the betas (0 keeps the keypoint stage's)."""
+    latent_lr: float = 0.01
+    """Colour stage: Adam learning rate of the shape and colour codes."""
+    final_lr_fraction: float = 0.1
+    """Learning rates decay exponentially to this fraction over each stage."""
+    silhouette_weight: float = 0.2
+    """Keypoint stage: weight of the mean outside-mask distance of the projected template
+    vertices (pixels)."""
+    coverage_weight: float = 0.1
+    """Keypoint stage: weight of the mean distance from mask contour pixels to the nearest
+    projected template vertex (pixels)."""
+    coverage_pixels: int = 64
+    """Keypoint stage: mask contour pixels per view for the coverage term (chosen once,
+    seeded)."""
+    coverage_vertices: int = 256
+    """Keypoint stage: template vertices (a fixed random subset) for the coverage term."""
+    limit_weight: float = 100.0
+    """Weight of the squared excess over the joint limits (radians^2, summed over joints;
+    :func:`lisa_hand.fitting.priors.joint_limit_excess`)."""
+    pose_weight: float = 0.2
+    """Weight of the mean squared finger-pose difference from ``prior_pose`` (radians^2;
+    :func:`lisa_hand.fitting.priors.finger_pose_prior`)."""
+    prior_pose: str = "relaxed"
+    """Mean of the finger-pose prior: a name of :data:`lisa_hand.fitting.priors.PRIOR_POSES`."""
+    betas_weight: float = 0.5
+    """Weight of the mean squared template betas."""
+    rgb_weight: float = 1.0
+    """Colour stage: weight of L_col (L1 over RGB per ray, Eq. 13)."""
+    latent_weight: float = 1e-3
+    """Colour stage: weight of L_reg = |beta+|_2 + |gamma|_2 (Eq. 16)."""
+    joints_weight: float = 1e-2
+    """Colour stage: weight of the keypoint loss (pixels) and its priors (the joint loss)."""
+    mask_weight: float = 0.0
+    """Colour stage: weight of the opacity/mask BCE (not in the paper; 0 turns it off)."""
+    num_threads: int | None = 1
+    """CPU threads of torch during the fit (restored afterwards); None keeps torch's setting.
+    The fit runs many small operations: on a busy 2-core machine one thread was 2x (colour
+    stage) to 10x (keypoint stage) faster than two."""
+    device: str | None = None
+    """Where to fit ('cpu', 'cuda', 'cuda:1', ...); None: the model's device."""
+    seed: int = 0
+    """Seed of every random choice (restarts, rays, stratified samples)."""
+
+    def __post_init__(self) -> None:
+        check_int_fields(self, ("keypoint_iters", "color_iters", "band_px", "coverage_pixels",
+                                "coverage_vertices", "seed"), 0)
+        check_int_fields(self, ("num_rays", "rotation_pool", "restarts", "keep_restarts"), 1)
+        for name in ("mask_fraction", "rigid_fraction", "finger_restart_fraction"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
+        if self.rigid_fraction + self.finger_restart_fraction > 1.0:
+            raise ValueError(f"rigid_fraction + finger_restart_fraction must be <= 1, got "
+                             f"{self.rigid_fraction} + {self.finger_restart_fraction}")
+        if not 0.0 < self.final_lr_fraction <= 1.0:
+            raise ValueError(f"final_lr_fraction must be in (0, 1], got "
+                             f"{self.final_lr_fraction!r}")
+        for name in ("keypoint_pose_lr", "keypoint_translation_lr", "color_pose_lr",
+                     "color_translation_lr", "latent_lr"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+        for name in ("keypoint_betas_lr", "color_betas_lr", "no_mask_margin",
+                     "restart_separation_deg", "finger_restart_px", "silhouette_weight",
+                     "coverage_weight", "limit_weight", "pose_weight", "betas_weight",
+                     "rgb_weight", "latent_weight", "joints_weight", "mask_weight"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if not isinstance(self.render, RenderConfig):
+            raise TypeError(f"render must be a RenderConfig, got {type(self.render).__name__}")
+        if self.prior_pose not in PRIOR_POSES:
+            raise ValueError(f"prior_pose must be one of {', '.join(PRIOR_POSES)}, got "
+                             f"{self.prior_pose!r}")
+        if self.num_threads is not None and (isinstance(self.num_threads, bool) or not isinstance(
+                self.num_threads, int) or self.num_threads < 1):
+            raise ValueError(f"num_threads must be an int >= 1 or None, got {self.num_threads!r}")
+        if self.device is not None and not isinstance(self.device, str):
+            raise TypeError(f"device must be a string like 'cpu' or 'cuda', or None, got "
+                            f"{self.device!r}")

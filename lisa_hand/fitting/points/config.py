@@ -1,0 +1,145 @@
+"""Settings of the point-cloud fit (:func:`lisa_hand.fitting.points.fit.fit_points`) and of its
+stages: one frozen dataclass, named as the image fitter's (``*_weight``, ``*_iters``,
+``num_threads``, ``device``, ``seed``, ``prior_pose``)."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from ...utils.config import check_int_fields
+from ..priors import PRIOR_POSES
+from ..robust import ROBUST_LOSSES
+
+__all__ = ["FitPointsConfig"]
+
+
+@dataclass(frozen=True)
+class FitPointsConfig:
+    """Settings of :func:`lisa_hand.fitting.points.fit.fit_points` (defaults: a few seconds on a
+    CPU for a full hand)."""
+
+    align_iters: int = 40
+    """Adam steps of the rigid alignment of the 24 candidate orientations (proxy, no network)."""
+    align_keep: int = 16
+    """Distinct candidates that finish the alignment (all of them run its first third)."""
+    num_restarts: int = 8
+    """Distinct candidates (best alignment energies) that go on to the pose and field stages."""
+    pose_iters: int = 60
+    """Adam steps of the articulated proxy stage (pose and translation; no network)."""
+    field_iters: int = 200
+    """Adam steps of the field stage (all unknowns, the LISA field)."""
+    prune_after: tuple[float, ...] = (0.15, 0.35)
+    """Fractions of the field iterations at which the worse candidates stop (by their field
+    energy on a fixed subset of the cloud): ``K`` candidates become ``K^(1 - i/n)`` at the
+    ``i``-th of ``n`` fractions, so one is left after the last (8 -> 3 -> 1)."""
+    points_per_iteration: int = 512
+    """Cloud points drawn (without replacement) per iteration; all of them if the cloud is
+    smaller."""
+    proxy_points: int = 1000
+    """Points of the surface proxy used by the first two stages."""
+    init_poses: tuple[str, ...] = ("flat", "relaxed", "fist")
+    """Finger poses the candidates start from (names of
+    :func:`lisa_hand.handmodel.poses.named_pose`, or 'zero'); each is tried in 24
+    orientations."""
+    coverage_weight: float = 0.5
+    """Weight of the proxy-to-cloud term of the first two stages (every proxy point should be
+    near the cloud; robust, so the unseen side of a partial scan costs little); 0: off."""
+    coverage_scale_mm: float = 10.0
+    """Scale of the Geman-McClure penalty of the coverage term, millimetres."""
+    lr_rotation: float = 0.02
+    """Adam step of the global rotation, radians."""
+    lr_translation: float = 0.002
+    """Adam step of the translation, metres."""
+    lr_pose: float = 0.03
+    """Adam step of the finger pose (axis-angle), radians."""
+    lr_shape: float = 0.3
+    """Adam step of the shape code, in units of the training codes' scale (their root mean
+    square entry), so that it suits any model."""
+    lr_betas: float = 0.05
+    """Adam step of the template's shape coefficients (betas ~ N(0, 1) over subjects)."""
+    robust_loss: str = "geman_mcclure"
+    """Penalty of a residual: 'geman_mcclure' (robust to outliers), 'huber' or 'l1' (the
+    paper's ``|G|``, not robust)."""
+    robust_scale_mm: float = 4.0
+    """Final scale ``sigma`` of the robust penalty, millimetres (residuals well beyond it count
+    as outliers)."""
+    robust_scale_start_mm: float = 15.0
+    """Scale at the start of each stage, millimetres; it decreases geometrically to
+    ``robust_scale_mm`` over the first 60% of the stage."""
+    shape_weight: float = 1e-5
+    """Weight of the shape code's norm (the paper's latent term) relative to the data term
+    (metres): ``shape_weight * mean_k (beta+_k / s)^2``, ``s`` the training codes' root mean
+    square entry, so a code of the training subjects' size costs about ``shape_weight``."""
+    pose_weight: float = 4.5e-4
+    """Weight of the finger-pose prior (:func:`lisa_hand.fitting.priors.finger_pose_prior`:
+    the mean over the 45 finger values of the squared difference from ``prior_pose``,
+    radians^2): keeps unseen fingers near that pose."""
+    prior_pose: str = "flat"
+    """The pose the finger-pose prior pulls toward ('flat' or 'relaxed')."""
+    limit_weight: float = 1e-2
+    """Weight of the squared excess of the finger joints' anatomical angles over their limits
+    (:func:`lisa_hand.fitting.priors.joint_limit_excess`), radians^2."""
+    betas_weight: float = 1e-5
+    """Weight of ``|betas|^2`` (the template's shape coefficients)."""
+    normal_weight: float = 0.5
+    """Weight of the offset-point term when the cloud has normals (0 turns it off)."""
+    normal_offset_mm: float = 3.0
+    """Offset ``eps`` of the normal term's points along the normals, millimetres."""
+    fit_shape: bool = True
+    """Optimise the shape code (False: keep the training subjects' mean)."""
+    fit_betas: bool = True
+    """Optimise the template's betas (the skeleton); ignored with a fixed ``rest_joints``."""
+    max_points: int = 200_000
+    """A larger cloud is randomly subsampled to this many points first."""
+    min_points: int = 20
+    """Fewer points than this is an error."""
+    lr_decay: float = 0.1
+    """The learning rates fall (cosine) to this fraction of their value over each stage."""
+    device: str | None = None
+    """Where to fit ('cpu', 'cuda', ...); None: the model's device."""
+    num_threads: int | None = 1
+    """Torch intra-op threads during a CPU fit (restored afterwards); None keeps the current
+    setting. The fit is many small operations: more threads barely help, and on cores shared
+    with other processes OpenMP's spinning makes them over ten times slower."""
+    seed: int = 0
+    """Seed of the random point subsets."""
+
+    def __post_init__(self) -> None:
+        from .global_pose import initial_finger_pose
+
+        check_int_fields(self, ("align_iters", "pose_iters", "field_iters"), 0)
+        check_int_fields(self, ("align_keep", "num_restarts", "points_per_iteration",
+                                "proxy_points", "max_points", "min_points"), 1)
+        if not self.init_poses:
+            raise ValueError("init_poses must name at least one pose")
+        for name in self.init_poses:
+            initial_finger_pose(name)  # raises for an unknown name
+        if self.robust_loss not in ROBUST_LOSSES:
+            raise ValueError(f"robust_loss must be one of {ROBUST_LOSSES}, got "
+                             f"{self.robust_loss!r}")
+        if self.prior_pose not in PRIOR_POSES:
+            raise ValueError(f"prior_pose must be one of {PRIOR_POSES}, got {self.prior_pose!r}")
+        for name in ("lr_rotation", "lr_translation", "lr_pose", "lr_shape", "lr_betas",
+                     "robust_scale_mm", "robust_scale_start_mm", "normal_offset_mm",
+                     "coverage_scale_mm"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive number, got {value!r}")
+        for name in ("shape_weight", "pose_weight", "limit_weight", "betas_weight",
+                     "normal_weight", "coverage_weight"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
+                raise ValueError(f"{name} must be a non-negative number, got {value!r}")
+        prune = self.prune_after
+        if (not isinstance(prune, tuple) or not prune or any(
+                not isinstance(f, (int, float)) or not 0.0 <= f <= 1.0 for f in prune)
+                or list(prune) != sorted(prune)):
+            raise ValueError(f"prune_after must be a non-empty increasing tuple of fractions in "
+                             f"[0, 1], got {prune!r}")
+        threads = self.num_threads
+        if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int)
+                                    or threads < 1):
+            raise ValueError(f"num_threads must be a positive int or None, got {threads!r}")
+        if not 0.0 < self.lr_decay <= 1.0:
+            raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay!r}")

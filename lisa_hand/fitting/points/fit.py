@@ -1,0 +1,249 @@
+"""Fitting LISA to a point cloud (paper Section 4.3, "Reconstruction from point clouds").
+
+The paper minimises ``sum_x |G(x, theta, beta+)| + ||beta+||`` over the pose ``theta`` and the
+shape code ``beta+``. The hand in a scan can be anywhere, in any orientation and finger pose,
+seen from one side, with noise and outliers, so :func:`fit_points` composes three stages, each
+a function from hands (:class:`~lisa_hand.skeleton.params.HandParams`) to hands:
+
+1. **Global-pose search** (:func:`.global_pose.search_global_pose`, 'align', no network): a
+   surface proxy of the model (:mod:`lisa_hand.fitting.points.proxy`) in 24
+   orientations per initial finger pose, rigidly aligned to the cloud; the ``num_restarts``
+   best distinct candidates go on.
+2. **Articulated proxy** (:func:`.proxy.fit_proxy_pose`, 'pose', no network): the candidates
+   also fit the finger pose on the proxy.
+3. **Surface** (:func:`.surface_stage.fit_surface`, 'field'): all unknowns on the LISA field
+   (rotation, translation, finger pose, shape code, the template's betas), candidates pruned
+   to one (8 -> 3 -> 1).
+
+The residual's penalty is :func:`lisa_hand.fitting.robust.robust_loss` (Geman-McClure by
+default; the paper's ``|r|`` with ``robust_loss="l1"``); the finger-pose prior and the joint
+limits are the shared ones of :mod:`lisa_hand.fitting.priors`.
+
+LISA is a right hand: a left hand's cloud (``side="left"``) is fitted as the right hand of the
+mirrored cloud and the result mirrored back (``params.side == "left"``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from ...skeleton import NUM_JOINTS, POSE_DIM, check_side
+from ...skeleton.params import HandParams
+from ...utils.threads import cpu_threads
+from ..sides import mirror_cloud, mirror_hand
+from ..stages import HistoryRecord, StageReport
+from .cloud import TargetCloud, target_cloud
+from .config import FitPointsConfig
+from .global_pose import search_global_pose
+from .monitor import FitMonitor, FitStep
+from .proxy import build_surface_proxy, fit_proxy_pose
+from .surface_stage import fit_surface, frozen_field, surface_residuals
+
+__all__ = ["FitPointsConfig", "FitStep", "FitResult", "fit_points"]
+
+_MM = 1e-3
+
+
+@dataclass
+class FitResult:
+    """Result of :func:`fit_points`.
+
+    params: the fitted hand (pose, translation, skeleton, betas, shape and colour codes, side);
+        ``params.extra["fit"]`` holds the numbers below as JSON.
+    energy: the field-stage energy of the result over the evaluation subset of the cloud.
+    residual_median_mm, residual_mean_mm: median and mean ``|G(x)|`` over the whole cloud, mm.
+    inlier_fraction: fraction of points with ``|G(x)| < 3 sigma`` (``sigma = robust_scale_mm``).
+    seconds: wall time of the fit; stage_seconds: per stage ('proxy', 'align', 'pose',
+        'field', 'finish').
+    num_points: points fitted (after ``max_points``).
+    candidate_energies: proxy energy of each candidate (24 orientations per initial finger
+        pose) after the first part of the alignment (the 'align' report's
+        ``screened_energies``).
+    history: per iteration ``{"stage", "iteration", "energy" (best live candidate), "seconds"
+        (since the fit started)}`` (:data:`lisa_hand.fitting.stages.HistoryRecord`), every
+        stage in order.
+    reports: each stage's :class:`lisa_hand.fitting.stages.StageReport` ({"align", "pose",
+        "field"}), as the image fit's ``reports``.
+    """
+
+    params: HandParams
+    energy: float
+    residual_median_mm: float
+    residual_mean_mm: float
+    inlier_fraction: float
+    seconds: float
+    stage_seconds: dict[str, float]
+    num_points: int
+    candidate_energies: list[float]
+    history: list[HistoryRecord]
+    reports: dict[str, StageReport] = field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        """The scalar results as a JSON-able dict (what ``params.extra["fit"]`` holds)."""
+        return {
+            "energy": self.energy,
+            "residual_median_mm": self.residual_median_mm,
+            "residual_mean_mm": self.residual_mean_mm,
+            "inlier_fraction": self.inlier_fraction,
+            "seconds": self.seconds,
+            "stage_seconds": dict(self.stage_seconds),
+            "num_points": self.num_points,
+        }
+
+
+def _check_model(model) -> None:
+    from ...model.trained import TrainedModel
+
+    if not isinstance(model, TrainedModel):
+        raise TypeError(f"model must be a lisa_hand.model.trained.TrainedModel, got "
+                        f"{type(model).__name__}")
+
+
+def _check_rest_joints(rest_joints) -> torch.Tensor | None:
+    if rest_joints is None:
+        return None
+    rest_joints = torch.as_tensor(rest_joints)
+    if rest_joints.shape != (NUM_JOINTS, 3) or not torch.isfinite(rest_joints).all():
+        raise ValueError(f"rest_joints must be finite with shape [16, 3], got "
+                         f"{list(rest_joints.shape)}")
+    return rest_joints
+
+
+def _start_hand(model, cloud: TargetCloud, rest_joints: torch.Tensor | None):
+    """(the template or None, the right hand at rest every candidate starts from: the fixed
+    skeleton or the template's mean one, the mean shape and colour codes, on the cloud's
+    device and dtype)."""
+    like = dict(device=cloud.points.device, dtype=cloud.points.dtype)
+    template = None
+    betas = None
+    if rest_joints is None:
+        from ...handmodel.template import load_template
+
+        template = load_template().to(**like)
+        betas = torch.zeros(1, template.num_betas, **like)
+        rest_joints = template.rest_joints(betas)[0]
+        betas = betas[0]
+    else:
+        rest_joints = rest_joints.to(**like)
+    shape_code = model.mean_shape_code().to(**like)
+    color = model.mean_color_code()
+    color = None if color is None else color.to(**like)
+    hand = HandParams(pose=torch.zeros(POSE_DIM), translation=torch.zeros(3),
+                      rest_joints=rest_joints.detach().cpu().float(),
+                      shape_code=shape_code.cpu().float(),
+                      color_code=None if color is None else color.cpu().float(),
+                      betas=None if betas is None else betas.cpu().float(),
+                      side="right", model=model.source)
+    return template, hand, (rest_joints, shape_code, color)
+
+
+def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints, monitor
+                ) -> tuple[HandParams, dict[str, StageReport]]:
+    """The three stages on a right hand's cloud -> (hand, {stage: its report})."""
+    since = monitor.start
+    template, start, (rest, shape_code, color) = _start_hand(model, cloud, rest_joints)
+    proxy = build_surface_proxy(model, rest, shape_code, color, config.proxy_points,
+                                cloud.generator)
+    since = monitor.lap("proxy", since)
+    reports = {}
+    candidates, reports["align"] = search_global_pose(proxy, cloud, config, start,
+                                                      monitor=monitor)
+    since = monitor.lap("align", since)
+    candidates, reports["pose"] = fit_proxy_pose(proxy, cloud, candidates, config,
+                                                 monitor=monitor)
+    since = monitor.lap("pose", since)
+    hand, reports["field"] = fit_surface(model, cloud, candidates, config, template=template,
+                                         pivot=proxy.pivot, monitor=monitor)
+    monitor.lap("field", since)
+    return hand, reports
+
+
+def fit_points(
+    model,
+    points: np.ndarray | torch.Tensor,
+    normals: np.ndarray | torch.Tensor | None = None,
+    config: FitPointsConfig | None = None,
+    *,
+    rest_joints: torch.Tensor | None = None,
+    side: str = "right",
+    progress: bool = False,
+    callback: Callable[[FitStep], None] | None = None,
+) -> FitResult:
+    """Fit a trained LISA model to a point cloud of one hand (see the module docstring).
+
+    model: a :class:`lisa_hand.model.trained.TrainedModel`.
+    points: [N, 3] world metres, finite (:func:`lisa_hand.fitting.points.io.prepare_point_cloud`
+        checks files and converts units). Any position and orientation; partial is fine.
+    normals: [N, 3] outward normals or None; they add the offset-point term.
+    config: :class:`FitPointsConfig` (defaults when None).
+    rest_joints: [16, 3] metres, a fixed skeleton (of the ``side`` hand); None: the template's
+        (:func:`lisa_hand.handmodel.template.load_template`), whose betas are fitted.
+    side: 'right' or 'left': the hand the cloud shows (a left one is fitted mirrored).
+    progress: show a progress bar. callback: called with a :class:`FitStep` after every
+        iteration (for benchmarks and logging; its hands are of ``side``).
+    -> :class:`FitResult`. Runs on ``config.device`` (default: the model's), in the model's dtype.
+    """
+    config = FitPointsConfig() if config is None else config
+    if not isinstance(config, FitPointsConfig):
+        raise TypeError(f"config must be a FitPointsConfig, got {type(config).__name__}")
+    check_side(side)
+    _check_model(model)
+    rest_joints = _check_rest_joints(rest_joints)
+    device = torch.device(config.device) if config.device is not None else model.device
+    if device != model.device:
+        model = model.to(device)
+    cloud = target_cloud(points, normals, dtype=model.field.dtype, device=device,
+                         min_points=config.min_points, max_points=config.max_points,
+                         seed=config.seed)
+    if side == "left":
+        cloud = TargetCloud(mirror_cloud(cloud.points, side), None if cloud.normals is None
+                            else mirror_cloud(cloud.normals, side), cloud.generator)
+        rest_joints = None if rest_joints is None else mirror_cloud(rest_joints, side)
+        callback = _left_callback(callback)
+    total = config.align_iters + config.pose_iters + config.field_iters
+    monitor = FitMonitor(progress_total=total if progress else None, callback=callback)
+    threads = config.num_threads if device.type == "cpu" else None
+    try:
+        with cpu_threads(threads), frozen_field(model):
+            hand, reports = _run_stages(model, cloud, config, rest_joints, monitor)
+            since = time.perf_counter()
+            residual = surface_residuals(model, hand, cloud.points)
+            monitor.lap("finish", since)
+    finally:
+        monitor.close()
+    params = mirror_hand(hand) if side == "left" else hand
+    result = FitResult(
+        params=params,
+        energy=reports["field"].energies[0],
+        residual_median_mm=float(residual.median()) / _MM,
+        residual_mean_mm=float(residual.mean()) / _MM,
+        inlier_fraction=float((residual < 3.0 * config.robust_scale_mm * _MM).float().mean()),
+        seconds=time.perf_counter() - monitor.start,
+        stage_seconds=monitor.stage_seconds,
+        num_points=cloud.num_points,
+        candidate_energies=reports["align"].screened_energies,
+        history=monitor.history,
+        reports=reports,
+    )
+    params.extra["fit"] = result.summary()
+    return result
+
+
+def _left_callback(callback: Callable[[FitStep], None] | None
+                   ) -> Callable[[FitStep], None] | None:
+    """The callback of a left hand's fit: its steps' hands mirrored back to the left."""
+    if callback is None:
+        return None
+
+    def forward(step: FitStep) -> None:
+        right = step.params
+        callback(dataclasses.replace(step, _make_params=lambda: mirror_hand(right())))
+
+    return forward

@@ -1,0 +1,193 @@
+"""The surface proxy of the point fit's first stages, and the articulated proxy stage.
+
+The proxy is a cheap stand-in for the LISA field: points on the model's zero level set at rest
+(mean shape code) with the field's skinning weights, posed by linear blend skinning. Its energy
+(per candidate): the robust distance from each of 256 random cloud points to the nearest proxy
+point, plus ``coverage_weight`` times a robust distance from each proxy point to the cloud (the
+cloud's distance grid). The first term alone lets extra model surface go unpunished (a flat
+finger beside the curled finger of a fist scan); the second is a bounded Geman-McClure term
+(scale ``coverage_scale_mm``), so the unseen side of a partial scan costs little and pulls
+weakly. ``sigma`` goes down geometrically from ``robust_scale_start_mm`` to
+``robust_scale_mm`` over each stage (coarse to fine).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import torch
+
+from ...skeleton import NUM_JOINTS, POSE_DIM, forward_kinematics, linear_blend_skinning
+from ...skeleton.params import HandParams
+from ..priors import prior_mean_fingers
+from ..robust import annealed_scale, robust_loss
+from ..stages import StageReport
+from .adam import Adam, cosine_factor
+from .candidates import CandidateBatch, point_prior
+from .cloud import TargetCloud, nearest_distance
+from .monitor import FitMonitor
+
+__all__ = ["SurfaceProxy", "build_surface_proxy", "proxy_energy", "optimise_on_proxy",
+           "fit_proxy_pose"]
+
+_MM = 1e-3
+_PROXY_STAGE_POINTS = 256  # cloud points per iteration of the proxy stages
+
+
+@dataclass
+class SurfaceProxy:
+    """Points on a model's surface at rest and their skinning weights.
+
+    points_rest: [P, 3] metres (rest pose, zero global rotation); weights: [P, 16] (rows sum
+    to 1); rest_joints: [16, 3] metres, the skeleton they are posed on; pivot: [3] metres, the
+    points' centroid (the candidates rotate about it, :class:`CandidateBatch`).
+    """
+
+    points_rest: torch.Tensor
+    weights: torch.Tensor
+    rest_joints: torch.Tensor
+    pivot: torch.Tensor
+
+    @property
+    def num_points(self) -> int:
+        return self.points_rest.shape[0]
+
+    def sample(self, count: int, generator: torch.Generator) -> torch.Tensor:
+        """[min(P, count)] indices of random distinct proxy points (all when P <= count)."""
+        num = self.points_rest.shape[0]
+        if num <= count:
+            return torch.arange(num, device=self.points_rest.device)
+        return torch.randperm(num, generator=generator)[:count].to(self.points_rest.device)
+
+    def posed(self, finger_pose: torch.Tensor, subset: torch.Tensor | None = None
+              ) -> torch.Tensor:
+        """[K, P, 3] the proxy (or its points ``subset``) posed by finger poses [K, 45]
+        (radians), zero global rotation (rest frame)."""
+        count = finger_pose.shape[0]
+        pose = torch.cat([finger_pose.new_zeros(count, 3), finger_pose], dim=-1)
+        kinematics = forward_kinematics(pose, self.rest_joints)
+        rest, weights = self.points_rest, self.weights
+        if subset is not None:
+            rest, weights = rest[subset], weights[subset]
+        return linear_blend_skinning(rest, weights, kinematics.transforms)
+
+    def world(self, batch: CandidateBatch, subset: torch.Tensor | None = None) -> torch.Tensor:
+        """[K, P, 3] world metres: the proxy posed by the candidates (on its own skeleton)."""
+        local = self.posed(batch.finger_pose, subset)
+        rotation = batch.rotation()
+        return (local - self.pivot) @ rotation.transpose(-1, -2) + batch.position[:, None]
+
+
+@torch.no_grad()
+def build_surface_proxy(model, rest_joints: torch.Tensor, shape_code: torch.Tensor,
+                        color_code: torch.Tensor | None, num_points: int,
+                        generator: torch.Generator) -> SurfaceProxy:
+    """The proxy of a trained model's field (:class:`lisa_hand.model.trained.TrainedModel`):
+    its zero level set at rest (64^3 marching cubes) for the rest joints [16, 3] and the codes
+    shape_code [D], color_code [D'] or None (on the field's device and dtype), at most
+    ``num_points`` random vertices (``generator``), with the field's skinning weights (the
+    nearest bone region's for a field without them)."""
+    from ...geometry.meshing import extract_mesh
+    from ...model.lisa import region_bounds
+
+    field_model = model.field
+    device, dtype = rest_joints.device, rest_joints.dtype
+    state = field_model.prepare(
+        torch.zeros(1, POSE_DIM, dtype=dtype, device=device), None, rest_joints[None],
+        shape_code[None], None if color_code is None else color_code[None])
+    low, high = region_bounds(state, field_model)
+    low, high = low[0].cpu().double().numpy(), high[0].cpu().double().numpy()
+    mesh = extract_mesh(field_model.sdf_fn(state), low, high, 64, lipschitz=2.0,
+                        device=device, dtype=dtype)
+    vertices = torch.from_numpy(mesh.vertices).to(device=device, dtype=dtype)
+    if vertices.shape[0] == 0:
+        raise ValueError("the model's surface at rest is empty: cannot fit with this model")
+    if vertices.shape[0] > num_points:
+        pick = torch.randperm(vertices.shape[0], generator=generator)
+        vertices = vertices[pick[:num_points].to(device)]
+    out = field_model.field(state, vertices[None], with_color=False)
+    if out.weights is not None:
+        weights = out.weights[0]
+    else:  # the single-MLP baseline has no skinning weights: the nearest bone region's
+        excess = field_model.region_excess(state, vertices[None])[0]
+        weights = torch.nn.functional.one_hot(excess.argmin(-1), NUM_JOINTS).to(dtype)
+    return SurfaceProxy(vertices, weights, rest_joints, vertices.mean(dim=0))
+
+
+def proxy_energy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, config,
+                 scale: float, subset: torch.Tensor | None = None) -> torch.Tensor:
+    """[K] the proxy energy of the module docstring at robust scale ``scale`` (metres), on 256
+    random cloud points (drawn from ``cloud.generator``) and the proxy points ``subset`` (all:
+    None). config: a :class:`~lisa_hand.fitting.points.config.FitPointsConfig`."""
+    proxy_points = proxy.world(batch, subset)
+    points = cloud.points[cloud.sample(_PROXY_STAGE_POINTS)]
+    distance = nearest_distance(points.expand(batch.count, -1, -1), proxy_points)
+    energy = robust_loss(distance, config.robust_loss, scale).mean(-1)
+    if config.coverage_weight > 0:
+        uncovered = cloud.distance_grid(proxy_points)
+        coverage = robust_loss(uncovered, "geman_mcclure", config.coverage_scale_mm * _MM)
+        energy = energy + config.coverage_weight * coverage.mean(-1)
+    return energy
+
+
+def optimise_on_proxy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, config,
+                      stage: str, iterations: int, *, like: HandParams,
+                      proxy_subset: torch.Tensor | None = None, step_offset: int = 0,
+                      total: int | None = None,
+                      monitor: FitMonitor | None = None) -> torch.Tensor:
+    """Adam on :func:`proxy_energy` for steps ``step_offset .. step_offset + iterations`` of a
+    stage of ``total`` steps (the schedules' length; default ``iterations``), in place on
+    ``batch``: 'align' moves the rotation and position, 'pose' also the finger pose (with the
+    finger-pose and joint-limit prior). ``like`` and the batch's fixed skeletons make the
+    monitor's hands (:meth:`CandidateBatch.hand`). -> [K] the final proxy energies."""
+    total = iterations if total is None else total
+    rates = (config.lr_rotation, config.lr_translation, config.lr_pose)
+    tensors = batch.unknowns(with_shape=False)[: 2 if stage == "align" else 3]
+    optimizer = Adam(list(zip(tensors, rates[: len(tensors)], strict=True)))
+    mean_fingers = prior_mean_fingers(config.prior_pose, batch.pivot.device, batch.pivot.dtype)
+    start, end = config.robust_scale_start_mm * _MM, config.robust_scale_mm * _MM
+    energy = None
+    for step in range(step_offset, step_offset + iterations):
+        optimizer.factor = cosine_factor(step, total, config.lr_decay)
+        energy = proxy_energy(proxy, cloud, batch, config, annealed_scale(start, end, step, total),
+                              proxy_subset)
+        loss = energy
+        if stage == "pose":
+            loss = loss + point_prior(config, batch, mean_fingers, None)
+        batch.clear_grads()
+        loss.sum().backward()
+        optimizer.step()
+        if monitor is not None:
+            monitor.record(stage, step, total, energy, lambda index: batch.hand(index, like))
+    if energy is None:  # no iteration: score the starting points
+        with torch.no_grad():
+            energy = proxy_energy(proxy, cloud, batch, config,
+                                  annealed_scale(start, end, step_offset, total), proxy_subset)
+    batch.fold()
+    return energy.detach()
+
+
+def fit_proxy_pose(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequence[HandParams],
+                   config, *, monitor: FitMonitor | None = None
+                   ) -> tuple[list[HandParams], StageReport]:
+    """The articulated proxy stage ('pose', no network): ``config.pose_iters`` Adam steps of
+    every candidate's global rotation, translation and finger pose on the proxy energy plus the
+    finger-pose and joint-limit prior (batched).
+
+    candidates: right hands (their rest joints should be the proxy's: the proxy is posed on its
+    own). config: a :class:`~lisa_hand.fitting.points.config.FitPointsConfig`.
+    -> (the candidates moved, in order; the :class:`StageReport` ('pose'): their final proxy
+    energies, metres, in that order).
+    """
+    began = len(monitor.history) if monitor is not None else 0
+    start = time.perf_counter()
+    batch = CandidateBatch.from_hands(candidates, proxy.pivot)
+    energy = optimise_on_proxy(proxy, cloud, batch, config, "pose", config.pose_iters,
+                               like=candidates[0], monitor=monitor)
+    hands = [batch.hand(index, candidates[index]) for index in range(batch.count)]
+    history = monitor.history[began:] if monitor is not None else []
+    energies = [float(e) for e in energy]
+    return hands, StageReport(stage="pose", seconds=time.perf_counter() - start,
+                              loss=min(energies), energies=energies, history=history)

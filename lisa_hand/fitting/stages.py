@@ -1,0 +1,114 @@
+"""What every fitter's stages share: the diagnostics each stage returns beside its hand
+(:class:`StageReport`, with its per-iteration ``history``), the learning-rate decay, the
+progress bar and the mesh template on the fit's device.
+
+Every stage takes and returns :class:`lisa_hand.skeleton.params.HandParams` (right hands,
+float32 CPU tensors); its optimised unknowns live inside the stage. The stages: the point fit's
+global-pose search ('align', :mod:`lisa_hand.fitting.points.global_pose`), articulated proxy
+('pose',
+:mod:`lisa_hand.fitting.points.proxy`) and surface stage ('field',
+:mod:`lisa_hand.fitting.points.surface_stage`); the image fit's keypoint stage ('keypoints',
+:mod:`lisa_hand.fitting.images.keypoint_stage`) and colour stage ('color',
+:mod:`lisa_hand.fitting.images.color_stage`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+
+__all__ = ["HistoryRecord", "StageReport", "history_columns", "decay_schedule", "progress_bar",
+           "template_on"]
+
+HistoryRecord = dict[str, float | str]
+"""One iteration of a stage: ``"stage"`` (str, the stage's name), ``"iteration"`` (int, within
+the stage, from 0), ``"energy"`` (the stage's objective of the best live candidate, evaluated in
+that iteration before its optimiser step), plus what the stage also logs (the keys are listed
+under :class:`StageReport`'s ``history``)."""
+
+
+@dataclass
+class StageReport:
+    """Diagnostics of one fitting stage (every stage of every fitter returns one).
+
+    stage: its name: 'align', 'pose', 'field' (point fit), 'keypoints', 'color' (image fit).
+    seconds: its wall time, seconds.
+    loss: the final objective of the best hand it returns (NaN when the stage did not run,
+        e.g. a reused keypoint-stage hand): the point stages' energy (robust distances,
+        metres; 'field' with its prior, over the fixed evaluation subset of the cloud), the
+        keypoint stage's weighted loss (keypoint pixels, masks and priors), the colour stage's
+        total loss of its last iteration.
+    energies: [number of hands returned] the final objective of each returned hand, in the
+        order they are returned (one value for single-hand stages; empty when it did not run).
+    history: one :data:`HistoryRecord` per iteration, in order: ``"stage"``, ``"iteration"``,
+        ``"energy"`` (the best live candidate's objective at that iteration); the point fit's
+        also ``"seconds"`` (since the fit started,
+        :class:`lisa_hand.fitting.points.monitor.FitMonitor`);
+        the keypoint stage's also ``"kp_px"`` (the best candidate's mean keypoint error,
+        pixels); the colour stage's also its terms ``"col"``, ``"reg"``, ``"joints"``,
+        ``"mask"`` (unweighted) and ``"kp_px"``. :func:`history_columns` turns it into columns.
+    keypoint_error_px: the image fit: mean distance (pixels) between the projected and the
+        given visible keypoints over all views after the stage (NaN without keypoints, and for
+        the point fit).
+    candidate: the keypoint stage: which restart won; else None.
+    screened_energies: the point fit's global-pose search: the proxy energy (metres) of every
+        initial candidate (24 orientations per initial finger pose) after the first part of
+        the alignment; else empty.
+    """
+
+    stage: str
+    seconds: float = 0.0
+    loss: float = math.nan
+    energies: list[float] = field(default_factory=list)
+    history: list[HistoryRecord] = field(default_factory=list)
+    keypoint_error_px: float = math.nan
+    candidate: int | None = None
+    screened_energies: list[float] = field(default_factory=list)
+
+
+def history_columns(history: list[HistoryRecord], stage: str | None = None
+                    ) -> dict[str, list[float]]:
+    """The numeric values of ``history`` (of the records of ``stage`` only, when given) as
+    columns: {key: [value per record that has it]}, keys in first-seen order, without
+    ``"stage"``."""
+    columns: dict[str, list[float]] = {}
+    for record in history:
+        if stage is not None and record.get("stage") != stage:
+            continue
+        for key, value in record.items():
+            if key != "stage":
+                columns.setdefault(key, []).append(float(value))
+    return columns
+
+
+def decay_schedule(optimizer: torch.optim.Optimizer, iterations: int,
+                   final_fraction: float) -> torch.optim.lr_scheduler.ExponentialLR:
+    """Exponential decay of every learning rate to ``final_fraction`` over ``iterations``
+    steps."""
+    gamma = final_fraction ** (1.0 / max(iterations, 1))
+    return torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma)
+
+
+def progress_bar(enabled: bool, total: int, desc: str) -> Any:
+    """A tqdm bar of ``total`` iterations, or None (disabled, or nothing to do)."""
+    if not enabled or total == 0:
+        return None
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, unit="it", leave=False)
+
+
+def template_on(template: Any, device: torch.device) -> Any:
+    """The mesh template on ``device`` in float32 (the shipped one is float64: twice the work);
+    None: :func:`lisa_hand.handmodel.template.load_template`."""
+    if template is None:
+        from ..handmodel.template import load_template
+
+        template = load_template()
+    if getattr(template, "device", device) != device or getattr(template, "dtype",
+                                                                 None) == torch.float64:
+        template = template.to(device=device, dtype=torch.float32)
+    return template

@@ -1,0 +1,39 @@
+"""Evaluation metrics: mesh distances (LISA, Table 1; :mod:`.mesh`) and image metrics (PSNR,
+SSIM, LPIPS; :mod:`.image`).
+
+``lisa metrics RECON GT`` prints :func:`compare_mesh_files` for two meshes (or point sets) and
+:func:`image_metrics` for two images. The length unit of a file is decided by
+:mod:`lisa_hand.data.units`, beside the readers it serves.
+"""
+
+from .image import (
+    ImageMetrics,
+    image_metrics,
+    lpips_distance,
+    lpips_unavailable_reason,
+    psnr,
+    ssim,
+)
+from .mesh import (
+    MeshComparison,
+    MeshData,
+    MeshDistances,
+    compare_mesh_files,
+    load_mesh,
+    mesh_distances,
+)
+
+__all__ = [
+    "MeshData",
+    "MeshDistances",
+    "MeshComparison",
+    "mesh_distances",
+    "load_mesh",
+    "compare_mesh_files",
+    "psnr",
+    "ssim",
+    "lpips_distance",
+    "lpips_unavailable_reason",
+    "ImageMetrics",
+    "image_metrics",
+]

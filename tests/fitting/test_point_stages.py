@@ -1,0 +1,133 @@
+"""The point fit's stages one by one, through their public functions: each takes and returns
+HandParams; the candidate parametrisation round-trips; the prior keeps its old numbers; a left
+hand fits as well as the right one it mirrors."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from lisa_hand.data.scans import ScanConfig
+from lisa_hand.fitting.points.candidates import CandidateBatch, point_prior
+from lisa_hand.fitting.points.cloud import target_cloud
+from lisa_hand.fitting.points.config import FitPointsConfig
+from lisa_hand.fitting.points.fit import fit_points
+from lisa_hand.fitting.points.global_pose import search_global_pose
+from lisa_hand.fitting.points.monitor import FitMonitor
+from lisa_hand.fitting.points.proxy import build_surface_proxy, fit_proxy_pose
+from lisa_hand.fitting.points.surface_stage import fit_surface, surface_residuals
+from lisa_hand.fitting.priors import prior_mean_fingers
+from lisa_hand.fitting.sides import mirror_hand
+from lisa_hand.fitting.stages import StageReport
+from lisa_hand.geometry import axis_angle_to_matrix
+from lisa_hand.inference import hand_field
+from lisa_hand.skeleton import mirror_points
+from lisa_hand.skeleton.params import HandParams
+
+from .test_points import FAST, rotation_error_deg, scan_of, sdf_at, tiny_model, true_hand
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+
+def _hand(seed: int = 0) -> HandParams:
+    generator = torch.Generator().manual_seed(seed)
+    pose = 0.4 * torch.randn(48, generator=generator)
+    pose[:3] = torch.tensor([2.0, -1.0, 0.5])
+    return HandParams(pose=pose, translation=torch.tensor([0.1, -0.05, 0.3]),
+                      rest_joints=0.05 * torch.randn(16, 3, generator=generator),
+                      shape_code=torch.randn(8, generator=generator), side="right")
+
+
+def test_candidate_batch_round_trips_hand_params():
+    hands = [_hand(0), _hand(1)]
+    pivot = torch.tensor([0.01, 0.02, -0.03])
+    batch = CandidateBatch.from_hands(hands, pivot)
+    assert batch.count == 2 and batch.rest_joints.shape == (2, 16, 3)
+    for index, hand in enumerate(hands):
+        back = batch.hand(index, hand)
+        assert torch.allclose(axis_angle_to_matrix(back.pose[:3]),
+                              axis_angle_to_matrix(hand.pose[:3]), atol=1e-6)
+        assert torch.allclose(back.pose[3:], hand.pose[3:])
+        assert torch.allclose(back.translation, hand.translation, atol=1e-6)
+        assert torch.equal(back.rest_joints, hand.rest_joints) and back.side == "right"
+        assert back.extra == {} and back.extra is not hand.extra
+
+
+def test_the_point_prior_keeps_the_sum_of_squares_numbers():
+    # The old prior was 1e-5 * sum of the 45 squared finger values; the shared one is a mean,
+    # and the default weight is 45 times larger: the same numbers.
+    hands = [_hand(2)]
+    batch = CandidateBatch.from_hands(hands, torch.zeros(3))
+    config = FitPointsConfig(limit_weight=0.0)
+    prior = point_prior(config, batch, prior_mean_fingers("flat"), None)
+    expected = 1e-5 * hands[0].pose[3:].square().sum()
+    assert float(prior[0].detach()) == pytest.approx(float(expected), rel=1e-5)
+
+
+def test_stages_take_and_return_hand_params():
+    model = tiny_model()
+    truth = true_hand(model, seed=0)
+    points, normals, _ = scan_of(model, truth, ScanConfig(num_points=1000), seed=0)
+    config = FitPointsConfig(**FAST)
+    cloud = target_cloud(points, normals, seed=config.seed)
+    start = truth.with_pose(torch.zeros(48), torch.zeros(3))
+    proxy = build_surface_proxy(model, truth.rest_joints, truth.shape_code, None,
+                                config.proxy_points, cloud.generator)
+    assert proxy.num_points == config.proxy_points and proxy.weights.shape[1] == 16
+    monitor = FitMonitor()
+    candidates, search = search_global_pose(proxy, cloud, config, start, monitor=monitor)
+    assert 1 <= len(candidates) <= config.num_restarts
+    assert all(isinstance(hand, HandParams) for hand in candidates)
+    assert len(search.screened_energies) == 24 and search.energies == sorted(search.energies)
+    assert isinstance(search, StageReport) and search.stage == "align"
+    assert search.loss == search.energies[0] and len(search.energies) == len(candidates)
+    assert [step["stage"] for step in search.history] == ["align"] * config.align_iters
+    posed, stage = fit_proxy_pose(proxy, cloud, candidates, config, monitor=monitor)
+    assert len(posed) == len(candidates) and len(stage.history) == config.pose_iters
+    assert stage.stage == "pose" and len(stage.energies) == len(posed)
+    assert stage.loss == min(stage.energies)
+    hand, surface = fit_surface(model, cloud, posed, config, pivot=proxy.pivot,
+                                monitor=monitor)
+    assert isinstance(hand, HandParams) and math.isfinite(surface.energies[0])
+    assert surface.stage == "field" and surface.energies == [surface.loss]
+    assert len(monitor.history) == config.align_iters + config.pose_iters + config.field_iters
+    assert rotation_error_deg(hand.pose, truth.pose) < 5.0
+    residual = surface_residuals(model, hand, cloud.points)
+    assert float(residual.mean()) < 0.0005
+    # The surface stage alone, started at the truth, stays there.
+    again, _ = fit_surface(model, cloud, [truth], config)
+    assert float(sdf_at(model, again, points).abs().mean()) < 0.0005
+
+
+def test_a_left_hand_fits_as_well_as_the_right_one_it_mirrors():
+    model = tiny_model()
+    truth = true_hand(model, seed=0)
+    points, normals, _ = scan_of(model, truth, ScanConfig(num_points=1000), seed=0)
+    config = FitPointsConfig(**FAST)
+    right = fit_points(model, points, normals, config, rest_joints=truth.rest_joints)
+    assert list(right.reports) == ["align", "pose", "field"]
+    assert right.energy == right.reports["field"].loss
+    assert right.candidate_energies == right.reports["align"].screened_energies
+    assert right.history == [record for report in right.reports.values()
+                             for record in report.history]
+    left_points = mirror_points(torch.from_numpy(points)).numpy()
+    left_normals = mirror_points(torch.from_numpy(normals)).numpy()
+    sides = []
+    left = fit_points(model, left_points, left_normals, config,
+                      rest_joints=mirror_points(truth.rest_joints), side="left",
+                      callback=lambda step: sides.append(step.params().side))
+    assert left.params.side == "left" and set(sides) == {"left"}
+    assert left.residual_mean_mm == pytest.approx(right.residual_mean_mm, rel=1e-4)
+    assert left.inlier_fraction == right.inlier_fraction
+    # The left hand's field (mirrored by the renderer and the mesher) is on the left cloud.
+    with torch.no_grad():
+        sdf = hand_field(model, left.params).sdf_fn()(torch.from_numpy(left_points))
+    assert float(sdf.abs().mean()) == pytest.approx(right.residual_mean_mm * 1e-3, rel=1e-3)
+    # ... and it is the mirror image of the right fit.
+    mirrored = mirror_hand(left.params)
+    assert torch.allclose(mirrored.pose, right.params.pose, atol=1e-6)
+    assert torch.allclose(mirrored.translation, right.params.translation, atol=1e-7)
+    with pytest.raises(ValueError, match="side"):
+        fit_points(model, points, side="middle")
