@@ -11,7 +11,19 @@ import math
 
 import torch
 
-__all__ = ["ray_sphere_bounds", "ray_box_bounds"]
+__all__ = ["check_rays", "ray_sphere_bounds", "ray_box_bounds"]
+
+
+def check_rays(origins: torch.Tensor, directions: torch.Tensor) -> None:
+    """Refuse rays of the wrong shape: origins [R, 3] metres and directions [R, 3] (ValueError
+    naming the argument and its shape)."""
+    if origins.dim() != 2 or origins.shape[-1] != 3:
+        raise ValueError(f"origins must have shape [R, 3], got {tuple(origins.shape)}")
+    if directions.shape != origins.shape:
+        raise ValueError(
+            f"directions must have the shape of origins {tuple(origins.shape)}, "
+            f"got {tuple(directions.shape)}"
+        )
 
 
 def ray_sphere_bounds(
@@ -34,13 +46,7 @@ def ray_sphere_bounds(
     Returns ``(near [R], far [R], hit [R] bool)``; not differentiable in a useful sense (use them
     as sampling bounds only).
     """
-    if origins.dim() != 2 or origins.shape[-1] != 3:
-        raise ValueError(f"origins must have shape [R, 3], got {tuple(origins.shape)}")
-    if directions.shape != origins.shape:
-        raise ValueError(
-            f"directions must have the shape of origins {tuple(origins.shape)}, "
-            f"got {tuple(directions.shape)}"
-        )
+    check_rays(origins, directions)
     center = torch.as_tensor(center, dtype=origins.dtype, device=origins.device)
     if center.shape not in ((3,), origins.shape):
         raise ValueError(f"center must have shape [3] or [R, 3], got {tuple(center.shape)}")

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import torch
 
 from ..geometry.fields import SdfFn, call_sdf
+from ..geometry.rays import check_rays
 from .density import volsdf_density
 
 __all__ = [
@@ -29,13 +30,7 @@ __all__ = [
 ]
 
 def _check_rays(origins, directions, near, far) -> None:
-    if origins.dim() != 2 or origins.shape[-1] != 3:
-        raise ValueError(f"origins must have shape [R, 3], got {tuple(origins.shape)}")
-    if directions.shape != origins.shape:
-        raise ValueError(
-            f"directions must have the shape of origins {tuple(origins.shape)}, "
-            f"got {tuple(directions.shape)}"
-        )
+    check_rays(origins, directions)
     _check_near_far(near, far)
     if near.shape[0] != origins.shape[0]:
         raise ValueError(f"near must have shape [R]=({origins.shape[0]},), got {tuple(near.shape)}")
