@@ -107,13 +107,7 @@ def run_demo(
     out_dir: str | Path, config: DemoConfig | None = None, log: Callable[[str], None] = print
 ) -> DemoResult:
     """Run the demo into ``out_dir`` (see the module docstring) and return its table."""
-    from ..data.layout import FramePaths, read_image
-    from ..data.synth.dataset import SynthConfig, synthesize
-    from ..fitting.images.config import FitImagesConfig
-    from ..fitting.images.folder import fit_image_folder
-    from ..fitting.points.fit import FitPointsConfig
-    from ..fitting.points.io import fit_point_file
-    from ..geometry.cameras import load_cameras
+    from ..data.layout import read_image
     from ..inference import hand_render_config, orbit_views, prepare_render, render_to_folder
     from ..model.trained import load_trained
     from ..utils.device import resolve_device
@@ -129,19 +123,55 @@ def run_demo(
     log(f"model: {model.source} ({'geometry and colour' if model.has_color else 'geometry'})")
 
     log("1/5 synthesizing an unseen hand (mesh, scan, images, masks, keypoints)")
-    data = out_dir / "input"
+    frame, fitted, novel = _unseen_hand(out_dir / "input", config)
+    rows, pictures, params = _run_fits(model, frame, fitted, novel, out_dir, config, log)
+
+    log("5/5 rendering a turntable of the 4-view fit")
+    scene = prepare_render(model, params, hand_render_config(model, normals="autograd"))
+    cameras = orbit_views(scene, config.orbit_views, config.orbit_size, config.orbit_size)
+    turntable = render_to_folder(scene, cameras, out_dir / "turntable", turntable=True)
+
+    total = time.perf_counter() - start
+    table = _markdown_table(rows)
+    log("")
+    log(table)
+    log(f"(PSNR: inside the mask, in {len(novel)} views that no fit used; distances in mm "
+        "against the ground-truth mesh)")
+    report_path = _write_report(out_dir / "report.html", rows, pictures, turntable.gif_path,
+                                _to_uint8(read_image(frame.image(fitted[0]))), model.source, total,
+                                config)
+    (out_dir / "results.md").write_text(table + "\n", encoding="utf-8")
+    log(f"demo finished in {total:.0f} s: {report_path}")
+    return DemoResult(rows=rows, report=report_path, seconds=total)
+
+
+def _unseen_hand(data: Path, config: DemoConfig):
+    """Synthesize the demo's hand into ``data``: -> (its frame's FramePaths, the 4 fitted view
+    names spread around the rig, the novel view names)."""
+    from ..data.layout import FramePaths
+    from ..data.synth.dataset import SynthConfig, synthesize
+    from ..geometry.cameras import load_cameras
+
     synthesize(data, SynthConfig(num_subjects=1, num_poses=1, num_views=config.num_views,
                                  resolution=config.resolution,
                                  seed=_DEMO_SEED_OFFSET + config.seed),
                progress=True, overwrite=True)
     frame = FramePaths(data / "s000" / "f000")
     names = [camera.name for camera in load_cameras(frame.cameras)]
-    # Spread the 4 fitted views around the rig; the rest are novel views.
     step = len(names) / 4
     fitted = [names[int(i * step)] for i in range(4)]
-    novel = [name for name in names if name not in fitted]
+    return frame, fitted, [name for name in names if name not in fitted]
 
-    rows, pictures = [], {}
+
+def _run_fits(model, frame, fitted: list[str], novel: list[str], out_dir: Path,
+              config: DemoConfig, log: Callable[[str], None]):
+    """The point-cloud, 1-view and 4-view fits: -> (table rows, novel-view pictures by fit,
+    the 4-view fit's HandParams)."""
+    from ..fitting.images.config import FitImagesConfig
+    from ..fitting.images.folder import fit_image_folder
+    from ..fitting.points.fit import FitPointsConfig
+    from ..fitting.points.io import fit_point_file
+
     points_config = _scaled(FitPointsConfig(), config.fit_scale,
                             ("align_iters", "pose_iters", "field_iters"))
     images_config = _scaled(FitImagesConfig(), config.fit_scale,
@@ -149,11 +179,9 @@ def run_demo(
     if not model.has_color:
         log("the model has no colour: image fits use keypoints and masks only, and no PSNR")
         images_config = replace(images_config, color_iters=0)
-    runs = [
-        ("point cloud", "fit_points", None),
-        ("1 view", "fit_1view", fitted[:1]),
-        ("4 views", "fit_4views", fitted),
-    ]
+    rows, pictures = [], {}
+    runs = [("point cloud", "fit_points", None), ("1 view", "fit_1view", fitted[:1]),
+            ("4 views", "fit_4views", fitted)]
     for index, (label, folder, views) in enumerate(runs, start=2):
         log(f"{index}/5 fitting to the {label}")
         began = time.perf_counter()
@@ -175,24 +203,7 @@ def run_demo(
             pictures[label] = shots[0]
         rows.append({"method": f"LISA, {label}", **{k: report.metrics[k] for k in _METRICS},
                      "psnr_db": psnr_db, "seconds": seconds})
-
-    log("5/5 rendering a turntable of the 4-view fit")
-    scene = prepare_render(model, params, hand_render_config(model, normals="autograd"))
-    cameras = orbit_views(scene, config.orbit_views, config.orbit_size, config.orbit_size)
-    turntable = render_to_folder(scene, cameras, out_dir / "turntable", turntable=True)
-
-    total = time.perf_counter() - start
-    table = _markdown_table(rows)
-    log("")
-    log(table)
-    log(f"(PSNR: inside the mask, in {len(novel)} views that no fit used; distances in mm "
-        "against the ground-truth mesh)")
-    report_path = _write_report(out_dir / "report.html", rows, pictures, turntable.gif_path,
-                                _to_uint8(read_image(frame.image(fitted[0]))), model.source, total,
-                                config)
-    (out_dir / "results.md").write_text(table + "\n", encoding="utf-8")
-    log(f"demo finished in {total:.0f} s: {report_path}")
-    return DemoResult(rows=rows, report=report_path, seconds=total)
+    return rows, pictures, params
 
 
 def _fmt(value: float | None, digits: int = 2) -> str:

@@ -315,6 +315,30 @@ def load_mano_pkl(
             f"{path}: no such MANO model file (MANO_RIGHT.pkl / MANO_LEFT.pkl come from "
             "https://mano.is.tue.mpg.de)"
         )
+    side = _resolve_side(path, side)
+    raw = _read_model_dict(path)
+    template, shape_dirs, pose_dirs, regressor, weights, components, hands_mean = (
+        _model_arrays(raw, path))
+    faces = _model_topology(raw, path)
+    if fix_left_shapedirs and side == "left":
+        shape_dirs = shape_dirs.copy()
+        shape_dirs[:, 0, :] *= -1.0
+    return ManoData(
+        path=path,
+        side=side,
+        template_vertices=template,
+        shape_dirs=shape_dirs,
+        pose_dirs=pose_dirs,
+        joint_regressor=regressor,
+        skinning_weights=weights,
+        faces=faces,
+        hands_components=components,
+        hands_mean=hands_mean,
+    )
+
+
+def _resolve_side(path: Path, side: str | None) -> str:
+    """The hand side: ``side``, or the one the file name says (they must agree)."""
     named_side = _side_from_name(path)
     if side is None:
         if named_side is None:
@@ -327,6 +351,11 @@ def load_mano_pkl(
     if named_side is not None and named_side != side:
         raise ValueError(f"{path}: side={side!r} contradicts the file name ({named_side} hand)")
 
+    return side
+
+
+def _read_model_dict(path: Path) -> dict:
+    """The unpickled dict of a MANO file, its required keys and blend-skinning style checked."""
     raw = _unpickle(path)
     if not isinstance(raw, dict):
         raise ValueError(
@@ -344,6 +373,12 @@ def load_mano_pkl(
                 f"{path}: {key}={value!r} is not supported (MANO uses {key}={expected!r})"
             )
 
+    return raw
+
+
+def _model_arrays(raw: dict, path: Path) -> tuple[np.ndarray, ...]:
+    """(template [V, 3], shapedirs [V, 3, S], posedirs [V, 3, 135], J_regressor [16, V],
+    weights [V, 16], hands_components [45, 45], hands_mean [45]) as float64 arrays."""
     num_v = NUM_MANO_VERTICES
     template = _float_array(raw, "v_template", (num_v, 3), path, f"[{num_v}, 3]")
     shape_dirs = _float_array(raw, "shapedirs", (num_v, 3, None), path, f"[{num_v}, 3, S]")
@@ -357,6 +392,12 @@ def load_mano_pkl(
     if shape_dirs.shape[-1] < 1:
         raise ValueError(f"{path}: key 'shapedirs' has no shape directions")
 
+    return template, shape_dirs, pose_dirs, regressor, weights, components, hands_mean
+
+
+def _model_topology(raw: dict, path: Path) -> np.ndarray:
+    """The faces [F, 3] (int64), after checking them and that the kinematic tree is MANO's."""
+    num_v = NUM_MANO_VERTICES
     faces = _to_array(raw["f"], path, "f")
     if faces.ndim != 2 or faces.shape[1] != 3 or faces.shape[0] < 1:
         raise ValueError(f"{path}: key 'f' must have shape [F, 3], got {faces.shape}")
@@ -375,18 +416,4 @@ def load_mano_pkl(
             f"expected {list(PARENTS)})"
         )
 
-    if fix_left_shapedirs and side == "left":
-        shape_dirs = shape_dirs.copy()
-        shape_dirs[:, 0, :] *= -1.0
-    return ManoData(
-        path=path,
-        side=side,
-        template_vertices=template,
-        shape_dirs=shape_dirs,
-        pose_dirs=pose_dirs,
-        joint_regressor=regressor,
-        skinning_weights=weights,
-        faces=faces.astype(np.int64),
-        hands_components=components,
-        hands_mean=hands_mean,
-    )
+    return faces.astype(np.int64)
