@@ -81,3 +81,21 @@ def test_imports_flow_one_way(path):
     wrong = [f"line {line}: {target}" for line, target in _imports(path)
              if _layer(target) not in (None, own) and _layer(target) not in ALLOWED[own]]
     assert not wrong, f"{own} may import only {sorted(ALLOWED[own])}; found " + "; ".join(wrong)
+
+
+MAX_FILE_LINES = 650
+"""A module longer than this holds two concepts (STYLE.md: split it by stage or responsibility)."""
+
+MAX_FUNCTION_LINES = 90
+"""A function longer than this wants named steps (docstring included)."""
+
+
+@pytest.mark.parametrize("path", _modules(), ids=lambda p: str(p.relative_to(PACKAGE)))
+def test_modules_and_functions_stay_small(path):
+    text = path.read_text()
+    assert text.count("\n") <= MAX_FILE_LINES, f"{path.name}: {text.count(chr(10))} lines"
+    long = [f"{node.name} ({node.end_lineno - node.lineno + 1} lines)"
+            for node in ast.walk(ast.parse(text))
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+            and node.end_lineno - node.lineno + 1 > MAX_FUNCTION_LINES]
+    assert not long, f"{path.name}: " + ", ".join(long)
