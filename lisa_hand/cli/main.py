@@ -13,6 +13,7 @@ from . import (
     demo,
     evaluate,
     fit_images,
+    fit_photo,
     fit_points,
     mesh,
     metrics,
@@ -41,8 +42,8 @@ def _root() -> None:
 
 
 # Each verb lives in its own module with a ``register(app)`` function.
-for _module in (demo, synth, train, fit_points, fit_images, mesh, render, animate, blend,
-                metrics, evaluate):
+for _module in (demo, synth, train, fit_points, fit_images, fit_photo, mesh, render, animate,
+                blend, metrics, evaluate):
     _module.register(app)
 
 

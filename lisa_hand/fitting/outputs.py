@@ -1,13 +1,25 @@
-"""What a fit writes: ``params.json``, ``mesh.ply`` and ``metrics.json``, all or nothing.
+"""What a fit writes: ``params.json``, ``mesh.ply``, ``keypoints.json`` and ``metrics.json``,
+all or nothing.
 
-Shared by the fitting commands (``lisa fit-points`` and ``lisa fit-images``):
+Shared by the fitting commands (``lisa fit-points``, ``lisa fit-images`` and, with more files,
+``lisa fit-photo``: :mod:`lisa_hand.fitting.photo.outputs`):
 
 * :func:`check_output_folder` fails before a long fit when ``--out`` cannot be written, or
   holds files that a fit does not write;
 * :func:`read_ground_truth` reads a ``--gt`` mesh or point set (errors name the file) and
   :func:`ground_truth_metrics` gives the paper's four distances (V2V and V2S, both ways, mm);
 * :func:`write_fit_outputs` writes the files into a hidden folder beside ``out_dir`` and swaps it
-  in as a whole once all exist.
+  in as a whole once all exist (:func:`write_folder`: the same for any set of files);
+* :func:`hand_keypoints_3d` gives the fitted hand's 21 keypoints in 3D, which every fit writes
+  to ``keypoints.json`` (:func:`keypoints_3d_record`) so that nobody has to rebuild them from the
+  pose.
+
+``keypoints.json`` of ``lisa fit-points`` and ``lisa fit-images`` (one JSON object):
+``"names"`` [21] the keypoint names in OpenPose order (:data:`lisa_hand.skeleton.KEYPOINT_NAMES`),
+``"keypoints_3d"`` [21, 3] metres, ``"frame"`` ``"world"`` (the input's frame: the point cloud's,
+or that of ``cameras.json``), ``"units"`` ``"m"``, ``"side"``, and ``"note"``, a sentence saying
+so. (It is not the 2D ``keypoints.json`` of a frame folder, :mod:`lisa_hand.data.keypoints`,
+which has ``"views"``.)
 
 A reused ``--out`` is replaced as a whole: after a fit it holds exactly that fit's files (a
 ``metrics.json`` of an earlier fit with ``--gt`` does not survive a fit without it). Like
@@ -25,11 +37,13 @@ import secrets
 import shutil
 import stat
 import tempfile
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 from ..data.units import UNIT_CHOICES, decide_length_unit
 from ..geometry.meshing import Mesh
@@ -44,11 +58,19 @@ __all__ = [
     "read_ground_truth",
     "ground_truth_metrics",
     "json_safe",
+    "fit_file",
+    "hand_keypoints_3d",
+    "keypoints_3d_record",
+    "write_folder",
     "write_fit_outputs",
 ]
 
-FIT_FILES = ("params.json", "mesh.ply", "metrics.json")
+FIT_FILES = ("params.json", "mesh.ply", "keypoints.json", "metrics.json")
 """The files a fit writes into its output folder (``metrics.json`` only with metrics)."""
+
+Allowed = Callable[[Path], bool]
+"""Which entries a fit's output folder may hold: called with each entry's path (a file or a
+folder) -> whether the fit writes it (and may replace it)."""
 
 
 @dataclass
@@ -67,27 +89,37 @@ class GroundTruth:
     path: Path
 
 
-def check_output_folder(out: str | os.PathLike) -> Path:
+def fit_file(names: Sequence[str] = FIT_FILES) -> Allowed:
+    """The :data:`Allowed` rule of a fit that writes the files ``names`` (no folders)."""
+    names = frozenset(names)
+    return lambda path: path.name in names and path.is_file() and not path.is_symlink()
+
+
+def check_output_folder(out: str | os.PathLike, allowed: Allowed | None = None,
+                        described: str | None = None) -> Path:
     """Fail before a (long) fit when ``out`` cannot become the fit's folder. Creates nothing.
 
+    allowed: which entries a previous fit of this kind leaves (default: the files
+    :data:`FIT_FILES`); described: how the error message names them (default: that list).
     Raises NotADirectoryError when ``out`` (or an ancestor) is a file, PermissionError when the
     folder or its nearest existing ancestor is not writable, and FileExistsError when ``out``
-    holds anything but :data:`FIT_FILES` (a fit replaces the folder as a whole and never
-    deletes what it did not write).
+    holds anything else (a fit replaces the folder as a whole and never deletes what it did
+    not write).
     """
+    allowed = fit_file() if allowed is None else allowed
+    described = ", ".join(FIT_FILES) if described is None else described
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"{out}: --out must be a folder, and this is a file")
     check_output_dir(out)
     if out.is_dir():
-        foreign = sorted(p.name for p in out.iterdir() if p.name not in FIT_FILES
-                         or not p.is_file())
+        foreign = sorted(p.name for p in out.iterdir() if not allowed(p))
         if foreign:
             shown = ", ".join(foreign[:5]) + (", ..." if len(foreign) > 5 else "")
             raise FileExistsError(
                 f"{out}: output folder holds files a fit does not write ({shown}); a fit "
                 f"replaces the folder as a whole, so choose a new or empty folder (or one "
-                f"holding only a previous fit's {', '.join(FIT_FILES)})")
+                f"holding only a previous fit's {described})")
     return out
 
 
@@ -194,13 +226,13 @@ def _can_swap(target: Path) -> bool:
     return not (target == cwd or target in cwd.parents or os.path.ismount(target))
 
 
-def _swap_in(staging: Path, target: Path) -> None:
+def _swap_in(staging: Path, target: Path, allowed: Allowed) -> None:
     """Make ``staging`` the folder ``target``: two renames, the previous folder removed after.
 
     At every moment ``target`` is the previous folder or the new one, except between the two
     renames (microseconds; a kill there leaves both hidden folders, which the next fit
-    removes). Where ``target`` cannot be renamed away, the files are moved in one by one and
-    the previous fit's other files removed.
+    removes). Where ``target`` cannot be renamed away, the entries are moved in one by one and
+    the previous fit's other entries (those ``allowed`` accepts) removed.
     """
     if not target.exists():
         os.rename(staging, target)
@@ -215,35 +247,97 @@ def _swap_in(staging: Path, target: Path) -> None:
             os.rename(staging, target)
             shutil.rmtree(old, ignore_errors=True)
             return
-    names = [file.name for file in staging.iterdir()]
+    names = [entry.name for entry in staging.iterdir()]
     for name in names:
+        if (target / name).is_dir() and not (target / name).is_symlink():
+            shutil.rmtree(target / name)  # a previous fit's folder (allowed: checked before)
         os.replace(staging / name, target / name)
-    for name in FIT_FILES:
-        if name not in names and (target / name).is_file():
-            (target / name).unlink()
+    for entry in list(target.iterdir()):
+        if entry.name not in names and allowed(entry):
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
 
 
-def write_fit_outputs(
-    out_dir: str | os.PathLike,
-    params: HandParams,
-    mesh: Mesh,
-    metrics: dict[str, Any] | None = None,
-) -> list[Path]:
-    """Write ``params.json``, ``mesh.ply`` and (when ``metrics`` is given) ``metrics.json`` as
-    the folder ``out_dir`` (created), all or nothing.
+def hand_keypoints_3d(params: HandParams, template: Any = None) -> np.ndarray:
+    """The fitted hand's 21 keypoints in 3D (OpenPose order), in the frame of its pose.
 
-    The files go into a hidden staging folder beside ``out_dir`` first, which then replaces
-    ``out_dir`` as a whole (two renames): the folder holds this fit's files and nothing
-    else (a previous fit's ``metrics.json`` does not survive). ``out_dir`` must be new, empty or
-    hold only :data:`FIT_FILES` (:func:`check_output_folder`). Stale staging folders of killed
-    fits into ``out_dir`` are removed first (:func:`remove_stale_staging`).
-    -> the written paths, in that order.
+    The 16 joints are the forward kinematics of ``params.rest_joints`` (LISA's skeleton) in
+    ``params.pose`` and ``params.translation``; the five fingertips are the mesh template's
+    fingertip vertices (shaped by ``params.betas``, zeros when None), moved with their distal
+    joint onto this skeleton and skinned with the template's weights. For a hand fitted on the
+    template's skeleton (``rest_joints == template.rest_joints(betas)``, the image fit) these
+    are exactly the keypoints the fit projected. A left hand's are the mirror image of those
+    of its mirrored right hand (as meshing and rendering treat it).
+
+    template: the mesh template (default: :func:`lisa_hand.handmodel.template.load_template`).
+    -> [21, 3] float64 metres.
     """
-    from ..data.meshio import save_mesh
-    from ..skeleton.params import write_params
-    from ..utils.io import write_json
+    from ..skeleton import (
+        FINGER_JOINTS,
+        FINGER_NAMES,
+        forward_kinematics,
+        joints_to_keypoints,
+        linear_blend_skinning,
+        mirror_points,
+    )
+    from .sides import mirror_hand
 
-    out_dir = check_output_folder(out_dir)
+    if template is None:
+        from ..handmodel.template import load_template
+
+        template = load_template()
+    template = template.to(device=torch.device("cpu"), dtype=torch.float64)
+    hand = mirror_hand(params) if params.side == "left" else params
+    betas = torch.zeros(int(template.num_betas), dtype=torch.float64)
+    if hand.betas is not None and hand.betas.numel() == betas.numel():
+        betas = hand.betas.double()
+    tip_ids = list(template.fingertip_ids)
+    distal = [FINGER_JOINTS[name][2] for name in FINGER_NAMES]
+    rest_joints = hand.rest_joints.double()
+    template_joints = template.rest_joints(betas[None])[0]
+    tips_rest = (template.rest_vertices(betas[None])[0][tip_ids]
+                 + rest_joints[distal] - template_joints[distal])
+    kinematics = forward_kinematics(hand.pose.double()[None], rest_joints[None],
+                                    hand.translation.double()[None])
+    tips = linear_blend_skinning(tips_rest[None], template.weights[tip_ids],
+                                 kinematics.transforms)[0]
+    keypoints = joints_to_keypoints(kinematics.joints[0], tips)
+    if params.side == "left":
+        keypoints = mirror_points(keypoints)
+    return keypoints.numpy()
+
+
+def keypoints_3d_record(params: HandParams, frame: str = "world",
+                        note: str | None = None) -> dict[str, Any]:
+    """What ``keypoints.json`` of ``lisa fit-points`` / ``lisa fit-images`` holds (see the module
+    docstring): the names, :func:`hand_keypoints_3d` [21, 3] metres, the frame, units, side
+    and a note (default: a sentence naming the frame)."""
+    from ..skeleton import KEYPOINT_NAMES
+
+    if note is None:
+        note = ("keypoints_3d: the fitted hand's 21 keypoints (OpenPose order, metres) in the "
+                "world frame of the input: the point cloud's, or that of cameras.json")
+    return {"names": list(KEYPOINT_NAMES), "side": params.side, "frame": frame, "units": "m",
+            "keypoints_3d": hand_keypoints_3d(params).tolist(), "note": note}
+
+
+def write_folder(out_dir: str | os.PathLike, write: Callable[[Path], list[Path]],
+                 allowed: Allowed | None = None, described: str | None = None) -> list[Path]:
+    """Make the folder ``out_dir`` (created) hold what ``write`` writes, all or nothing.
+
+    write: called with a hidden staging folder beside ``out_dir``; writes the files (and
+    folders) there -> their paths. The staging folder then replaces ``out_dir`` as a whole (two
+    renames): the folder holds these files and nothing else. An exception in ``write`` leaves
+    ``out_dir`` as it was. allowed, described: what a previous fit of this kind leaves
+    (:func:`check_output_folder`; default :data:`FIT_FILES`): ``out_dir`` must be new, empty or
+    hold only that. Stale staging folders of killed fits into ``out_dir`` are removed first
+    (:func:`remove_stale_staging`).
+    -> the written paths as they are after the move (under ``out_dir``), in ``write``'s order.
+    """
+    allowed = fit_file() if allowed is None else allowed
+    out_dir = check_output_folder(out_dir, allowed, described)
     target = Path(os.path.abspath(out_dir))
     if target.is_symlink():
         target = target.resolve()
@@ -257,11 +351,41 @@ def write_fit_outputs(
         os.umask(umask)
         mode = stat.S_IMODE(target.stat().st_mode) if target.is_dir() else 0o777 & ~umask
         os.chmod(staging, mode)
-        files = [write_params(staging / "params.json", params),
-                 save_mesh(staging / "mesh.ply", mesh)]
-        if metrics is not None:
-            files.append(write_json(staging / "metrics.json", json_safe(metrics)))
-        _swap_in(staging, target)
+        files = write(staging)
+        _swap_in(staging, target, allowed)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-    return [out_dir / file.name for file in files]
+    return [out_dir / Path(file).relative_to(staging) for file in files]
+
+
+def write_fit_outputs(
+    out_dir: str | os.PathLike,
+    params: HandParams,
+    mesh: Mesh,
+    metrics: dict[str, Any] | None = None,
+    keypoints: dict[str, Any] | None = None,
+) -> list[Path]:
+    """Write ``params.json``, ``mesh.ply``, ``keypoints.json`` and (when ``metrics`` is given)
+    ``metrics.json`` as the folder ``out_dir`` (created), all or nothing (:func:`write_folder`).
+
+    keypoints: what ``keypoints.json`` holds (default: :func:`keypoints_3d_record`, the fitted
+    hand's 3D keypoints in the world frame). The folder holds this fit's files and nothing
+    else (a previous fit's ``metrics.json`` does not survive). ``out_dir`` must be new, empty or
+    hold only :data:`FIT_FILES` (:func:`check_output_folder`).
+    -> the written paths, in that order.
+    """
+    from ..data.meshio import save_mesh
+    from ..skeleton.params import write_params
+    from ..utils.io import write_json
+
+    record = keypoints_3d_record(params) if keypoints is None else keypoints
+
+    def write(staging: Path) -> list[Path]:
+        files = [write_params(staging / "params.json", params),
+                 save_mesh(staging / "mesh.ply", mesh),
+                 write_json(staging / "keypoints.json", json_safe(record))]
+        if metrics is not None:
+            files.append(write_json(staging / "metrics.json", json_safe(metrics)))
+        return files
+
+    return write_folder(out_dir, write)

@@ -14,6 +14,7 @@ from .image import (
     psnr,
     ssim,
 )
+from .keypoints import mpjpe, pa_mpjpe, procrustes_align
 from .mesh import (
     MeshComparison,
     MeshData,
@@ -36,4 +37,7 @@ __all__ = [
     "lpips_unavailable_reason",
     "ImageMetrics",
     "image_metrics",
+    "mpjpe",
+    "pa_mpjpe",
+    "procrustes_align",
 ]

@@ -78,6 +78,14 @@ def test_writes_params_mesh_and_metrics(lisa, files, tmp_path, capsys):
                 "v2s_scan_to_recon_mm"):
         assert 0.0 < metrics[key] < 20.0
     assert metrics["v2s_recon_to_scan_mm"] <= metrics["v2v_recon_to_scan_mm"]
+    # The surface guard: its verdict (at guard_resolution) and the written mesh's figures.
+    guard = metrics["guard"]
+    assert guard["passed"] and guard["fallback"] == "none" and guard["pieces"] >= 1
+    assert abs(guard["area_ratio"] - 1.0) <= 0.10
+    surface = metrics["surface"]
+    assert surface["resolution"] == 32 and surface["pieces"] >= 1
+    assert abs(surface["area_ratio"] - 1.0) <= 0.10
+    assert params.extra["guard"]["attempts"]["color"]["passed"]
 
 
 def test_one_view_without_keypoints_or_psnr(lisa, files, tmp_path, capsys):

@@ -55,7 +55,8 @@ def test_writes_params_mesh_and_metrics(lisa, files, capsys):
     assert lisa(["fit-points", str(root / "scan.npz"), "--out", str(out), "--model",
                  str(root / "tiny.pt"), "--gt", str(root / "truth.ply"), *FAST_ARGS]) == 0
     printed = capsys.readouterr().out
-    assert sorted(p.name for p in out.iterdir()) == ["mesh.ply", "metrics.json", "params.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "metrics.json",
+                                                     "params.json"]
     assert f"fitted {len(points)} points" in printed and "wrote" in printed
     params = read_params(out / "params.json")
     assert params.side == "right" and params.betas is not None and params.betas.shape == (10,)
@@ -82,7 +83,7 @@ def test_millimetre_cloud_is_converted(lisa, files, capsys):
                  str(root / "tiny.pt"), *FAST_ARGS]) == 0
     printed = capsys.readouterr().out
     assert "read as millimetres" in printed
-    assert sorted(p.name for p in out.iterdir()) == ["mesh.ply", "params.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "params.json"]
     translation = read_params(out / "params.json").translation.numpy()
     assert np.linalg.norm(translation - points.mean(0)) < 0.1  # metres, not millimetres
 

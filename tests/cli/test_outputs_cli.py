@@ -119,12 +119,13 @@ def test_a_reused_fit_folder_is_replaced_as_a_whole(fit_files, capsys):
     code, _, err = lisa(["fit-points", str(root / "scan.npz"), "--out", str(out), *model,
                          "--gt", str(root / "truth.ply"), *FAST_ARGS], capsys)
     assert code == 0, err
-    assert sorted(p.name for p in out.iterdir()) == ["mesh.ply", "metrics.json", "params.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "metrics.json",
+                                                     "params.json"]
     # The same folder, another cloud, no --gt: the first fit's metrics.json does not survive.
     code, _, err = lisa(["fit-points", str(root / "scan_cm.npy"), "--out", str(out), *model,
                          *FAST_ARGS], capsys)
     assert code == 0, err
-    assert sorted(p.name for p in out.iterdir()) == ["mesh.ply", "params.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "params.json"]
     assert read_params(out / "params.json").extra["input"]["path"].endswith("scan_cm.npy")
     assert not [p for p in root.iterdir() if p.name.startswith(".reused.")]
     # A folder holding files a fit does not write is refused before the fit, and kept.
@@ -133,7 +134,8 @@ def test_a_reused_fit_folder_is_replaced_as_a_whole(fit_files, capsys):
         lisa(["fit-points", str(root / "scan.npz"), "--out", str(out), *model, *FAST_ARGS],
              capsys),
         f"{out}: output folder holds files a fit does not write (notes.txt)")
-    assert sorted(p.name for p in out.iterdir()) == ["mesh.ply", "notes.txt", "params.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "notes.txt",
+                                                     "params.json"]
 
 
 def test_a_hand_in_centimetres_is_fitted_at_its_size(fit_files, capsys):

@@ -63,10 +63,10 @@ def test_demo_fits_measures_renders_and_reports(model_file, tmp_path):
     table = (out / "results.md").read_text()
     assert table.count("\n| LISA, ") == 3 and table.strip() in "\n".join(lines)
 
-    # Each fit wrote its files (all three, metrics against the true mesh).
+    # Each fit wrote its files (all four, metrics against the true mesh).
     for folder in ("fit_points", "fit_1view", "fit_4views"):
         assert sorted(p.name for p in (out / folder).iterdir()) == [
-            "mesh.ply", "metrics.json", "params.json"], folder
+            "keypoints.json", "mesh.ply", "metrics.json", "params.json"], folder
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no staging folder left
 
     # The turntable of the 4-view fit: one frame per orbit view.

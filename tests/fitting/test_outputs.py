@@ -30,12 +30,13 @@ MESH = Mesh(vertices=np.eye(3), faces=np.array([[0, 1, 2]]))
 def test_a_reused_folder_is_replaced_as_a_whole(tmp_path):
     out = tmp_path / "fit"
     write_fit_outputs(out, hand(1.0), MESH, {"v2v_recon_to_scan_mm": 3.0})
-    assert sorted(p.name for p in out.iterdir()) == ["mesh.ply", "metrics.json", "params.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "metrics.json",
+                                                     "params.json"]
     out.chmod(0o750)
     # A second fit without metrics: the first fit's metrics.json (of another hand) is gone.
     written = write_fit_outputs(out, hand(2.0), MESH)
-    assert [p.name for p in written] == ["params.json", "mesh.ply"]
-    assert sorted(p.name for p in out.iterdir()) == ["mesh.ply", "params.json"]
+    assert [p.name for p in written] == ["params.json", "mesh.ply", "keypoints.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "params.json"]
     assert float(read_params(out / "params.json").translation[0]) == 2.0
     assert stat.S_IMODE(out.stat().st_mode) == 0o750  # the folder keeps its permissions
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fit"]  # no staging or old folder
@@ -53,7 +54,7 @@ def test_a_folder_with_other_files_is_refused_before_the_work(tmp_path):
     with pytest.raises(FileExistsError, match="notes.txt"):
         write_fit_outputs(out, hand(), MESH)
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt", "params.json", "renders"]
-    assert set(FIT_FILES) == {"params.json", "mesh.ply", "metrics.json"}
+    assert set(FIT_FILES) == {"params.json", "mesh.ply", "keypoints.json", "metrics.json"}
     check_output_folder(tmp_path / "new" / "fit")  # creates nothing
     assert not (tmp_path / "new").exists()
 
@@ -79,7 +80,7 @@ def test_the_working_folder_is_refilled_file_by_file(tmp_path, monkeypatch):
     write_fit_outputs(out, hand(1.0), MESH, {"psnr_db": 20.0})
     monkeypatch.chdir(out)  # it cannot be renamed away: the files are replaced one by one
     write_fit_outputs(".", hand(2.0), MESH)
-    assert sorted(p.name for p in out.iterdir()) == ["mesh.ply", "params.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "params.json"]
     assert float(read_params(out / "params.json").translation[0]) == 2.0
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fit"]
 
@@ -135,7 +136,8 @@ def test_a_kill_during_the_write_keeps_the_previous_fit_and_the_next_fit_cleans_
         writer.stdout.close()
     staging = [p.name for p in tmp_path.iterdir() if p.name != "fit"]
     assert len(staging) == 1 and staging[0].startswith(f".fit.staging-{writer.pid}-")
-    assert sorted(p.name for p in out.iterdir()) == ["mesh.ply", "metrics.json", "params.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "metrics.json",
+                                                     "params.json"]
     assert float(read_params(out / "params.json").translation[0]) == 1.0  # intact
     write_fit_outputs(out, hand(2.0), MESH)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fit"]

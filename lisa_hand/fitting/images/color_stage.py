@@ -1,6 +1,7 @@
 """The colour stage of the image fit (:func:`fit_color`; paper Section 4.3: 5k iterations):
-pose, translation, template betas, LISA's shape code ``beta+`` and colour code ``gamma`` by
-volume rendering.
+pose, translation, LISA's shape code ``beta+`` and colour code ``gamma`` (and the template betas
+when ``color_betas_lr > 0``; by default the skeleton stays the keypoint stage's) by volume
+rendering.
 
 Each iteration draws ``num_rays`` camera rays (:class:`RayPool`), ``mask_fraction`` of them
 through the mask and a band of ``band_px`` pixels around it (a view without a mask: the box
@@ -10,6 +11,7 @@ around the projected template), renders them with VolSDF
 (:func:`lisa_hand.render.renderer.calibrate`) and minimises
 
     L = rgb_weight L_col + latent_weight L_reg + joints_weight L_joints' + mask_weight L_mask
+        + shape_prior_weight L_shape
 
 * ``L_col``: L1 colour loss of the rays (Eq. 13) against
   :func:`lisa_hand.fitting.images.views.fit_target` (black outside a mask).
@@ -18,6 +20,11 @@ around the projected template), renders them with VolSDF
   silhouette terms: the geometry is now LISA's).
 * ``L_mask`` (NOT in the paper; ``mask_weight = 0`` turns it off): binary cross-entropy between
   the rays' opacity and the mask.
+* ``L_shape = 0.5 |c|^2`` (NOT in the paper): the shape code's coefficients ``c`` in the
+  principal subspace of the training subjects' codes (:class:`ShapeCode`,
+  ``shape_fit="space"``, the default), in standard deviations, clamped to the training codes'
+  range along each direction. The paper's free code (``shape_fit="free"``) left the training codes'
+  span on real photos and broke the surface; ``shape_fit="fixed"`` keeps the start's code.
 
 The network's weights stay fixed; the codes start from the ``start`` hand's (usually the mean
 of the training subjects' codes, :func:`with_mean_codes`).
@@ -43,10 +50,11 @@ from ...skeleton.params import HandParams
 from ..priors import prior_mean_fingers
 from ..stages import HistoryRecord, StageReport, decay_schedule, progress_bar, template_on
 from .config import FitImagesConfig
+from .shape_prior import HandSizePrior, ShapeSpace
 from .terms import ViewData, hand_priors, keypoint_l1, keypoint_px
 from .views import ImageView, background_colour, check_views, fit_target
 
-__all__ = ["RayPool", "template_boxes", "with_mean_codes", "fit_color"]
+__all__ = ["RayPool", "ShapeCode", "template_boxes", "with_mean_codes", "fit_color"]
 
 Box = tuple[float, float, float, float]
 
@@ -188,23 +196,71 @@ def _check_start(model: Any, start: HandParams) -> None:
                              f"{mean.numel()}: start from with_mean_codes(hand, model)")
 
 
+class ShapeCode:
+    """The shape code ``beta+`` as the colour stage fits it (``config.shape_fit``).
+
+    "space": ``space.code(coefficients, offset)`` (:class:`ShapeSpace` of the model's training
+    codes, at most ``config.shape_dims`` directions); the coefficients (standard deviations)
+    start at the start code's and are clamped to the training codes' range, widened by
+    ``config.shape_range_margin``, after every step; the offset (the start code's part outside
+    the subspace, 0 for the mean code) is fixed.
+    "free": every dimension (the paper). "fixed": the start code.
+    """
+
+    def __init__(self, model: Any, start_code: torch.Tensor, config: FitImagesConfig,
+                 device: torch.device) -> None:
+        self.mode, self.margin = config.shape_fit, config.shape_range_margin
+        start_code = start_code.to(device).float()
+        self.space: ShapeSpace | None = None
+        if self.mode == "space":
+            self.space = ShapeSpace.from_codes(model.shape_codes, config.shape_dims).to(device)
+            coefficients, self.offset = self.space.split(start_code)
+            self.value = self.space.clamp(coefficients, self.margin).requires_grad_(True)
+        else:
+            self.value = start_code.clone().requires_grad_(self.mode == "free")
+
+    def parameters(self) -> list[torch.Tensor]:
+        return [self.value] if self.mode != "fixed" else []
+
+    def code(self) -> torch.Tensor:
+        """[D] the current shape code (differentiable)."""
+        if self.space is None:
+            return self.value
+        return self.space.code(self.value, self.offset)
+
+    def prior(self) -> torch.Tensor:
+        """``0.5 |c|^2`` of the coefficients ("space"; 0 otherwise)."""
+        if self.space is None:
+            return self.value.new_zeros(())
+        return 0.5 * (self.value**2).sum()
+
+    @torch.no_grad()
+    def project_(self) -> None:
+        """Clamp the coefficients to the training codes' range ("space")."""
+        if self.space is not None:
+            self.value.copy_(self.space.clamp(self.value, self.margin))
+
+
 def _unknowns(start: HandParams, device: torch.device, config: FitImagesConfig
               ) -> dict[str, torch.Tensor]:
-    """The stage's unknowns on ``device``, with gradients (the betas only with a rate)."""
+    """The stage's unknowns on ``device`` but the shape code, with gradients (the betas only
+    with a rate)."""
     def free(value: torch.Tensor, flag: bool = True) -> torch.Tensor:
         return value.to(device).float().clone().requires_grad_(flag)
 
     return {"pose": free(start.pose), "translation": free(start.translation),
             "betas": free(start.betas, config.color_betas_lr > 0),
-            "shape_code": free(start.shape_code), "color_code": free(start.color_code)}
+            "color_code": free(start.color_code)}
 
 
-def _optimizer(unknowns: dict[str, torch.Tensor], config: FitImagesConfig
+def _optimizer(unknowns: dict[str, torch.Tensor], shape: ShapeCode, config: FitImagesConfig
                ) -> torch.optim.Optimizer:
     groups = [{"params": [unknowns["pose"]], "lr": config.color_pose_lr},
               {"params": [unknowns["translation"]], "lr": config.color_translation_lr},
-              {"params": [unknowns["shape_code"], unknowns["color_code"]],
-               "lr": config.latent_lr}]
+              {"params": [unknowns["color_code"]], "lr": config.latent_lr}]
+    if shape.parameters():
+        rate = config.shape_lr if shape.mode == "space" else config.latent_lr
+        groups.append({"params": shape.parameters(), "lr": rate})
     if config.color_betas_lr > 0:
         groups.append({"params": [unknowns["betas"]], "lr": config.color_betas_lr})
     return torch.optim.Adam(groups)
@@ -222,6 +278,8 @@ class _Renderer:
         self.render_generator = torch.Generator(device=device).manual_seed(config.seed + 2)
         self.data = ViewData(views, config.coverage_pixels, self.generator)
         self.mean_fingers = prior_mean_fingers(config.prior_pose, device)
+        self.size_prior = HandSizePrior.from_template(template).for_keypoints(
+            self.data.num_visible)
         self.pool = RayPool(views, config.band_px, template_boxes(template, views, start,
                                                                   config.no_mask_margin))
         self.density = LaplaceDensity(beta_init=float(model.beta), beta_min=0.0).to(device)
@@ -231,7 +289,8 @@ class _Renderer:
 
     def terms(self, unknowns: dict[str, torch.Tensor]
               ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
-        """-> ({"col", "reg", "joints", "mask"} scalars, keypoint pixels [1, C, 21, 2])."""
+        """unknowns: pose, translation, betas, shape_code, color_code -> ({"col", "reg",
+        "joints", "mask"} scalars, keypoint pixels [1, C, 21, 2])."""
         config, field_model = self.config, self.model.field
         pose, translation, betas = (unknowns[k] for k in ("pose", "translation", "betas"))
         shape_code, color_code = unknowns["shape_code"], unknowns["color_code"]
@@ -252,7 +311,8 @@ class _Renderer:
         posed = self.template.forward(pose[None], betas[None], translation[None])
         pixels, _ = self.data.project(posed.keypoints)
         terms["joints"] = (keypoint_l1(pixels, self.data)
-                           + hand_priors(pose[None], betas[None], config, self.mean_fingers))[0]
+                           + hand_priors(pose[None], betas[None], config, self.mean_fingers,
+                                         posed.joints, self.size_prior))[0]
         has_mask = rays["has_mask"]
         if config.mask_weight > 0 and bool(has_mask.any()):
             opacity = out.opacity[has_mask].clamp(1e-5, 1.0 - 1e-5)
@@ -279,9 +339,10 @@ def fit_color(
         model, e.g. ``with_mean_codes(keypoint_hand, model)``).
     -> (hand, report): the fitted right hand (rest_joints ``template.rest_joints(betas)``,
     ``model=str(model.source)``) and the :class:`StageReport` ("color"): history records with
-    "energy" (the weighted total ``L``), its unweighted terms "col", "reg", "joints", "mask"
-    and "kp_px" (mean keypoint error, pixels) per iteration, the final keypoint error and the
-    last iteration's total loss (``loss``, ``energies == [loss]``; NaN without iterations).
+    "energy" (the weighted total ``L``), its unweighted terms "col", "reg", "joints", "mask",
+    "shape_prior" and "kp_px" (mean keypoint error, pixels) per iteration, the final keypoint
+    error and the last iteration's total loss (``loss``, ``energies == [loss]``; NaN without
+    iterations).
     """
     began = time.perf_counter()
     config = FitImagesConfig() if config is None else config
@@ -294,20 +355,24 @@ def fit_color(
     template = template_on(template, device)
     renderer = _Renderer(model, views, template, config, start)
     unknowns = _unknowns(start, device, config)
-    optimizer = _optimizer(unknowns, config)
+    shape = ShapeCode(model, start.shape_code, config, device)
+    optimizer = _optimizer(unknowns, shape, config)
     schedule = decay_schedule(optimizer, config.color_iters, config.final_lr_fraction)
     history: list[HistoryRecord] = []
     weights = {"col": config.rgb_weight, "reg": config.latent_weight,
-               "joints": config.joints_weight, "mask": config.mask_weight}
+               "joints": config.joints_weight, "mask": config.mask_weight,
+               "shape_prior": config.shape_prior_weight}
     bar = progress_bar(progress, config.color_iters, "colour")
     with _frozen(model.field):
         for iteration in range(config.color_iters):
             optimizer.zero_grad(set_to_none=True)
+            unknowns["shape_code"] = shape.code()
             terms, pixels = renderer.terms(unknowns)
-            total = (weights["col"] * terms["col"] + weights["reg"] * terms["reg"]
-                     + weights["joints"] * terms["joints"] + weights["mask"] * terms["mask"])
+            terms["shape_prior"] = shape.prior()
+            total = sum(weights[name] * terms[name] for name in weights)
             total.backward()
             optimizer.step()
+            shape.project_()
             schedule.step()
             record: HistoryRecord = {"stage": "color", "iteration": iteration,
                                      "energy": float(total.detach())}
@@ -320,6 +385,7 @@ def fit_color(
                 bar.set_postfix(col=f"{record['col']:.4f}")
     if bar is not None:
         bar.close()
+    unknowns["shape_code"] = shape.code()
     return _finish(model, template, renderer.data, unknowns, history, began)
 
 

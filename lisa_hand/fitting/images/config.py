@@ -14,7 +14,10 @@ from ...render import RenderConfig
 from ...utils.config import check_int_fields
 from ..priors import PRIOR_POSES
 
-__all__ = ["FitImagesConfig", "default_render"]
+__all__ = ["SHAPE_FITS", "FitImagesConfig", "default_render"]
+
+SHAPE_FITS = ("space", "free", "fixed")
+"""Values of :attr:`FitImagesConfig.shape_fit`."""
 
 
 def default_render() -> RenderConfig:
@@ -74,10 +77,34 @@ class FitImagesConfig:
     """Colour stage: Adam learning rate of the pose, radians."""
     color_translation_lr: float = 0.0005
     """Colour stage: Adam learning rate of the translation, metres."""
-    color_betas_lr: float = 0.01
-    """Colour stage: Adam learning rate of the betas (0 keeps the keypoint stage's)."""
+    color_betas_lr: float = 0.0
+    """Colour stage: Adam learning rate of the betas (0, the default: the skeleton stays the
+    keypoint stage's; the keypoints are its only evidence, and with the colour stage's small
+    keypoint weight Adam let it drift toward the priors; 0.01 before issue 13)."""
     latent_lr: float = 0.01
-    """Colour stage: Adam learning rate of the shape and colour codes."""
+    """Colour stage: Adam learning rate of the colour code (and of the shape code with
+    ``shape_fit="free"``)."""
+    shape_fit: str = "space"
+    """Colour stage: how the shape code is fitted. "space": the coefficients of the top
+    ``shape_dims`` principal directions of the model's training codes, in standard deviations,
+    clamped to the training codes' range along each direction (widened by
+    ``shape_range_margin``), with the Gaussian prior ``shape_prior_weight * 0.5 |c|^2``
+    (:class:`lisa_hand.fitting.images.shape_prior.ShapeSpace`); "free": every dimension (the
+    paper; on real photos it broke the surface into lumps and floaters); "fixed": kept at the
+    start (the mean code)."""
+    shape_dims: int = 20
+    """Colour stage, ``shape_fit="space"``: principal directions used (at most S - 1 for S
+    training subjects)."""
+    shape_range_margin: float = 0.0
+    """Colour stage, ``shape_fit="space"``: standard deviations added on both sides of the
+    training codes' range along each direction (0: never beyond the most extreme training
+    subject; the shipped model's first direction breaks into pieces at +3)."""
+    shape_lr: float = 0.05
+    """Colour stage, ``shape_fit="space"``: Adam learning rate of the coefficients (standard
+    deviations)."""
+    shape_prior_weight: float = 1e-3
+    """Colour stage, ``shape_fit="space"``: weight of ``0.5 |c|^2`` (the squared Mahalanobis
+    distance of the code to the training codes' mean, halved)."""
     final_lr_fraction: float = 0.1
     """Learning rates decay exponentially to this fraction over each stage."""
     silhouette_weight: float = 0.2
@@ -101,6 +128,14 @@ class FitImagesConfig:
     """Mean of the finger-pose prior: a name of :data:`lisa_hand.fitting.priors.PRIOR_POSES`."""
     betas_weight: float = 0.5
     """Weight of the mean squared template betas."""
+    size_weight: float = 0.05
+    """Weight of the hand-size prior ``(21 / n) ((size - mean) / std)^2`` (``n`` visible
+    keypoints over all views), the summed bone length of the template's skeleton against the
+    training subjects' (0.725 +- 0.045 m;
+    :class:`lisa_hand.fitting.images.shape_prior.HandSizePrior`), both stages. One view cannot
+    tell a large hand far away from a small one nearby: the prior and the betas' prior set its
+    depth. 0.05 = b / 42: the Gaussian prior beside the keypoints' Laplace likelihood of scale
+    b = 2 px."""
     rgb_weight: float = 1.0
     """Colour stage: weight of L_col (L1 over RGB per ray, Eq. 13)."""
     latent_weight: float = 1e-3
@@ -109,6 +144,24 @@ class FitImagesConfig:
     """Colour stage: weight of the keypoint loss (pixels) and its priors (the joint loss)."""
     mask_weight: float = 0.0
     """Colour stage: weight of the opacity/mask BCE (not in the paper; 0 turns it off)."""
+    guard: bool = True
+    """After the colour stage, mesh the hand (``guard_resolution``) and compare it with the
+    colour stage's start (:func:`lisa_hand.fitting.images.guard.surface_guard`); when it has
+    more pieces or its area changed by more than ``max_area_change``, shrink its change of pose
+    and shape (``guard_shrink``), then fit again with the shape code and the skeleton fixed
+    (pose and colour only), and if that fails too, keep the start's geometry. What happened is
+    in the result's ``guard`` and notes."""
+    guard_shrink: tuple[float, ...] = (0.5, 0.25)
+    """Fractions of the colour stage's change of pose, translation, shape code and skeleton
+    tried in order (colour kept; meshing only, no refit) when it fails the guard; () goes
+    straight to the pose-and-colour refit."""
+    guard_resolution: int = 128
+    """Marching-cubes samples a side of the guard's meshes: that of the written mesh
+    (``lisa fit-images --res``, default 128, about 1.7 mm voxels, ~2 s a mesh on one CPU
+    thread). Coarser grids miss floaters: one of 0.6 cm^2 at 128 was 0.007 cm^2 at 96 and
+    absent at 64."""
+    max_area_change: float = 0.10
+    """The guard's largest allowed relative change of the surface area."""
     num_threads: int | None = 1
     """CPU threads of torch during the fit (restored afterwards); None keeps torch's setting.
     The fit runs many small operations: on a busy 2-core machine one thread was 2x (colour
@@ -121,7 +174,9 @@ class FitImagesConfig:
     def __post_init__(self) -> None:
         check_int_fields(self, ("keypoint_iters", "color_iters", "band_px", "coverage_pixels",
                                 "coverage_vertices", "seed"), 0)
-        check_int_fields(self, ("num_rays", "rotation_pool", "restarts", "keep_restarts"), 1)
+        check_int_fields(self, ("num_rays", "rotation_pool", "restarts", "keep_restarts",
+                                "shape_dims"), 1)
+        check_int_fields(self, ("guard_resolution",), 8)
         for name in ("mask_fraction", "rigid_fraction", "finger_restart_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
@@ -131,14 +186,24 @@ class FitImagesConfig:
         if not 0.0 < self.final_lr_fraction <= 1.0:
             raise ValueError(f"final_lr_fraction must be in (0, 1], got "
                              f"{self.final_lr_fraction!r}")
+        shrink = self.guard_shrink
+        if not isinstance(shrink, tuple) or not all(
+                isinstance(value, (int, float)) and not isinstance(value, bool)
+                and 0.0 <= value < 1.0 for value in shrink):
+            raise ValueError(f"guard_shrink must be a tuple of fractions in [0, 1), got "
+                             f"{shrink!r}")
+        if self.shape_fit not in SHAPE_FITS:
+            raise ValueError(f"shape_fit must be one of {', '.join(SHAPE_FITS)}, got "
+                             f"{self.shape_fit!r}")
         for name in ("keypoint_pose_lr", "keypoint_translation_lr", "color_pose_lr",
-                     "color_translation_lr", "latent_lr"):
+                     "color_translation_lr", "latent_lr", "shape_lr"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
         for name in ("keypoint_betas_lr", "color_betas_lr", "no_mask_margin",
                      "restart_separation_deg", "finger_restart_px", "silhouette_weight",
                      "coverage_weight", "limit_weight", "pose_weight", "betas_weight",
-                     "rgb_weight", "latent_weight", "joints_weight", "mask_weight"):
+                     "size_weight", "rgb_weight", "latent_weight", "joints_weight", "mask_weight",
+                     "shape_prior_weight", "max_area_change", "shape_range_margin"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
         if not isinstance(self.render, RenderConfig):

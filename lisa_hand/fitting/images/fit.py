@@ -12,7 +12,18 @@ returns a :class:`lisa_hand.skeleton.params.HandParams` and its
    :func:`lisa_hand.fitting.images.keypoint_stage.fit_keypoints`): pose, translation and betas from
    the 2D keypoints and the masks, on the mesh template;
 2. colour stage (:func:`lisa_hand.fitting.images.color_stage.fit_color`): pose, betas, shape and
-   colour codes by volume rendering LISA (L_col, Eq. 13; L_reg, Eq. 16; the joint loss).
+   colour codes by volume rendering LISA (L_col, Eq. 13; L_reg, Eq. 16; the joint loss), the
+   shape code kept in the training subjects' shape space
+   (:class:`lisa_hand.fitting.images.shape_prior.ShapeSpace`);
+3. the surface guard (:mod:`lisa_hand.fitting.images.guard`, ``config.guard``): the colour
+   stage's hand and its start (the keypoint stage's pose and skeleton, the mean shape code) are
+   meshed at ``guard_resolution``; a result with floating pieces the start does not have, or an
+   area more than ``max_area_change`` away, is replaced by the first that passes of: the result
+   with its change of pose and shape shrunk to ``guard_shrink`` (50 %, 25 %; meshing only),
+   a second colour fit with the shape code and the skeleton fixed (pose and colour
+   only), the start's geometry with that fit's colour. The verdict is
+   :attr:`FitImagesResult.guard` and ``params.extra["guard"]``; a fallback is said in
+   :attr:`FitImagesResult.notes`.
 
 The input views and their fallbacks (no keypoints, no mask, keypoints outside the image) are
 described in :mod:`lisa_hand.fitting.images.views`; settings in
@@ -34,7 +45,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -47,6 +58,7 @@ from ..sides import mirror_hand
 from ..stages import HistoryRecord, StageReport, template_on
 from .color_stage import fit_color, with_mean_codes
 from .config import FitImagesConfig
+from .guard import GuardReport, guard_mesh, surface_guard
 from .keypoint_stage import fit_keypoints, keypoint_errors, mean_keypoint_error
 from .views import ImageView, check_views, mirror_view
 
@@ -65,9 +77,19 @@ class FitImagesResult:
         stage's; each names its ``"stage"``; keys in
         :class:`lisa_hand.fitting.stages.StageReport`; columns:
         :func:`lisa_hand.fitting.stages.history_columns`).
-    seconds: wall time of the whole fit; stage_seconds: {"keypoints", "color"}.
+    seconds: wall time of the whole fit; stage_seconds: {"keypoints", "color"} (the colour
+        stage's includes the guard and any fallback).
     keypoint_error_px: mean keypoint reprojection error after each stage ({"keypoints": over
         all visible keypoints, "color": the mean of the views' means}; NaN without keypoints).
+    guard: the surface guard's report on the returned hand
+        (:class:`lisa_hand.fitting.images.guard.GuardReport`), None when it did not run
+        (``color_iters == 0``: the geometry is the keypoint stage's; ``config.guard`` off).
+    guard_attempts: the guard's report on each hand it judged, in order ("color"; after a
+        failure "shrink_0.5", "shrink_0.25": the change of pose and shape shrunk; "fixed_shape": the
+        refit with the shape code and skeleton fixed).
+    notes: sentences for the user: a failed guard and the fallback used, the guard turned off.
+    start: the hand the colour stage started from, the guard's reference (the keypoint stage's
+        pose, translation and betas with the model's mean codes; ``side`` as ``params``).
     """
 
     params: HandParams
@@ -76,6 +98,10 @@ class FitImagesResult:
     seconds: float
     stage_seconds: dict[str, float]
     keypoint_error_px: dict[str, float]
+    guard: GuardReport | None = None
+    guard_attempts: dict[str, GuardReport] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    start: HandParams | None = None
 
 
 def _keypoint_hand(views: list[ImageView], config: FitImagesConfig, template: Any,
@@ -151,16 +177,120 @@ def fit_images(
         stage1 = time.perf_counter() - start_time
         reports = {"keypoints": report}
         hand = with_mean_codes(hand, model)
+        guarded = _Guarded(hand, start=hand)
         if config.color_iters > 0:
-            hand, reports["color"] = fit_color(model, views, hand, config, template, progress)
+            fitted, reports["color"] = fit_color(model, views, hand, config, template, progress)
+            guarded = _guard(model, views, hand, fitted, config, template, progress, reports)
     seconds = time.perf_counter() - start_time
-    return _result(hand, reports, views, template, config, seconds, stage1, side)
+    return _result(guarded, reports, views, template, config, seconds, stage1, side)
 
 
-def _result(hand: HandParams, reports: dict[str, StageReport], views: list[ImageView],
+@dataclass
+class _Guarded:
+    """The hand the fit returns and what the guard said about it."""
+
+    hand: HandParams
+    start: HandParams | None = None
+    guard: GuardReport | None = None
+    attempts: dict[str, GuardReport] = field(default_factory=dict)
+    fallback: str = "none"
+    notes: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+
+def _guard(model: Any, views: list[ImageView], start: HandParams, fitted: HandParams,
+           config: FitImagesConfig, template: Any, progress: bool,
+           reports: dict[str, StageReport]) -> _Guarded:
+    """The surface guard after the colour stage (:attr:`FitImagesConfig.guard`), in order: the
+    fitted hand; the fitted hand with its change of pose and shape shrunk to each fraction of
+    ``config.guard_shrink`` (:func:`_shrunk`, colour kept); the colour stage again with the
+    shape code and the skeleton fixed at the start (pose and colour only,
+    ``reports["color_fixed_shape"]``); the start's geometry with that fit's colour code. The
+    first that passes is returned."""
+    if not config.guard:
+        return _Guarded(fitted, start=start, notes=["the surface guard is off (guard=False): "
+                                                    "the colour stage's surface was not "
+                                                    "checked"])
+    began = time.perf_counter()
+    resolution, change = config.guard_resolution, config.max_area_change
+
+    def judge(hand: HandParams) -> GuardReport:
+        return surface_guard(reference, guard_mesh(model, hand, resolution), change)
+
+    reference = guard_mesh(model, start, resolution)
+    first = judge(fitted)
+    result = _Guarded(fitted, start=start, guard=first, attempts={"color": first})
+    why = "; ".join(note for note in first.notes[1:] if " speck(s) below " not in note)
+    failed = f"the colour stage failed the surface guard ({why})"
+    for fraction in () if first.passed else config.guard_shrink:
+        shrunk = _shrunk(template, start, fitted, fraction)
+        report = result.attempts[f"shrink_{fraction:g}"] = judge(shrunk)
+        if report.passed:
+            result.hand, result.guard, result.fallback = shrunk, report, f"shrink_{fraction:g}"
+            result.notes.append(f"{failed}: its change of pose and shape was shrunk to "
+                                f"{100 * fraction:g} %, which passed")
+            break
+    if not result.guard.passed:
+        fallback = _fixed_shape_fit(model, views, start, config, template, progress, reports)
+        second = result.attempts["fixed_shape"] = judge(fallback)
+        if second.passed:
+            result.hand, result.guard, result.fallback = fallback, second, "fixed_shape"
+            result.notes.append(f"{failed}: fitted again with the shape code and skeleton "
+                                "fixed (pose and colour only), which passed")
+        else:
+            result.hand = replace(start, color_code=fallback.color_code, extra={})
+            result.guard = surface_guard(reference, reference, change)
+            result.fallback = "start_geometry"
+            result.notes.append(f"{failed}, and so did a fit of pose and colour only: the "
+                                "keypoint stage's geometry is kept, with that fit's colour")
+            if not result.guard.passed:
+                result.notes.append("the returned hand fails the surface guard too ("
+                                    + "; ".join(result.guard.notes) + ")")
+    result.seconds = time.perf_counter() - began
+    return result
+
+
+def _shrunk(template: Any, start: HandParams, fitted: HandParams, fraction: float
+            ) -> HandParams:
+    """``fitted`` with its geometry moved back to ``fraction`` of its change from ``start``:
+    pose (axis-angle, linearly: the colour stage moves it little), translation, shape code and
+    betas (the skeleton follows them); the colour code kept. The floaters of a fit come from
+    pose and shape together: on a real photo, shrinking either alone kept one, both to 50 %
+    did not."""
+    def between(begin: torch.Tensor, end: torch.Tensor) -> torch.Tensor:
+        begin = begin.to(end)
+        return begin + fraction * (end - begin)
+
+    betas = between(start.betas, fitted.betas)
+    with torch.no_grad():
+        rest_joints = template.rest_joints(betas[None].to(template.device,
+                                                         template.dtype))[0].to(betas)
+    return replace(fitted, pose=between(start.pose, fitted.pose),
+                   translation=between(start.translation, fitted.translation),
+                   shape_code=between(start.shape_code, fitted.shape_code), betas=betas,
+                   rest_joints=rest_joints, extra={})
+
+
+def _fixed_shape_fit(model: Any, views: list[ImageView], start: HandParams,
+                     config: FitImagesConfig, template: Any, progress: bool,
+                     reports: dict[str, StageReport]) -> HandParams:
+    """The colour stage with the shape code and skeleton fixed at the start's, its report in
+    ``reports["color_fixed_shape"]`` (history records of that stage name)."""
+    fixed = replace(config, shape_fit="fixed", color_betas_lr=0.0)
+    hand, report = fit_color(model, views, start, fixed, template, progress)
+    report.stage = "color_fixed_shape"
+    for record in report.history:
+        record["stage"] = "color_fixed_shape"
+    reports["color_fixed_shape"] = report
+    return hand
+
+
+def _result(guarded: _Guarded, reports: dict[str, StageReport], views: list[ImageView],
             template: Any, config: FitImagesConfig, seconds: float, stage1: float,
             side: str) -> FitImagesResult:
-    """The result of :func:`fit_images`: errors, timings and the hand mirrored back."""
+    """The result of :func:`fit_images`: errors, timings, the guard and the hand mirrored
+    back."""
+    hand = guarded.hand
     history = [record for report in reports.values() for record in report.history]
     per_view = keypoint_errors(template, views, hand)
     errors = {"keypoints": reports["keypoints"].keypoint_error_px,
@@ -177,9 +307,18 @@ def _result(hand: HandParams, reports: dict[str, StageReport], views: list[Image
         "keypoint_error_px": errors["color"],
         "keypoint_error_px_per_view": per_view,
         "restart": reports["keypoints"].candidate,
+        "notes": list(guarded.notes),
     }
+    if guarded.guard is not None:
+        hand.extra["guard"] = {**guarded.guard.to_dict(), "fallback": guarded.fallback,
+                               "seconds": guarded.seconds,
+                               "attempts": {name: report.to_dict() for name, report in
+                                            guarded.attempts.items()}}
+    start = replace(guarded.start, extra={})
     if side == "left":
-        hand = mirror_hand(hand)
+        hand, start = mirror_hand(hand), mirror_hand(start)
     return FitImagesResult(params=hand, reports=reports, history=history, seconds=seconds,
                            stage_seconds={"keypoints": stage1, "color": seconds - stage1},
-                           keypoint_error_px=errors)
+                           keypoint_error_px=errors, guard=guarded.guard,
+                           guard_attempts=dict(guarded.attempts), notes=list(guarded.notes),
+                           start=start)

@@ -4,8 +4,8 @@ and the fitted hand re-rendered into the input views (:func:`render_fitted_views
 
 Outputs of :func:`fit_image_folder`: ``params.json``, ``mesh.ply``
 (:func:`lisa_hand.inference.mesh_hand`: vertex colours and skinning weights) and
-``metrics.json`` (keypoint errors, PSNR of the re-rendered input views, timings, and with a
-ground truth the V2V / V2S distances), written all or nothing by
+``metrics.json`` (keypoint errors, PSNR of the re-rendered input views, timings, the surface
+guard's figures, and with a ground truth the V2V / V2S distances), written all or nothing by
 :mod:`lisa_hand.fitting.outputs`.
 """
 
@@ -161,16 +161,33 @@ def fit_image_folder(
     truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
 
     fit = fit_images(model, image_views, config, progress, side=side)
+    for note in fit.notes:
+        log(note)
+    notes = notes + fit.notes
     params = fit.params
     params.model = "default" if model_path is None else str(Path(model_path).resolve())
     params.extra["input"] = {"path": str(frame_dir), "notes": notes}
     with cpu_threads(config.num_threads):
-        return _finish_folder(model, fit, image_views, out_dir, truth, resolution, psnr, notes)
+        return _finish_folder(model, fit, image_views, out_dir, truth, resolution, psnr, notes,
+                              log)
+
+
+def _output_surface(model: Any, fit: FitImagesResult, mesh: Any, resolution: int
+                    ) -> dict[str, Any] | None:
+    """The guard's figures on the written mesh: ``mesh`` against the colour stage's start
+    meshed at the same ``resolution`` (:func:`lisa_hand.fitting.images.guard.surface_guard`);
+    None when the colour stage did not run."""
+    from .guard import guard_mesh, surface_guard
+
+    if fit.start is None or "color" not in fit.reports:
+        return None
+    report = surface_guard(guard_mesh(model, fit.start, resolution), mesh)
+    return {"resolution": resolution, **report.to_dict()}
 
 
 def _finish_folder(model: Any, fit: FitImagesResult, image_views: Sequence[ImageView],
                    out_dir: Path, truth: Any, resolution: int, psnr: bool,
-                   notes: list[str]) -> FitImagesReport:
+                   notes: list[str], log: Callable[[str], None]) -> FitImagesReport:
     """Mesh, metrics and files of :func:`fit_image_folder`."""
     from ...inference import mesh_hand
     from ..outputs import ground_truth_metrics, write_fit_outputs
@@ -178,6 +195,13 @@ def _finish_folder(model: Any, fit: FitImagesResult, image_views: Sequence[Image
     params = fit.params
     mesh_start = time.perf_counter()
     mesh = mesh_hand(model, params, resolution)
+    surface = _output_surface(model, fit, mesh, resolution)
+    if surface is not None and not surface["passed"]:
+        note = (f"the written mesh (resolution {resolution}) fails the surface guard: "
+                + "; ".join(surface["notes"]))
+        log(note)
+        notes.append(note)
+        params.extra.setdefault("notes", []).append(note)
     metrics: dict[str, Any] = {
         "views": [view.name for view in image_views],
         "keypoint_error_px": fit.keypoint_error_px["color"],
@@ -188,6 +212,11 @@ def _finish_folder(model: Any, fit: FitImagesResult, image_views: Sequence[Image
         "seconds_color": fit.stage_seconds["color"],
         "seconds_mesh": time.perf_counter() - mesh_start,
     }
+    if "guard" in params.extra:
+        metrics["guard"] = {key: params.extra["guard"][key] for key in
+                            ("passed", "pieces", "area_ratio", "fallback", "notes")}
+    if surface is not None:
+        metrics["surface"] = surface
     if psnr:
         render_start = time.perf_counter()
         scores = view_psnrs(render_fitted_views(model, params, image_views))

@@ -9,8 +9,9 @@ distance transform at each vertex, pixels) and the mask's contour must be covere
 (distance from contour pixels to the nearest projected vertex;
 :func:`lisa_hand.fitting.images.terms.silhouette_terms`). Priors
 (:func:`lisa_hand.fitting.images.terms.hand_priors`): soft joint limits, a small L2 pull of the
-finger pose towards ``prior_pose`` ("relaxed") and of ``betas`` towards 0. The hand is kept 5 cm
-in front of every camera.
+finger pose towards ``prior_pose`` ("relaxed") and of ``betas`` towards 0, and the training
+subjects' hand size (``size_weight``, :class:`lisa_hand.fitting.images.shape_prior.HandSizePrior`:
+with one view, it is what sets the depth). The hand is kept 5 cm in front of every camera.
 
 Restarts: the ``restarts`` starts of the global-pose search
 (:func:`lisa_hand.fitting.images.pose_search.view_candidate_rotations`, the fingers relaxed,
@@ -42,6 +43,7 @@ from .pose_search import (
     translation_from_masks,
     view_candidate_rotations,
 )
+from .shape_prior import HandSizePrior
 from .terms import (
     ViewData,
     hand_priors,
@@ -82,8 +84,8 @@ class _Candidates:
 
 
 def _objective(template: Any, state: _Candidates, data: ViewData, config: FitImagesConfig,
-               mean_fingers: torch.Tensor, rigid: bool = False
-               ) -> tuple[torch.Tensor, torch.Tensor]:
+               mean_fingers: torch.Tensor, rigid: bool = False,
+               size_prior: HandSizePrior | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """-> (loss [B], keypoint error [B] pixels). ``rigid``: only the palm's keypoints count
     (the fingers' pose is not known yet)."""
     pose = state.pose()
@@ -97,7 +99,8 @@ def _objective(template: Any, state: _Candidates, data: ViewData, config: FitIma
     # Keep the hand in front of every camera (5 cm at least): pixels are meaningless behind.
     behind = (F.relu(_MIN_CAMERA_DISTANCE - vertex_depth).mean((1, 2))
               + F.relu(_MIN_CAMERA_DISTANCE - keypoint_depth).mean((1, 2)))
-    loss = loss + _BEHIND_WEIGHT * behind + hand_priors(pose, state.betas, config, mean_fingers)
+    loss = loss + _BEHIND_WEIGHT * behind + hand_priors(pose, state.betas, config, mean_fingers,
+                                                         out.joints, size_prior)
     return loss, keypoint_px(keypoint_pixels.detach(), data)
 
 
@@ -145,11 +148,13 @@ class _Optimiser:
                  mean_fingers: torch.Tensor, bar: Any) -> None:
         self.template, self.data, self.config = template, data, config
         self.mean_fingers, self.bar = mean_fingers, bar
+        self.size_prior = HandSizePrior.from_template(template).for_keypoints(
+            data.num_visible)
         self.history: list[HistoryRecord] = []
 
     def objective(self, state: _Candidates, rigid: bool) -> tuple[torch.Tensor, torch.Tensor]:
         return _objective(self.template, state, self.data, self.config, self.mean_fingers,
-                          rigid)
+                          rigid, self.size_prior)
 
     def run(self, state: _Candidates, iterations: int, rigid: bool
             ) -> tuple[torch.Tensor, torch.Tensor]:

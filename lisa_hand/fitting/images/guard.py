@@ -1,0 +1,207 @@
+"""The geometry guard of the image fit: did the colour stage keep the hand one hand-shaped piece?
+
+:func:`surface_guard` compares the fitted hand's mesh with a reference mesh, the LISA hand where
+the colour stage started (the keypoint stage's pose and skeleton with the start shape code,
+meshed the same way), by two figures:
+
+* ``pieces``: connected pieces of the fitted surface. Two triangles are connected when they
+  share a vertex (vertices at the same position are merged first, so a mesh written with
+  duplicated vertices counts the same); pieces whose area is below ``min_piece_fraction`` of the
+  surface (specks of marching cubes, smaller than a voxel or two) are not counted, and the
+  notes say how many were ignored.
+* ``area_ratio``: fitted surface area over the reference's (the sum of the triangles' areas,
+  specks included, metres^2 / metres^2).
+
+The fit passes when its area is within ``max_area_change`` of the reference's and it has no more
+pieces than the reference (one, for a trained model), or its extra pieces add little floating
+area (area outside the largest piece) to the reference's own: at most ``min_piece_fraction`` of
+the surface, or ``max_area_change`` of the reference's floating area if that is more. An
+untrained field is full of specks (the test models: 355 pieces, 3.4 % of the area at 128^3)
+whose count flips around the threshold between two meshes of the same surface; a trained
+model's reference is one piece with ~0.003 % outside it. On real photos the colour loss can
+otherwise grow floaters and lumps where the model's colours cannot match the photo (issue 13:
+7-61 pieces and 5-55 % more surface than the keypoint-stage mesh).
+
+:func:`guard_mesh` meshes a hand for the guard (coarse marching cubes,
+:func:`lisa_hand.inference.mesh_hand` without colours or skinning weights).
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["GuardReport", "MIN_PIECE_FRACTION", "surface_pieces", "surface_guard",
+           "guard_mesh"]
+
+MIN_PIECE_FRACTION = 1e-3
+"""Pieces with less than this fraction of the surface's area are specks, not counted (0.1 %: for
+a 400 cm^2 hand, 0.4 cm^2, about one closed cell of a 64^3 grid around the hand)."""
+
+
+@dataclass(frozen=True)
+class GuardReport:
+    """What :func:`surface_guard` found.
+
+    pieces: connected pieces of the fitted surface (specks below ``min_piece_fraction`` of its
+        area not counted); 0 for an empty mesh.
+    area_ratio: fitted surface area / reference surface area (NaN when the reference is empty).
+    passed: ``pieces`` is at least 1 and at most the reference's (at least 1), or the extra
+        pieces add little floating area (see the module docstring); and
+        ``|area_ratio - 1| <= max_area_change``.
+    notes: one sentence per finding (the figures, ignored specks, why it failed).
+    """
+
+    pieces: int
+    area_ratio: float
+    passed: bool
+    notes: tuple[str, ...]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The report as JSON-ready values (``params.json`` extra, ``metrics.json``)."""
+        values = asdict(self)
+        values["notes"] = list(self.notes)
+        return values
+
+
+def _mesh_arrays(mesh: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
+    """(vertices [V, 3] float64, faces [F, 3] int64) of a mesh with ``vertices`` and ``faces``."""
+    try:
+        vertices = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
+        faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
+    except (AttributeError, TypeError, ValueError) as exc:
+        raise TypeError(f"{name} must be a mesh with vertices [V, 3] and faces [F, 3] "
+                        f"({exc})") from None
+    if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
+        raise ValueError(f"{name}: face indices outside [0, {len(vertices)})")
+    return vertices, faces
+
+
+def _triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """[F] areas (metres^2) of the triangles."""
+    corners = vertices[faces]  # [F, 3, 3]
+    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    return 0.5 * np.linalg.norm(cross, axis=-1)
+
+
+def surface_pieces(mesh: Any, name: str = "mesh") -> tuple[np.ndarray, float]:
+    """Areas of a mesh's connected pieces, largest first, and its total area.
+
+    mesh: anything with ``vertices`` [V, 3] metres and ``faces`` [F, 3]
+    (:class:`lisa_hand.geometry.meshing.Mesh`, a trimesh). Vertices at the same position
+    (to 1e-9 m) are merged; triangles sharing a vertex are connected (scipy's
+    ``connected_components`` on the vertex graph of the face edges).
+    -> (areas [P] metres^2 of every piece, specks included, sorted descending; total area
+    metres^2). Specks are included; :func:`surface_guard` leaves them out of the count.
+    name: how errors call the mesh.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    vertices, faces = _mesh_arrays(mesh, name)
+    if len(faces) == 0:
+        return np.zeros(0), 0.0
+    areas = _triangle_areas(vertices, faces)
+    _, welded = np.unique(np.round(vertices / 1e-9).astype(np.int64), axis=0,
+                          return_inverse=True)
+    faces = welded.reshape(-1)[faces]
+    num_vertices = int(faces.max()) + 1
+    rows = faces[:, [0, 1, 2]].reshape(-1)
+    cols = faces[:, [1, 2, 0]].reshape(-1)
+    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(num_vertices, num_vertices))
+    _, labels = connected_components(graph, directed=False)
+    piece_area = np.bincount(labels[faces[:, 0]], weights=areas)
+    piece_area = piece_area[piece_area > 0] if piece_area.size else piece_area
+    return np.sort(piece_area)[::-1], float(areas.sum())
+
+
+def _floating(areas: np.ndarray, total: float) -> float:
+    """Fraction of the area outside the largest piece (0 for an empty surface)."""
+    return float(1.0 - areas[0] / total) if total > 0 else 0.0
+
+
+def _counted(areas: np.ndarray, total: float, min_piece_fraction: float) -> int:
+    return int((areas >= min_piece_fraction * total).sum()) if total > 0 else 0
+
+
+def surface_guard(reference_mesh: Any, fitted_mesh: Any, max_area_change: float = 0.10,
+                  min_piece_fraction: float = MIN_PIECE_FRACTION) -> GuardReport:
+    """Judge a fitted surface against the reference (see the module docstring).
+
+    reference_mesh: the hand where the colour stage started (the keypoint stage's pose and
+        skeleton, the start shape code), meshed as ``fitted_mesh``; both with ``vertices``
+        [V, 3] metres and ``faces`` [F, 3].
+    max_area_change: the largest allowed ``|area_ratio - 1|`` (0.10: within 10 %).
+    min_piece_fraction: pieces below this fraction of a surface's area are specks, not
+        counted (:data:`MIN_PIECE_FRACTION`).
+    -> :class:`GuardReport`.
+    """
+    if not max_area_change >= 0:
+        raise ValueError(f"max_area_change must be >= 0, got {max_area_change!r}")
+    if not 0 <= min_piece_fraction < 1:
+        raise ValueError(f"min_piece_fraction must be in [0, 1), got {min_piece_fraction!r}")
+    ref_areas, ref_total = surface_pieces(reference_mesh, "reference_mesh")
+    fit_areas, fit_total = surface_pieces(fitted_mesh, "fitted_mesh")
+    ref_pieces = _counted(ref_areas, ref_total, min_piece_fraction)
+    pieces = _counted(fit_areas, fit_total, min_piece_fraction)
+    ratio = fit_total / ref_total if ref_total > 0 else float("nan")
+    allowed = max(1, ref_pieces)
+    notes = [f"surface: {pieces} piece(s), area {1e4 * fit_total:.1f} cm^2 = {ratio:.3f} x the "
+             f"keypoint-stage hand's {1e4 * ref_total:.1f} cm^2 ({ref_pieces} piece(s))"]
+    specks = len(fit_areas) - pieces
+    if specks:
+        notes.append(f"{specks} speck(s) below {100 * min_piece_fraction:g} % of the area "
+                     f"ignored ({1e4 * float(fit_areas[pieces:].sum()):.2f} cm^2 in all)")
+    # Extra pieces that add no floating area (outside the largest piece) beyond the
+    # reference's own are the model's noise (an untrained field's specks hover around the
+    # threshold), not floaters grown by the fit.
+    floating, ref_floating = _floating(fit_areas, fit_total), _floating(ref_areas, ref_total)
+    extra_floating = floating - ref_floating
+    tolerance = max(min_piece_fraction, max_area_change * ref_floating)
+    pieces_ok = 1 <= pieces and (pieces <= allowed or extra_floating <= tolerance)
+    if pieces == 0:
+        notes.append("the fitted surface is empty")
+    elif pieces > allowed and not pieces_ok:
+        notes.append(f"{pieces - allowed} floating piece(s) more than the keypoint-stage hand "
+                     f"({100 * floating:.2f} % of the area outside the largest piece)")
+    elif pieces > allowed:
+        notes.append(f"{pieces - allowed} piece(s) more than the keypoint-stage hand, but no "
+                     f"more area outside the largest piece ({100 * floating:.2f} %, "
+                     f"{100 * extra_floating:+.2f} %): the model's own specks")
+    area_ok = bool(np.isfinite(ratio) and abs(ratio - 1.0) <= max_area_change)
+    if ref_total == 0:
+        notes.append("the keypoint-stage hand has no surface to compare with")
+    elif not area_ok:
+        notes.append(f"the area changed by {100 * (ratio - 1.0):+.1f} % (allowed: "
+                     f"{100 * max_area_change:g} %)")
+    passed = pieces_ok and area_ok
+    return GuardReport(pieces=pieces, area_ratio=float(ratio), passed=passed,
+                       notes=tuple(notes))
+
+
+def guard_mesh(model: Any, hand: Any, resolution: int) -> Any:
+    """The hand's surface for :func:`surface_guard`: marching cubes at ``resolution`` samples a
+    side of the cube around the posed skeleton (:func:`lisa_hand.inference.mesh_hand`, no
+    colours or skinning weights).
+
+    model: a :class:`lisa_hand.model.trained.TrainedModel`; hand: a right hand's
+    :class:`lisa_hand.skeleton.params.HandParams` of that model.
+    -> :class:`lisa_hand.geometry.meshing.Mesh` (world frame, metres); empty (no vertices, no
+    faces) when the field has no surface in the grid (a fit can make it vanish).
+    """
+    import torch
+
+    from ...geometry.meshing import Mesh
+    from ...inference import mesh_hand
+    from ...inference.mesh import MeshConfig
+
+    try:
+        with torch.no_grad():
+            return mesh_hand(model, hand, resolution,
+                             MeshConfig(colors=False, skin_weights=False))
+    except ValueError as exc:
+        if "level set" not in str(exc):  # marching cubes found no surface: an empty mesh
+            raise
+        return Mesh(vertices=np.zeros((0, 3)), faces=np.zeros((0, 3), dtype=np.int64))

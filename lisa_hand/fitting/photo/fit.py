@@ -1,0 +1,584 @@
+"""``lisa fit-photo``: from uncalibrated photographs to a fitted hand on disk
+(:func:`fit_photo_folder`).
+
+Per photo: read it upright (:func:`lisa_hand.data.photo.read_photo`: EXIF orientation,
+colours, downscaled to ``max_side``), choose its camera
+(:func:`lisa_hand.data.photo.photo_camera`: ``--camera``, ``--focal-px``, ``--fov``, EXIF,
+default), find the hands (:func:`lisa_hand.fitting.photo.detect.detect_hands`, or the
+``--keypoints`` file: :func:`lisa_hand.fitting.photo.inputs.read_given_hands`), make a coarse
+mask (:func:`lisa_hand.fitting.photo.mask.coarse_mask`, or ``--mask``; without OpenCV the
+mask from the keypoints alone is no outline, so the fit then uses none: keypoints, and colours
+against the photo's border colour), and crop the region
+around the hand as a view with its own camera (:func:`lisa_hand.fitting.photo.inputs.crop_view`:
+the fit's cost does not depend on the photo's size). Every input is checked before the model is
+loaded; an error is one line and nothing is written.
+
+Then per hand: the keypoint stage (:func:`lisa_hand.fitting.images.keypoint_stage.fit_keypoints`)
+and the image fit from it (:func:`lisa_hand.fitting.images.fit.fit_images`, its ``start``), the
+geometry guard (:mod:`lisa_hand.fitting.images.guard`), the mesh, the fitted hand rendered into
+each photo (its silhouette refines the mask: :func:`lisa_hand.fitting.photo.mask.refine_mask`),
+and the files (:mod:`lisa_hand.fitting.photo.outputs`, all hands at once, all or nothing).
+
+**Side.** ``--side right|left``, or ``auto``: the detector's side (when its score reaches
+``side_confidence``), or the ``--keypoints`` file's ``"side"``; when neither says, the keypoint
+stage is run as a right and as a left hand and the lower objective wins (the wrong side can
+match the 2D keypoints only by bending joints beyond their limits or far from the pose prior;
+the tests check it on a synthetic photo and its mirror image).
+
+**Several hands** in a photo: each is fitted into ``DIR/handN`` (N: its index, left to right
+for detected hands, file order for given ones), or only hand N into ``DIR`` with ``--hand N``.
+
+**Several photos of one hand** (``PHOTO...``): they must show the hand in the SAME pose (a hand
+photographed from several sides, or by several cameras at once); shape, colour and pose are then
+shared. Each photo keeps its own intrinsics (``photo_camera``). The photos are not calibrated
+against each other, so their cameras are placed by the hand itself: the keypoint stage is run on
+each photo alone, which gives the hand's rigid pose in that photo's camera ``T_i`` (the root
+bone's rotation about the wrist, and the translation), and photo ``i``'s camera becomes
+``T_i T_0^-1`` in the frame of the first photo's camera (the world of the outputs). The keypoint
+stage then runs on all views at once, each camera but the first is re-placed by that joint hand
+(the rigid pose that best projects its keypoints onto the photo's), and the image fit starts
+from it. A photo whose keypoints the joint hand does not explain (mean error above
+``inconsistent_fraction`` of the hand's size in it) gets a note: the photos may not show one pose.
+Each photo must hold one hand, or ``--hand N`` picks the same index in each. Cameras placed by
+the hand keep one photo's scale ambiguity (a larger hand with cameras further apart looks the
+same): the hand's size, hence its distance, still comes from the hand-size prior.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ...data.photo import DEFAULT_MAX_SIDE
+from ...skeleton.params import HandParams
+from ..images.config import FitImagesConfig
+from .inputs import PhotoHand
+from .outputs import PhotoOfHand, build_hand_outputs, photo_report_html
+
+__all__ = ["photo_fit_defaults", "FitPhotoConfig", "PhotoFitReport", "fit_photo_folder"]
+
+SIDES = ("auto", "right", "left")
+
+
+def photo_fit_defaults(**overrides: Any) -> FitImagesConfig:
+    """The image fit's settings for photos: :class:`FitImagesConfig`'s defaults with fewer
+    iterations and rays (300 keypoint-stage iterations, 40 colour-stage iterations of 256 rays).
+    Measured on ``hand_thumb_up.jpg`` (one torch thread on the busy 2-core machine): 7 s
+    keypoint stage, 11 s colour stage with the guard, 10 s mesh, guard meshes and the render
+    into the photo, 1 s reading, detection and masks: 29 s. Then ``overrides``."""
+    values: dict[str, Any] = {"keypoint_iters": 300, "color_iters": 40, "num_rays": 256}
+    values.update(overrides)
+    return FitImagesConfig(**values)
+
+
+@dataclass(frozen=True)
+class FitPhotoConfig:
+    """Settings of :func:`fit_photo_folder` (the image fit's own in ``fit``)."""
+
+    fit: FitImagesConfig = field(default_factory=photo_fit_defaults)
+    """The image fit (:class:`FitImagesConfig`; default :func:`photo_fit_defaults`)."""
+    max_side: int = DEFAULT_MAX_SIDE
+    """Photos are downscaled to at most this long side for detection and masks, pixels."""
+    view_max_side: int = 320
+    """The region around the hand that the fit sees is scaled to at most this long side."""
+    crop_margin: float = 0.5
+    """That region: the keypoints' box grown by this many hand sizes on each side (hand size:
+    :func:`lisa_hand.fitting.photo.mask.hand_scale_px`, about the wrist-to-knuckle length)."""
+    min_hand_px: float = 16.0
+    """Smaller hands are refused: the wrist-to-knuckle length in the downscaled photo, pixels."""
+    max_hands: int = 4
+    """At most this many hands are detected in a photo."""
+    side_confidence: float = 0.75
+    """``--side auto``: a detected side less certain than this (the detector's score, 0.5-1) is
+    not trusted: both sides are fitted and the better one kept."""
+    mesh_resolution: int = 128
+    """Marching-cubes samples a side of ``mesh.ply``."""
+    render_samples: int = 16
+    """Samples per ray of the rendering into the photos (overlay, silhouette)."""
+    render_max_side: int = 200
+    """The fitted hand is rendered into each photo's crop at most this long side, pixels (then
+    resized: VolSDF costs about 1 s per 10^4 rays of a hand on one CPU core)."""
+    inconsistent_fraction: float = 0.08
+    """Several photos: a photo whose mean keypoint error after the joint fit exceeds this
+    fraction of the hand's size in it gets a note."""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.fit, FitImagesConfig):
+            raise TypeError(f"fit must be a FitImagesConfig, got {type(self.fit).__name__}")
+        for name in ("max_side", "view_max_side", "max_hands", "mesh_resolution",
+                     "render_samples", "render_max_side"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        for name in ("crop_margin", "min_hand_px", "inconsistent_fraction", "side_confidence"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+
+
+@dataclass
+class PhotoFitReport:
+    """What :func:`fit_photo_folder` did for one hand.
+
+    folder: its output folder. photos: the photos it was fitted to. params: the fitted hand
+    (frame: the first photo's camera). side: "right" / "left"; side_source: "--side",
+    "detected", "--keypoints" or "fitted" (both tried). camera_sources: per photo, where its
+    camera came from. keypoint_error_px: per photo, mean distance between the given and the
+    fitted keypoints, ORIGINAL photo pixels. guard: the
+    :class:`lisa_hand.fitting.images.guard.GuardReport` of the surface. seconds: this hand's
+    wall time (its share of reading and detection not included). metrics: what
+    ``metrics.json`` holds. written: its files. notes: sentences about what was assumed.
+    """
+
+    folder: Path
+    photos: list[Path]
+    params: HandParams
+    side: str
+    side_source: str
+    camera_sources: list[str]
+    keypoint_error_px: list[float]
+    guard: Any
+    seconds: float
+    metrics: dict[str, Any]
+    written: list[Path] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+
+
+@dataclass
+class _PhotoInput:
+    """One photo, read and checked: the photo, its camera and source, its hands, a given mask."""
+
+    photo: Any
+    camera: Any
+    camera_source: str
+    hands: list[PhotoHand]
+    mask: np.ndarray | None
+    name: str
+
+
+def _per_photo(value: Any, photos: list[Path], option: str, shared_ok: bool) -> list[Any]:
+    """A per-photo option (None, one path, or one per photo) -> [value per photo]."""
+    if value is None:
+        return [None] * len(photos)
+    values = list(value) if isinstance(value, (list, tuple)) else [value]
+    if len(values) == len(photos):
+        return values
+    if len(values) == 1 and shared_ok:
+        return values * len(photos)
+    raise ValueError(f"{option}: {len(values)} file(s) for {len(photos)} photos; give one per "
+                     f"photo, in the photos' order" + (" (or one for all)" if shared_ok else ""))
+
+
+def _find_hands(photo: Any, keypoints_json: Any, config: FitPhotoConfig,
+                log: Callable[[str], None]) -> list[PhotoHand]:
+    """The hands of a photo: from ``keypoints_json`` or detected (errors: no photo extra, no
+    hand found)."""
+    from . import detect
+    from .inputs import read_given_hands
+
+    if keypoints_json is not None:
+        return read_given_hands(keypoints_json, photo)
+    hint = detect.photo_extra_missing()
+    if hint is not None:
+        raise ValueError(hint)
+    found = detect.detect_hands(photo.image, max_hands=config.max_hands)
+    if not found:
+        raise ValueError(f"{photo.path}: no hand found (searched the whole photo, zoomed out "
+                         "and in crops); pass the 21 keypoints with --keypoints KP.json")
+    hands = [PhotoHand(keypoints=np.asarray(hand.keypoints, np.float64),
+                       visible=np.ones(len(hand.keypoints), bool), side=hand.side,
+                       score=float(hand.score), source="detected") for hand in found]
+    log(f"{photo.path.name}: {len(hands)} hand(s) found ("
+        + ", ".join(f"{hand.side} {hand.score:.2f}" for hand in hands) + ")")
+    return hands
+
+
+def _read_inputs(photos: list[Path], camera_json: Any, focal_px: float | None,
+                 fov_deg: float | None, keypoints_json: Any, mask_path: Any,
+                 config: FitPhotoConfig, log: Callable[[str], None]) -> list[_PhotoInput]:
+    """Every photo read, with its camera, hands and given mask (all checks before the fit)."""
+    from ...data.photo import photo_camera, read_photo
+    from .inputs import read_given_mask
+
+    cameras = _per_photo(camera_json, photos, "--camera", shared_ok=True)
+    keypoints = _per_photo(keypoints_json, photos, "--keypoints", shared_ok=True)
+    masks = _per_photo(mask_path, photos, "--mask", shared_ok=False)
+    inputs, names = [], set()
+    for index, path in enumerate(photos):
+        photo = read_photo(path, config.max_side)
+        for note in photo.notes:
+            log(f"{path.name}: {note}")
+        camera, source = photo_camera(photo, cameras[index], focal_px, fov_deg)
+        log(f"{path.name}: camera from {source} (focal length "
+            f"{float(camera.K[0, 0]) / photo.scale:.0f} px of the original photo)")
+        mask = None if masks[index] is None else read_given_mask(masks[index], photo)
+        name = path.name if path.name not in names else f"{index}_{path.name}"
+        names.add(name)
+        inputs.append(_PhotoInput(photo=photo, camera=camera, camera_source=source,
+                                  hands=_find_hands(photo, keypoints[index], config, log),
+                                  mask=mask, name=name))
+    return inputs
+
+
+def _targets(inputs: list[_PhotoInput], hand: int | None) -> list[tuple[str, list[PhotoHand]]]:
+    """The hands to fit: [(output folder, one hand per photo)]."""
+    def pick(item: _PhotoInput) -> PhotoHand:
+        if hand >= len(item.hands):
+            raise ValueError(f"{item.photo.path}: --hand {hand}, but {len(item.hands)} hand(s) "
+                             f"were found (0 to {len(item.hands) - 1}, left to right)")
+        return item.hands[hand]
+
+    if hand is not None:
+        return [("", [pick(item) for item in inputs])]
+    if len(inputs) == 1:
+        hands = inputs[0].hands
+        if len(hands) > 1 and inputs[0].mask is not None:
+            raise ValueError(f"{inputs[0].photo.path}: {len(hands)} hands and one --mask: pass "
+                             "--hand N to fit the hand the mask shows")
+        return [("" if len(hands) == 1 else f"hand{index}", [one])
+                for index, one in enumerate(hands)]
+    crowded = [item.photo.path.name for item in inputs if len(item.hands) > 1]
+    if crowded:
+        raise ValueError(f"several photos of one hand, but {', '.join(crowded)} hold(s) several "
+                         "hands: pass --hand N (the same index in every photo)")
+    return [("", [item.hands[0] for item in inputs])]
+
+
+def _check_arguments(photos: Any, side: str, hand: int | None) -> list[Path]:
+    if side not in SIDES:
+        raise ValueError(f"side must be one of {', '.join(SIDES)}, got {side!r}")
+    if hand is not None and (isinstance(hand, bool) or not isinstance(hand, int) or hand < 0):
+        raise ValueError(f"--hand must be an integer >= 0, got {hand!r}")
+    photos = [Path(photo) for photo in ([photos] if isinstance(photos, (str, os.PathLike))
+                                        else photos)]
+    if not photos:
+        raise ValueError("no photo given")
+    return photos
+
+
+def fit_photo_folder(
+    photos: Sequence[str | os.PathLike] | str | os.PathLike,
+    out_dir: str | os.PathLike,
+    *,
+    side: str = "auto",
+    camera_json: Any = None,
+    focal_px: float | None = None,
+    fov_deg: float | None = None,
+    keypoints_json: Any = None,
+    mask_path: Any = None,
+    hand: int | None = None,
+    model_path: str | os.PathLike | None = None,
+    device: str = "auto",
+    progress: bool = True,
+    log: Callable[[str], None] | None = print,
+    config: FitPhotoConfig | None = None,
+) -> list[PhotoFitReport]:
+    """Fit the hand(s) of photos and write them into ``out_dir`` (see the module docstring and
+    :mod:`lisa_hand.fitting.photo.outputs` for the files).
+
+    photos: one photo, or several of the same hand in the same pose. side: "auto", "right" or
+    "left". camera_json: a calibration file (``cameras.json`` convention; one for all photos or
+    one per photo). focal_px: focal length in original pixels; fov_deg: field of view along the
+    long side, degrees (all photos). keypoints_json: a ``--keypoints`` file
+    (:mod:`lisa_hand.fitting.photo.inputs`; one for all photos or one per photo): no detection.
+    mask_path: a mask per photo (``--mask``): no automatic mask. hand: fit only hand N of each
+    photo, into ``out_dir`` itself. model_path: a trained model (None: the shipped one).
+    device: "auto", "cpu", "cuda" or "cuda:N". progress: show the stages' progress bars.
+    log: called with one line per step and note (None: silent). config: :class:`FitPhotoConfig`.
+    -> one :class:`PhotoFitReport` per fitted hand.
+    """
+    from ...model.trained import load_trained
+    from ...utils.device import resolve_device
+    from .inputs import check_hand_size
+    from .outputs import check_photo_folder, write_photo_outputs
+
+    log = log or (lambda line: None)
+    config = FitPhotoConfig() if config is None else config
+    photos = _check_arguments(photos, side, hand)
+    out_dir = check_photo_folder(out_dir)
+    inputs = _read_inputs(photos, camera_json, focal_px, fov_deg, keypoints_json, mask_path,
+                          config, log)
+    targets = _targets(inputs, hand)
+    for folder, hands in targets:
+        for item, one in zip(inputs, hands, strict=True):
+            label = f"{item.photo.path}" + (f" ({folder})" if folder else "")
+            check_hand_size(one, item.photo, config.min_hand_px, label)
+    model = load_trained(model_path, resolve_device(device))
+    model_label = "default" if model_path is None else str(Path(model_path).resolve())
+    outcomes = []
+    for folder, hands in targets:
+        if folder:
+            log(f"fitting {folder}")
+        outcomes.append(_fit_hand(model, inputs, hands, folder, side, config, progress, log,
+                                  model_label))
+    written = write_photo_outputs(out_dir, [outputs for outputs, _ in outcomes])
+    for outputs, report in outcomes:
+        report.folder = out_dir / outputs.folder if outputs.folder else out_dir
+        report.written = [path for path in written
+                          if not outputs.folder or report.folder in path.parents]
+    return [report for _, report in outcomes]
+
+
+def _keypoint_hand(views: list[Any], side: str, config: FitPhotoConfig, template: Any,
+                   progress: bool) -> tuple[HandParams, Any]:
+    """The keypoint stage as a ``side`` hand -> (the hand, of that side, in the views' world;
+    its StageReport)."""
+    from ..images.keypoint_stage import fit_keypoints
+    from ..images.views import mirror_view
+    from ..sides import mirror_hand
+
+    if side == "left":
+        hand, report = fit_keypoints([mirror_view(view) for view in views], config.fit,
+                                     template, progress)
+        return mirror_hand(hand), report
+    return fit_keypoints(views, config.fit, template, progress)
+
+
+def _choose_side(views: list[Any], side: str, hands: list[PhotoHand], config: FitPhotoConfig,
+                 template: Any, progress: bool, notes: list[str]
+                 ) -> tuple[str, str, HandParams | None]:
+    """(side, where it came from, the keypoint-stage hand when choosing it needed one)."""
+    if side != "auto":
+        return side, "--side", None
+    known = [one.side for one in hands if one.side is not None and (
+        one.score is None or one.score >= config.side_confidence)]
+    if known:
+        chosen = max(("right", "left"), key=known.count)
+        if len(set(known)) > 1:
+            notes.append(f"the photos disagree on the side ({', '.join(known)}): {chosen} chosen")
+        return chosen, "detected" if hands[0].source == "detected" else "--keypoints", None
+    unsure = [f"{one.side} {one.score:.2f}" for one in hands if one.side is not None]
+    if unsure:
+        notes.append(f"the detector is unsure of the side ({', '.join(unsure)}, below "
+                     f"{config.side_confidence:g})")
+    fits = {name: _keypoint_hand(views[:1], name, config, template, progress)
+            for name in ("right", "left")}
+    chosen = min(fits, key=lambda name: fits[name][1].loss)
+    other = "left" if chosen == "right" else "right"
+    notes.append(f"side unknown: fitted as both, {chosen} won (keypoint-stage objective "
+                 f"{fits[chosen][1].loss:.3g} against {fits[other][1].loss:.3g}); pass --side "
+                 "to choose")
+    return chosen, "fitted", fits[chosen][0] if len(views) == 1 else None
+
+
+def _root_transform(hand: HandParams) -> torch.Tensor:
+    """[4, 4] float64: the rigid motion of a RIGHT hand's root bone (rotation about the wrist
+    joint, then the translation): rest-pose hand coordinates -> the views' world."""
+    from ...geometry import axis_angle_to_matrix
+
+    rotation = axis_angle_to_matrix(hand.pose[:3].double())
+    wrist = hand.rest_joints[0].double()
+    transform = torch.eye(4, dtype=torch.float64)
+    transform[:3, :3] = rotation
+    transform[:3, 3] = wrist - rotation @ wrist + hand.translation.double()
+    return transform
+
+
+def _place_cameras(views: list[Any], side: str, config: FitPhotoConfig, template: Any,
+                   progress: bool) -> list[Any]:
+    """Several photos: each view's camera placed in the frame of the first photo's camera by
+    the hand's rigid pose in each photo alone (see the module docstring) -> the views with
+    those cameras."""
+    from ...geometry.cameras import Camera
+    from ..images.views import ImageView
+    from ..sides import mirror_hand
+
+    flip = torch.diag(torch.tensor([-1.0, 1.0, 1.0], dtype=torch.float64))
+    transforms = []
+    for view in views:
+        hand, _ = _keypoint_hand([view], side, config, template, progress)
+        transforms.append(_root_transform(mirror_hand(hand) if side == "left" else hand))
+    placed = []
+    for view, transform in zip(views, transforms, strict=True):
+        motion = transform @ torch.linalg.inv(transforms[0])  # (mirrored) camera 0 -> camera i
+        rotation, shift = motion[:3, :3], motion[:3, 3]
+        if side == "left":  # the motion was found in the mirrored world (right hands)
+            rotation, shift = flip @ rotation @ flip, flip @ shift
+        camera = view.camera
+        placed.append(ImageView(
+            name=view.name, camera=Camera(K=camera.K, R=rotation.float(), t=shift.float(),
+                                          width=camera.width, height=camera.height,
+                                          name=camera.name),
+            rgb=view.rgb, mask=view.mask, keypoints=view.keypoints, visible=view.visible))
+    return placed
+
+
+def _refine_cameras(views: list[Any], hand: HandParams, iterations: int = 50) -> list[Any]:
+    """Several photos, after the joint keypoint stage: every camera but the first re-placed by
+    the joint hand (better determined than any photo's alone; :func:`_pose_camera`)."""
+    from ..outputs import hand_keypoints_3d
+
+    points = torch.from_numpy(hand_keypoints_3d(hand))
+    return [views[0]] + [_pose_camera(view, points, iterations) for view in views[1:]]
+
+
+def _pose_camera(view: Any, points: torch.Tensor, iterations: int) -> Any:
+    """The view with the camera pose that best projects ``points`` [21, 3] (world metres) onto
+    its visible keypoints: a pseudo-Huber loss of 1 pixel on the distances, L-BFGS from its
+    camera; the view unchanged unless that lowers the loss."""
+    from ...geometry import axis_angle_to_matrix
+    from ...geometry.cameras import Camera
+    from ..images.views import ImageView
+
+    camera = view.camera
+    K, start_R = camera.K.double().cpu(), camera.R.double().cpu()
+    visible = view.visible.cpu()
+    target = view.keypoints.double().cpu()[visible]
+    delta = torch.zeros(3, dtype=torch.float64, requires_grad=True)
+    shift = camera.t.double().cpu().clone().requires_grad_(True)
+
+    def loss_of(turn: torch.Tensor, offset: torch.Tensor) -> torch.Tensor:
+        pixels = (points @ (axis_angle_to_matrix(turn) @ start_R).T + offset) @ K.T
+        pixels = pixels[:, :2] / pixels[:, 2:].clamp_min(1e-3)
+        squared = ((pixels[visible] - target) ** 2).sum(-1)
+        return (torch.sqrt(squared + 1.0) - 1.0).mean()
+
+    optimizer = torch.optim.LBFGS([delta, shift], max_iter=iterations,
+                                  line_search_fn="strong_wolfe")
+
+    def closure() -> torch.Tensor:
+        optimizer.zero_grad()
+        loss = loss_of(delta, shift)
+        loss.backward()
+        return loss
+
+    with torch.no_grad():
+        before = float(loss_of(torch.zeros(3, dtype=torch.float64), camera.t.double().cpu()))
+    optimizer.step(closure)
+    with torch.no_grad():
+        if not float(loss_of(delta, shift)) < before:
+            return view
+        rotation = axis_angle_to_matrix(delta) @ start_R
+    placed = Camera(K=camera.K, R=rotation.float(), t=shift.detach().float(),
+                    width=camera.width, height=camera.height, name=camera.name)
+    return ImageView(name=view.name, camera=placed, rgb=view.rgb, mask=view.mask,
+                     keypoints=view.keypoints, visible=view.visible)
+
+
+def _fit_hand(model: Any, inputs: list[_PhotoInput], hands: list[PhotoHand], folder: str,
+              side: str, config: FitPhotoConfig, progress: bool, log: Callable[[str], None],
+              model_label: str) -> tuple[Any, PhotoFitReport]:
+    """Fit one hand to its photos -> (what to write, the report)."""
+    from ...utils.threads import cpu_threads
+    from ..images.fit import fit_images
+    from ..stages import template_on
+    from .inputs import crop_view
+    from .mask import coarse_mask, mask_method
+
+    began = time.perf_counter()
+    notes: list[str] = []
+    coarse = [item.mask if item.mask is not None else coarse_mask(item.photo.image,
+                                                                  one.keypoints)
+              for item, one in zip(inputs, hands, strict=True)]
+    method = "--mask" if all(item.mask is not None for item in inputs) else mask_method()
+    if method == "keypoints":  # not an outline: the fit uses keypoints and colours only
+        notes.append("mask: from the keypoints alone (OpenCV missing: pip install -e "
+                     "'.[photo]' for GrabCut); the fit used no mask")
+    crops = [crop_view(item.photo, item.camera, one, None if method == "keypoints" else mask,
+                       item.name, config.crop_margin, config.view_max_side)
+             for item, one, mask in zip(inputs, hands, coarse, strict=True)]
+    views = [crop.view for crop in crops]
+    template = template_on(None, torch.device("cpu"))
+    timings = {"seconds_inputs": time.perf_counter() - began}
+    with cpu_threads(config.fit.num_threads):
+        chosen, side_source, start = _choose_side(views, side, hands, config, template,
+                                                  progress, notes)
+        if len(views) > 1:
+            views = _place_cameras(views, chosen, config, template, progress)
+            start, _ = _keypoint_hand(views, chosen, config, template, progress)
+            views = _refine_cameras(views, start)
+            crops = [dataclasses.replace(crop, view=view) for crop, view in zip(crops, views,
+                                                                                strict=True)]
+        elif start is None:
+            start, _ = _keypoint_hand(views, chosen, config, template, progress)
+    timings["seconds_keypoints"] = time.perf_counter() - began - timings["seconds_inputs"]
+    log(f"side: {chosen} ({side_source}); fitting {len(views)} photo(s)")
+    result = fit_images(model, views, config.fit, progress, side=chosen, start=start)
+    timings["seconds_color"] = result.stage_seconds.get("color", math.nan)
+    notes += list(getattr(result, "notes", []))
+    params = result.params
+    params.model = model_label
+    params.extra["input"] = {"photos": [str(item.photo.path) for item in inputs],
+                             "camera_sources": [item.camera_source for item in inputs],
+                             "side_source": side_source, "mask": method,
+                             "keypoints": [one.source for one in hands]}
+    outputs_began = time.perf_counter()
+    with cpu_threads(config.fit.num_threads):
+        guard = result.guard  # None when the colour stage did not run
+        photos = [PhotoOfHand(photo=item.photo, camera=item.camera,
+                              camera_source=item.camera_source, hand=one, crop=crop,
+                              coarse=mask, refine=item.mask is None)
+                  for item, one, crop, mask in zip(inputs, hands, crops, coarse, strict=True)]
+        outputs = build_hand_outputs(model, params, photos, folder, config.mesh_resolution,
+                                     config.render_samples, config.render_max_side)
+        outputs.metrics["surface"] = _output_surface(model, result, outputs.mesh,
+                                                     config.mesh_resolution)
+    _consistency_notes(outputs, photos, config, notes)
+    timings["seconds_outputs"] = time.perf_counter() - outputs_began
+    seconds = time.perf_counter() - began
+    photo_notes = [f"{item.photo.path.name}: {note}" for item in inputs
+                   for note in item.photo.notes]  # logged when read
+    outputs.metrics.update(_fit_metrics(result, guard, side_source, method, seconds, timings,
+                                        photo_notes + notes))
+    outputs.report = photo_report_html(outputs, photo_notes + notes)
+    for note in notes:
+        log(note)
+    report = PhotoFitReport(
+        folder=Path(folder), photos=[item.photo.path for item in inputs], params=params,
+        side=chosen, side_source=side_source,
+        camera_sources=[item.camera_source for item in inputs],
+        keypoint_error_px=[view.keypoint_error_px for view in outputs.views], guard=guard,
+        seconds=seconds, metrics=outputs.metrics, notes=notes)
+    return outputs, report
+
+
+def _output_surface(model: Any, result: Any, mesh: Any, resolution: int) -> dict | None:
+    """The guard's figures on the written ``mesh.ply``: against the colour stage's start meshed
+    at the same resolution (:func:`lisa_hand.fitting.images.guard.surface_guard`); None when the
+    colour stage did not run."""
+    from ..images.guard import guard_mesh, surface_guard
+
+    if getattr(result, "start", None) is None or "color" not in result.reports:
+        return None
+    report = surface_guard(guard_mesh(model, result.start, resolution), mesh)
+    return {"resolution": resolution, **report.to_dict()}
+
+
+def _consistency_notes(outputs: Any, photos: list[Any], config: FitPhotoConfig,
+                       notes: list[str]) -> None:
+    """Several photos: a note for each photo whose keypoints the joint hand misses."""
+    from .mask import hand_scale_px
+
+    if len(photos) < 2:
+        return
+    for view, photo in zip(outputs.views, photos, strict=True):
+        size = hand_scale_px(photo.hand.keypoints) * photo.photo.original_size[0] / float(
+            photo.photo.image.shape[1])  # original pixels
+        if view.keypoint_error_px > config.inconsistent_fraction * size:
+            notes.append(f"{view.photo.name}: the joint hand misses its keypoints by "
+                         f"{view.keypoint_error_px:.1f} px on average (the hand is {size:.0f} "
+                         "px from wrist to knuckles): do the photos show the hand in one pose?")
+
+
+def _fit_metrics(result: Any, guard: Any, side_source: str, method: str, seconds: float,
+                 timings: dict[str, float], notes: list[str]) -> dict[str, Any]:
+    """The fit's part of ``metrics.json``: where the side and the mask came from, the
+    keypoint errors of the fit's views (view pixels: the crops the fit saw), the guard, the
+    seconds of this hand (masks and crops, the keypoint stage(s), the colour stage, mesh and
+    renders) and the notes."""
+    return {
+        "side_source": side_source, "mask": method,
+        "keypoint_error_view_px_keypoint_stage": result.keypoint_error_px.get("keypoints"),
+        "keypoint_error_view_px": result.keypoint_error_px.get("color"),
+        "guard": None if guard is None else {**guard.to_dict(), **result.params.extra.get(
+            "guard", {})},
+        "seconds": seconds, **timings, "notes": list(notes),
+    }
