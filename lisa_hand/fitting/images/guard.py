@@ -22,7 +22,7 @@ model's reference is one piece with ~0.003 % outside it. On real photos the colo
 otherwise grow floaters and lumps where the model's colours cannot match the photo (issue 13:
 7-61 pieces and 5-55 % more surface than the keypoint-stage mesh).
 
-:func:`guard_mesh` meshes a hand for the guard (coarse marching cubes,
+:func:`guard_mesh` meshes a hand for the guard (marching cubes at the guard's resolution,
 :func:`lisa_hand.inference.mesh_hand` without colours or skinning weights).
 """
 
@@ -38,7 +38,8 @@ __all__ = ["GuardReport", "MIN_PIECE_FRACTION", "surface_pieces", "surface_guard
 
 MIN_PIECE_FRACTION = 1e-3
 """Pieces with less than this fraction of the surface's area are specks, not counted (0.1 %: for
-a 400 cm^2 hand, 0.4 cm^2, about one closed cell of a 64^3 grid around the hand)."""
+a 400 cm^2 hand, 0.4 cm^2, about the smallest closed blob a 64^3 grid around the hand resolves;
+a 0.6 cm^2 floater on a real photo counts, the ~0.01 cm^2 specks of marching cubes do not)."""
 
 
 @dataclass(frozen=True)
