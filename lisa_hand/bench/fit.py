@@ -38,6 +38,7 @@ import numpy as np
 import torch
 
 from ..utils.threads import cpu_threads
+from ._webxr import WEBXR_POSES, WEBXR_WRISTS, pose_webxr_hand, run_webxr_fits
 
 __all__ = ["WEBXR_POSES", "FitBenchmark", "pose_webxr_hand", "run_webxr_fits",
            "run_fit_benchmark", "main"]
@@ -268,119 +269,8 @@ def _fit_benchmark(model_path, num_points: int, noise_mm: float, target_mm: floa
     )
 
 
-# ---------------------------------------------------------------------------------------------
-# A hand the project did not make: the artist-made WebXR hand, posed with its own rig
-
-WEBXR_POSES = {
-    "rest": {},
-    "bent_index": {"index-finger": (0.9, 1.2, 0.7)},
-    "fist": {**{finger: (1.3, 1.5, 0.9) for finger in ("index-finger", "middle-finger",
-                                                        "ring-finger", "pinky-finger")},
-             "thumb": (0.3, 0.5, 0.5)},
-}
-"""Flexion (radians) of each finger's three joints (MCP, PIP, DIP; thumb CMC, MCP, IP)."""
-
-
-def pose_webxr_hand(path: str | Path, pose: str = "rest") -> tuple[np.ndarray, np.ndarray]:
-    """The WebXR hand (``right_hand.npz``: millimetres, 25 OpenXR joints, its own skinning
-    weights) posed by linear blend skinning, in metres.
-
-    Each finger joint of :data:`WEBXR_POSES` turns about the axis ``bone x palm normal`` (palm
-    normal ``thumb x fingers``, the MANO right-hand convention), so positive angles curl the
-    finger towards the palm. -> (vertices [V, 3] metres, faces [F, 3]).
-    """
-    from ..geometry import axis_angle_to_matrix
-
-    if pose not in WEBXR_POSES:
-        raise ValueError(f"unknown WebXR pose {pose!r}: one of {', '.join(WEBXR_POSES)}")
-    with np.load(path, allow_pickle=False) as data:
-        vertices = data["vertices"] * 1e-3
-        faces, weights = data["faces"], data["weights"]
-        joints = data["joints"].astype(np.float64) * 1e-3
-        parents, names = data["parents"], [str(n) for n in data["joint_names"]]
-    index = {name: number for number, name in enumerate(names)}
-    fingers = joints[index["middle-finger-phalanx-proximal"]] - joints[0]
-    fingers /= np.linalg.norm(fingers)
-    thumb = joints[index["thumb-phalanx-proximal"]] - joints[0]
-    thumb -= fingers * (thumb @ fingers)
-    palm_normal = np.cross(thumb / np.linalg.norm(thumb), fingers)
-    local = np.tile(np.eye(4), (len(names), 1, 1))
-    for finger, angles in WEBXR_POSES[pose].items():
-        chain = (["thumb-metacarpal", "thumb-phalanx-proximal", "thumb-phalanx-distal"]
-                 if finger == "thumb" else
-                 [f"{finger}-phalanx-{part}" for part in ("proximal", "intermediate", "distal")])
-        ends = chain[1:] + [f"{finger}-tip"]
-        for joint_name, end_name, angle in zip(chain, ends, angles, strict=True):
-            joint, end = index[joint_name], index[end_name]
-            axis = np.cross(joints[end] - joints[joint], palm_normal)
-            axis_angle = torch.from_numpy(angle * axis / np.linalg.norm(axis))
-            rotation = axis_angle_to_matrix(axis_angle).numpy()
-            local[joint, :3, :3] = rotation
-            local[joint, :3, 3] = joints[joint] - rotation @ joints[joint]
-    world = np.empty_like(local)
-    for joint in range(len(names)):  # parents come first in the OpenXR order
-        world[joint] = local[joint] if parents[joint] < 0 else world[parents[joint]] @ local[joint]
-    blended = np.einsum("vj,jab->vab", weights, world)
-    posed = np.einsum("vab,vb->va", blended[:, :3, :3], vertices) + blended[:, :3, 3]
-    return posed, faces
-
-
-def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int = 0,
-                   threads: int = 1) -> list[dict]:
-    """Fit ``model`` to the WebXR hand in each pose of :data:`WEBXR_POSES`, from a full scan
-    and from a one-view partial scan (noise 0.3 mm), each in a random placement.
-
-    -> one dict per fit: pose, scan kind, seconds, the four distances (mm, fitted 128^3 mesh
-    against the posed WebXR mesh; its short forearm stub, which LISA does not model, counts in
-    the scan -> recon directions).
-    """
-    from ..data.scans import ScanConfig, simulate_scan
-    from ..fitting.points.fit import FitPointsConfig, fit_points
-    from ..geometry import axis_angle_to_matrix
-    from ..inference import MeshConfig, mesh_hand
-    from ..metrics import mesh_distances
-
-    generator = torch.Generator().manual_seed(seed)
-    plain = MeshConfig(colors=False, skin_weights=False)
-    rows = []
-    for pose in WEBXR_POSES:
-        vertices, faces = pose_webxr_hand(path, pose)
-        turn = 3.0 * torch.rand(3, generator=generator, dtype=torch.float64)
-        rotation = axis_angle_to_matrix(turn)
-        placed = (vertices - vertices.mean(0)) @ rotation.numpy().T + 0.3 * np.array([0, 0, 1.0])
-        for partial in (False, True):
-            scan = simulate_scan(placed, faces, ScanConfig(num_points=num_points, partial=partial,
-                                                           noise_normal_std=3e-4), seed=seed)
-            with cpu_threads(threads):  # the fit and its mesh on ``threads`` threads
-                fit = fit_points(model, scan.points, None, FitPointsConfig(num_threads=threads,
-                                                                           seed=seed))
-                mesh = mesh_hand(model, fit.params, 128, plain)
-            distances = mesh_distances(mesh.vertices, mesh.faces, placed, faces)
-            rows.append({"pose": pose, "scan": "partial" if partial else "full",
-                         "seconds": fit.seconds, **distances.to_dict()})
-    return rows
-
-
-def main(argv: list[str] | None = None) -> None:
-    """``python -m lisa_hand.bench fit [--json FILE] [--model CKPT] ...``"""
-    parser = argparse.ArgumentParser(prog="python -m lisa_hand.bench fit",
-                                     description=__doc__.split("\n")[0])
-    parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
-    parser.add_argument("--model", default=None,
-                        help="trained model (default: the shipped one, else a geometric init)")
-    parser.add_argument("--points", type=int, default=20000, help="scan points")
-    parser.add_argument("--noise-mm", type=float, default=0.0, help="scan noise along normals")
-    parser.add_argument("--target-mm", type=float, default=1.0, help="accuracy to reach")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--device", default="cpu")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (CPU)")
-    parser.add_argument("--reference-budget", type=float, default=120.0,
-                        help="seconds the reference loop may run")
-    parser.add_argument("--webxr", type=Path, default=None, metavar="NPZ",
-                        help="also fit the WebXR hand (right_hand.npz) in three poses")
-    args = parser.parse_args(argv)
-    if args.points < 100:
-        raise ValueError(f"--points must be >= 100, got {args.points}")
+def _self_consistency(args) -> dict:
+    """The self-consistency part of :func:`main`: run, print, -> its numbers."""
     result = run_fit_benchmark(args.model, num_points=args.points, noise_mm=args.noise_mm,
                                target_mm=args.target_mm, seed=args.seed, device=args.device,
                                threads=args.threads, reference_budget=args.reference_budget)
@@ -407,15 +297,49 @@ def main(argv: list[str] | None = None) -> None:
           f"{result.v2v_recon_to_scan_mm:.3f} mm; rotation error "
           f"{result.rotation_error_deg:.2f} deg")
     numbers = result.to_dict()
+    return numbers
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m lisa_hand.bench fit [--json FILE] [--model CKPT] ...``"""
+    parser = argparse.ArgumentParser(prog="python -m lisa_hand.bench fit",
+                                     description=__doc__.split("\n")[0])
+    parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
+    parser.add_argument("--model", default=None,
+                        help="trained model (default: the shipped one, else a geometric init)")
+    parser.add_argument("--points", type=int, default=20000, help="scan points")
+    parser.add_argument("--noise-mm", type=float, default=0.0, help="scan noise along normals")
+    parser.add_argument("--target-mm", type=float, default=1.0, help="accuracy to reach")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--device", default="cpu")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (CPU)")
+    parser.add_argument("--reference-budget", type=float, default=120.0,
+                        help="seconds the reference loop may run")
+    parser.add_argument("--webxr", type=Path, default=None, metavar="NPZ",
+                        help="also fit the WebXR hand (right_hand.npz) in three poses")
+    parser.add_argument("--webxr-wrists", default="as-is",
+                        help="comma-separated wrist variants of the WebXR scans: "
+                             f"{', '.join(WEBXR_WRISTS)} (default as-is)")
+    parser.add_argument("--only-webxr", action="store_true",
+                        help="skip the self-consistency benchmark")
+    args = parser.parse_args(argv)
+    if args.points < 100:
+        raise ValueError(f"--points must be >= 100, got {args.points}")
+    numbers = {} if args.only_webxr else _self_consistency(args)
     if args.webxr is not None:
+        wrists = tuple(name.strip() for name in args.webxr_wrists.split(",") if name.strip())
         model, _ = _bench_model(args.model, args.device)
-        rows = run_webxr_fits(model, args.webxr, seed=args.seed, threads=args.threads)
-        numbers["webxr"] = rows
         print("WebXR hand (mm; V2S recon->scan, scan->recon; V2V recon->scan, scan->recon):")
-        for row in rows:
-            print(f"  {row['pose']:>10} {row['scan']:>7}: {row['v2s_recon_to_scan_mm']:6.2f} "
-                  f"{row['v2s_scan_to_recon_mm']:6.2f}  {row['v2v_recon_to_scan_mm']:6.2f} "
-                  f"{row['v2v_scan_to_recon_mm']:6.2f}  ({row['seconds']:.1f} s)")
+
+        def shown_row(row):
+            print(f"  {row['pose']:>10} {row['wrist']:>7} {row['scan']:>7}: "
+                  f"{row['v2s_recon_to_scan_mm']:6.2f} {row['v2s_scan_to_recon_mm']:6.2f}  "
+                  f"{row['v2v_recon_to_scan_mm']:6.2f} {row['v2v_scan_to_recon_mm']:6.2f}  "
+                  f"({row['seconds']:.1f} s, {row['beyond_wrist_points']} points beyond the "
+                  "wrist)", flush=True)
+
+        numbers["webxr"] = run_webxr_fits(model, args.webxr, seed=args.seed,
+                                          threads=args.threads, wrists=wrists, log=shown_row)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(numbers, indent=2))

@@ -3,8 +3,9 @@ two shared real photos.
 
 ``python -m lisa_hand.bench photo [--json FILE] [--photos N] [--shared DIR] [--out DIR]``
 
-* Synthetic photos (:mod:`lisa_hand.bench._photo_scenes`): ``--photos`` held-out subjects of the
-  open hand model (the shipped model's test split; every other one as a left hand) in natural
+* Synthetic photos (:mod:`lisa_hand.bench._photo_scenes`): ``--photos`` (default 12) photos of the
+  6 held-out subjects of the open hand model in turn (the shipped model's test split; every other
+  photo a left hand) in natural
   poses, photographed by a phone-like camera (60-70 degrees horizontal field of view, 0.4-0.6 m
   away), saved as JPEG without EXIF. Each is fitted as a user would
   (:func:`lisa_hand.fitting.photo.fit.fit_photo_folder` with its defaults: detection, the default
@@ -277,7 +278,7 @@ def _targets(synthetic: list[SyntheticResult], shared: dict[str, SharedResult]):
     }
 
 
-def run_photo_benchmark(num_photos: int = 6, *, shared_dir: Path | None = None,
+def run_photo_benchmark(num_photos: int = 12, *, shared_dir: Path | None = None,
                         work_dir: Path | None = None, threads: int = 2, device: str = "cpu",
                         model_path=None, seed: int = 0, detect: bool | None = None, fit=None,
                         scene=None, log=print) -> PhotoBenchmark:
@@ -436,7 +437,7 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m lisa_hand.bench photo",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
-    parser.add_argument("--photos", type=int, default=6, help="synthetic photos")
+    parser.add_argument("--photos", type=int, default=12, help="synthetic photos (two of each of the 6 held-out subjects)")
     parser.add_argument("--shared", type=Path, default=None,
                         help="folder of the shared real photos (default ../shared/data/photos)")
     parser.add_argument("--out", type=Path, default=None,

@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from .options import DeviceOpt, FitModelOpt, Side, Units
+from .options import DeviceOpt, FitModelOpt, GuardOpt, ShapeFit, ShapeFitOpt, Side, Units
 
 
 def fit_images(
@@ -44,6 +44,8 @@ def fit_images(
     threads: Annotated[int, typer.Option(
         "--threads", min=0, help="CPU threads of torch during the fit (0: torch's default; "
                                  "1 is fastest on a busy machine).")] = 1,
+    shape_fit: ShapeFitOpt = ShapeFit.space,
+    guard: GuardOpt = True,
     seed: Annotated[int, typer.Option(help="Seed of the restarts and of the rays.")] = 0,
     psnr: Annotated[bool, typer.Option(
         "--psnr/--no-psnr", help="Re-render the input views for the PSNR in metrics.json.")
@@ -61,7 +63,8 @@ def fit_images(
         names = [name.strip() for name in views.split(",") if name.strip()]
         if not names:
             raise ValueError(f"--views {views!r}: no camera name given")
-    overrides: dict = {"seed": seed, "num_threads": threads if threads > 0 else None}
+    overrides: dict = {"seed": seed, "num_threads": threads if threads > 0 else None,
+                       "shape_fit": shape_fit.value, "guard": guard}
     for key, value in (("keypoint_iters", keypoint_iters), ("color_iters", color_iters),
                        ("num_rays", rays)):
         if value is not None:

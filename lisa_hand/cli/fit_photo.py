@@ -8,7 +8,7 @@ from typing import Annotated
 
 import typer
 
-from .options import DeviceOpt, FitModelOpt
+from .options import DeviceOpt, FitModelOpt, GuardOpt, ShapeFit, ShapeFitOpt
 
 
 class PhotoSide(str, Enum):
@@ -72,6 +72,8 @@ def fit_photo(
     threads: Annotated[int, typer.Option(
         "--threads", min=0, help="CPU threads of torch during the fit (0: torch's default; "
                                  "1 is fastest on a busy machine).")] = 1,
+    shape_fit: ShapeFitOpt = ShapeFit.space,
+    guard: GuardOpt = True,
     seed: Annotated[int, typer.Option(help="Seed of the restarts and of the rays.")] = 0,
     progress: Annotated[bool, typer.Option(help="Show progress bars.")] = True,
 ) -> None:
@@ -82,7 +84,8 @@ def fit_photo(
     pixels, 3D in the camera frame), camera.json, mask.png, overlay.png and report.html."""
     from ..fitting.photo.fit import FitPhotoConfig, fit_photo_folder, photo_fit_defaults
 
-    overrides: dict = {"seed": seed, "num_threads": threads if threads > 0 else None}
+    overrides: dict = {"seed": seed, "num_threads": threads if threads > 0 else None,
+                       "shape_fit": shape_fit.value, "guard": guard}
     for key, value in (("keypoint_iters", keypoint_iters), ("color_iters", color_iters),
                        ("num_rays", rays)):
         if value is not None:

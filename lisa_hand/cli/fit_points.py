@@ -53,7 +53,9 @@ def fit_points(
                             resolution=res, config=config, device=device, side=side.value,
                             progress=progress, log=typer.echo)
     fit = report.fit
-    typer.echo(f"fitted {fit.num_points} points in {fit.seconds:.1f} s: |G| at the points "
+    counted = (f"{fit.num_points} of {fit.num_points + fit.beyond_wrist_points}"
+               if fit.beyond_wrist_points else f"{fit.num_points}")
+    typer.echo(f"fitted {counted} points in {fit.seconds:.1f} s: |G| at the points "
                f"median {fit.residual_median_mm:.2f} mm, mean {fit.residual_mean_mm:.2f} mm, "
                f"{100 * fit.inlier_fraction:.1f}% within {3 * config.robust_scale_mm:g} mm")
     if report.metrics is not None:

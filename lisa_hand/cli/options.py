@@ -29,6 +29,23 @@ class Side(str, Enum):
     left = "left"
 
 
+class ShapeFit(str, Enum):
+    """How the image fits treat the shape code in the colour stage
+    (:attr:`lisa_hand.fitting.images.config.FitImagesConfig.shape_fit`)."""
+
+    space = "space"
+    free = "free"
+    fixed = "fixed"
+
+
+ShapeFitOpt = Annotated[ShapeFit, typer.Option(
+    "--shape-fit", help="Colour stage: the shape code kept in the learned shape space (space, "
+                        "the default), every dimension free (free: the paper; on real photos "
+                        "it broke the surface into lumps and floaters), or not fitted (fixed).")]
+GuardOpt = Annotated[bool, typer.Option(
+    "--guard/--no-guard", help="Check the surface after the colour stage (one piece, area "
+                               "within 10% of its start) and undo what breaks it.")]
+
 FitModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model: exported file, run folder or checkpoint "
                     "(default: the shipped model).")]

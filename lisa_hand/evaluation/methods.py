@@ -104,11 +104,13 @@ def image_inputs(frame_dir: Path, views: Sequence[str], novel: Sequence[str], ou
         template=load_template(), settings=settings, render_samples=render_samples)
 
 
-def _distances(vertices, faces, truth_path: Path) -> dict[str, float]:
+def _distances(vertices, faces, truth_path: Path, clip=None) -> dict[str, float]:
+    """The four distances (mm) to the frame's true mesh; ``clip``: a wrist cut both are cut at
+    first (:func:`lisa_hand.metrics.mesh_distances`)."""
     from ..metrics import load_mesh, mesh_distances
 
     truth = load_mesh(truth_path)
-    return mesh_distances(vertices, faces, truth.vertices, truth.faces).to_dict()
+    return mesh_distances(vertices, faces, truth.vertices, truth.faces, clip=clip).to_dict()
 
 
 def _write_mesh(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
@@ -180,6 +182,7 @@ class TemplateMethod(Method):
                    model_path: str | None = None) -> dict[str, float]:
         from ..data.layout import read_npz
         from ..handmodel.template import load_template
+        from ..skeleton.wrist import wrist_plane
         from .template_fit import (
             TemplateFitConfig,
             fit_template_points,
@@ -195,7 +198,10 @@ class TemplateMethod(Method):
         vertices, faces = subdivide_to(vertices, faces, settings.template_vertices)
         seconds = time.perf_counter() - start
         _write_mesh(out / "mesh.ply", vertices, faces)
-        return {**_distances(vertices, faces, frame.mesh), "seconds": seconds}
+        # Cut at the fitted wrist as the point fits of the field methods are
+        # (lisa_hand.skeleton.wrist: the scan's forearm stub counts for no method).
+        clip = wrist_plane(hand)
+        return {**_distances(vertices, faces, frame.mesh, clip), "seconds": seconds}
 
     def fit_images(self, inputs: ImageInputs) -> tuple[dict[str, Any], Any]:
         """Stage 1 (pose and shape from the keypoints and masks, seeded) -> (its row's values:

@@ -177,12 +177,16 @@ def json_safe(value: Any) -> Any:
     return value
 
 
-def ground_truth_metrics(mesh: Mesh, truth: GroundTruth) -> dict[str, float | None]:
+def ground_truth_metrics(mesh: Mesh, truth: GroundTruth, clip: Any = None
+                         ) -> dict[str, float | None]:
     """V2V and V2S distances (mm) between a fitted mesh and the ground truth, both ways
-    (:func:`lisa_hand.metrics.mesh_distances`; None where undefined: V2S towards points)."""
+    (:func:`lisa_hand.metrics.mesh_distances`; None where undefined: V2S towards points).
+    clip: the fit's wrist cut (a :class:`lisa_hand.geometry.planes.Plane`) or None: both are
+    cut along it first, as the written mesh is."""
     from ..metrics import mesh_distances
 
-    distances = mesh_distances(mesh.vertices, mesh.faces, truth.vertices, truth.faces)
+    distances = mesh_distances(mesh.vertices, mesh.faces, truth.vertices, truth.faces,
+                               clip=clip)
     return json_safe(distances.to_dict())
 
 

@@ -16,6 +16,7 @@ import numpy as np
 import torch
 
 from ..geometry.meshing import Mesh, MeshExtraction, colors_to_uint8, extract_mesh_with_stats
+from ..geometry.planes import Plane, clip_mesh
 from ..model.trained import TrainedModel
 from ..skeleton import NUM_JOINTS, POSE_DIM, forward_kinematics, linear_blend_skinning
 from ..skeleton.params import HandParams
@@ -153,6 +154,7 @@ def mesh_hand_with_stats(
     *,
     hand: HandField | None = None,
     progress: bool = False,
+    clip: Plane | None = None,
 ) -> HandMesh:
     """:func:`mesh_hand` with the grid, counts and timings (for benchmarks and reports)."""
     start = time.perf_counter()
@@ -177,6 +179,8 @@ def mesh_hand_with_stats(
         box_low, box_high, samples = _bone_region_cube(params, model, voxel)
         extraction = extract(box_low, box_high, samples)
     mesh = extraction.mesh
+    if clip is not None:
+        mesh = Mesh(*clip_mesh(mesh.vertices, mesh.faces, clip))
     attributes_start = time.perf_counter()
     if config.colors or config.skin_weights:
         mesh = _vertex_attributes(mesh, hand, config)
@@ -201,6 +205,7 @@ def mesh_hand(
     *,
     hand: HandField | None = None,
     progress: bool = False,
+    clip: Plane | None = None,
 ) -> Mesh:
     """The hand's surface as a triangle mesh with calibrated colours and skinning weights.
 
@@ -212,11 +217,14 @@ def mesh_hand(
 
     model, params: the trained model and the hand (:func:`load_hand`). resolution: grid samples
     per side (>= 8). hand: a prepared :func:`hand_field` of the same model and params (reused).
+    clip: a :class:`lisa_hand.geometry.planes.Plane` (e.g. the fit's wrist cut,
+    :func:`lisa_hand.skeleton.wrist.wrist_plane`): the surface is cut along it, open there, and
+    only its kept side returned; None: the whole surface.
     -> :class:`lisa_hand.geometry.meshing.Mesh`: world-frame float32 metres, outward faces, uint8
     colours [V, 3], skinning weights [V, 16] (rows sum to 1).
     """
     return mesh_hand_with_stats(
-        model, params, resolution, config, hand=hand, progress=progress
+        model, params, resolution, config, hand=hand, progress=progress, clip=clip
     ).mesh
 
 

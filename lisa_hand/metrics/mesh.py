@@ -98,8 +98,24 @@ def _mean_distance_to_surface(points: np.ndarray, vertices: np.ndarray,
     return float(np.mean(distances))
 
 
+def _clipped(vertices: np.ndarray, faces: np.ndarray | None, clip, name: str
+             ) -> tuple[np.ndarray, np.ndarray | None]:
+    """``vertices``, ``faces`` cut by the plane ``clip`` (faces: cut along it; points: those on
+    its kept side); ValueError naming ``name`` when nothing is left."""
+    from ..geometry.planes import clip_mesh
+
+    if faces is None:
+        vertices = vertices[clip.keeps(vertices)]
+    else:
+        vertices, faces = clip_mesh(vertices, faces, clip)
+    if len(vertices) == 0:
+        raise ValueError(f"{name}: nothing is left on the hand's side of the wrist cut")
+    return vertices, faces
+
+
 def mesh_distances(recon_vertices: Any, recon_faces: Any | None, scan_vertices: Any,
-                   scan_faces: Any | None = None, unit_scale: float = 1000.0) -> MeshDistances:
+                   scan_faces: Any | None = None, unit_scale: float = 1000.0,
+                   clip: Any = None) -> MeshDistances:
     """Vertex-to-vertex (V2V) and vertex-to-surface (V2S) distances, both directions.
 
     As in the LISA paper (Table 1): V2V from A to B is the mean over A's vertices of the distance
@@ -114,6 +130,12 @@ def mesh_distances(recon_vertices: Any, recon_faces: Any | None, scan_vertices: 
 
     A scan without faces has no surface, so ``v2s_recon_to_scan_mm`` is NaN (likewise
     ``v2s_scan_to_recon_mm`` for a reconstruction without faces).
+
+    clip: a :class:`lisa_hand.geometry.planes.Plane` (e.g. the fitted hand's wrist cut,
+    :func:`lisa_hand.skeleton.wrist.wrist_plane`) or None: both meshes are first cut along it
+    (a mesh's triangles exactly along the plane, a point set by keeping its points on the kept
+    side), so that a forearm in the scan, or one cut shorter than the reconstruction, counts
+    in neither direction.
     """
     recon_v = _check_vertices(recon_vertices, "recon_vertices")
     scan_v = _check_vertices(scan_vertices, "scan_vertices")
@@ -121,6 +143,9 @@ def mesh_distances(recon_vertices: Any, recon_faces: Any | None, scan_vertices: 
     scan_f = _check_faces(scan_faces, "scan_faces", len(scan_v))
     if not unit_scale > 0:
         raise ValueError(f"unit_scale must be positive, got {unit_scale}")
+    if clip is not None:
+        recon_v, recon_f = _clipped(recon_v, recon_f, clip, "the reconstruction")
+        scan_v, scan_f = _clipped(scan_v, scan_f, clip, "the scan")
     from scipy.spatial import cKDTree
 
     v2v_recon_to_scan = float(np.mean(cKDTree(scan_v).query(recon_v)[0]))

@@ -187,3 +187,22 @@ def test_fit_images_help_lists_the_options(lisa, capsys):
     for option in ("--views", "--model", "--keypoint-iters", "--color-iters", "--rays",
                    "--device", "--res", "--gt", "--side"):
         assert option in text
+
+
+@pytest.mark.parametrize("flags, shape_fit, guard", [
+    ([], "space", True), (["--shape-fit", "free", "--no-guard"], "free", False),
+    (["--shape-fit", "fixed"], "fixed", True)])
+def test_shape_fit_and_guard_flags_reach_the_fit(lisa, files, tmp_path, monkeypatch, flags,
+                                                 shape_fit, guard):
+    import lisa_hand.fitting.images.folder as folder
+
+    seen = {}
+
+    def capture(*args, config=None, **kwargs):
+        seen["config"] = config
+        raise ValueError("captured")
+
+    monkeypatch.setattr(folder, "fit_image_folder", capture)
+    with pytest.raises(SystemExit):
+        lisa(["fit-images", str(files["frame"]), "--out", str(tmp_path / "out"), *flags])
+    assert (seen["config"].shape_fit, seen["config"].guard) == (shape_fit, guard)

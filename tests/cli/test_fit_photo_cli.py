@@ -312,5 +312,6 @@ def test_help_explains_the_options(lisa, capsys):
     code, text, _ = run(lisa, ["fit-photo", "--help"], capsys)
     assert code == 0
     for option in ("--out", "--side", "--camera", "--focal-px", "--fov", "--keypoints",
-                   "--mask", "--hand", "--model", "--device", "ORIGINAL", "pip install"):
+                   "--mask", "--hand", "--model", "--device", "--shape-fit", "--no-guard",
+                   "ORIGINAL", "pip install"):
         assert option in text, option

@@ -57,12 +57,17 @@ def test_writes_params_mesh_and_metrics(lisa, files, capsys):
     printed = capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "metrics.json",
                                                      "params.json"]
-    assert f"fitted {len(points)} points" in printed and "wrote" in printed
+    # This tiny model's blob hand runs on past its wrist: the scan points there are left out
+    # and said so.
+    beyond = read_params(out / "params.json").extra["fit"]["beyond_wrist_points"]
+    counted = f"{len(points) - beyond} of {len(points)}" if beyond else f"{len(points)}"
+    assert f"fitted {counted} points" in printed and "wrote" in printed
+    assert (f"{beyond} points lie beyond the wrist" in printed) == (beyond > 0)
     params = read_params(out / "params.json")
     assert params.side == "right" and params.betas is not None and params.betas.shape == (10,)
     assert params.color_code is not None and params.color_code.shape == (8,)
     assert params.model.endswith("tiny.pt")
-    assert params.extra["fit"]["num_points"] == len(points)
+    assert params.extra["fit"]["num_points"] + beyond == len(points)
     assert params.extra["input"]["unit"] == "m"
     mesh = load_mesh(out / "mesh.ply")
     assert mesh.num_vertices > 100 and mesh.colors is not None

@@ -201,8 +201,8 @@ def code_sensitive_model():
 def wreck_start(scene):
     from lisa_hand.utils.threads import cpu_threads
 
-    with cpu_threads(1):
-        return fit_keypoints(scene["views"], FitImagesConfig(**FAST))[0]
+    with cpu_threads(1):  # the start of the scenarios below: fingers restarted only if off
+        return fit_keypoints(scene["views"], FitImagesConfig(**FAST, finger_restart_px=2.0))[0]
 
 
 @pytest.mark.usefixtures("one_thread")

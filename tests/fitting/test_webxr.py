@@ -107,3 +107,41 @@ def test_fit_points_on_the_real_obj(tmp_path):
     cosine = along @ truth / (np.linalg.norm(along) * np.linalg.norm(truth))
     assert math.degrees(math.acos(min(1.0, cosine))) < 30.0
     assert report.fit.residual_median_mm < 10.0
+
+
+@pytest.mark.slow
+def test_a_scan_running_on_into_a_forearm_is_cut_at_the_wrist():
+    """The shipped model on the WebXR hand whose scan runs 12 cm on into a forearm (about 30%
+    of its points): the fit leaves the forearm out and fits the hand as without it; the mesh
+    ends at the fit's wrist cut, where the distances are taken (``python -m lisa_hand.bench fit
+    --webxr ... --webxr-wrists as-is,forearm,cut`` measures every pose)."""
+    from lisa_hand.bench._webxr import pose_webxr_hand, webxr_wrist, webxr_wrist_variant
+    from lisa_hand.data.scans import ScanConfig, simulate_scan
+    from lisa_hand.fitting.points.fit import fit_points
+    from lisa_hand.inference import MeshConfig, mesh_hand
+    from lisa_hand.metrics import mesh_distances
+    from lisa_hand.model.trained import load_trained
+
+    model = load_trained(None, "cpu")
+    path = WEBXR / "right_hand.npz"
+    posed, faces = pose_webxr_hand(path, "rest")
+    wrist, forearm = webxr_wrist(path)
+    vertices, arm_faces = webxr_wrist_variant(posed, faces, wrist, forearm, "forearm")
+    scan = simulate_scan(vertices, arm_faces, ScanConfig(num_points=3000), seed=0)
+    on_arm = (scan.points - wrist) @ forearm > 0.02  # surely beyond any wrist cut
+    config = FitPointsConfig(field_iters=120)
+    with_cut = fit_points(model, scan.points, None, config)
+    assert with_cut.beyond_wrist_points >= on_arm.sum()
+    plane = with_cut.wrist_plane
+    assert not plane.keeps(scan.points[on_arm]).any()
+    # The cut lies 1 cm beyond the fitted wrist joint, within 1.5 cm of the artist's wrist.
+    assert abs(plane.signed_distance(wrist[None])[0]) < 0.025
+    mesh = mesh_hand(model, with_cut.params, 96, MeshConfig(colors=False, skin_weights=False),
+                     clip=plane)
+    assert plane.keeps(mesh.vertices, margin=1e-6).all()
+    cut = mesh_distances(mesh.vertices, mesh.faces, vertices, arm_faces, clip=plane)
+    # Measured 2.2 mm / 2.7 mm (the same as the scan without a forearm, bench above).
+    assert cut.v2s_scan_to_recon_mm < 3.5 and cut.v2s_recon_to_scan_mm < 3.5
+    # Without the cut the forearm counts: the scan -> recon distance is several times larger.
+    whole = mesh_distances(mesh.vertices, mesh.faces, vertices, arm_faces)
+    assert whole.v2s_scan_to_recon_mm > 2.0 * cut.v2s_scan_to_recon_mm

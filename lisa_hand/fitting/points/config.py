@@ -90,6 +90,17 @@ class FitPointsConfig:
     """Optimise the shape code (False: keep the training subjects' mean)."""
     fit_betas: bool = True
     """Optimise the template's betas (the skeleton); ignored with a fixed ``rest_joints``."""
+    wrist_clip_m: float | None = 0.01
+    """Where the hand ends: points farther than this beyond the fitted wrist joint, towards the
+    forearm, are left out of the fit (a forearm in the scan), and the surface proxy's own stub
+    beyond it is not asked to be covered (a scan cut short); metres, the plane of
+    :func:`lisa_hand.skeleton.wrist.wrist_plane` (:data:`~lisa_hand.skeleton.wrist.WRIST_CLIP_M`
+    by default). The written mesh and the metrics cut at the same plane. None: every point
+    counts, nothing is cut (the behaviour before issue 14)."""
+    wrist_margin_m: float = 0.03
+    """After the global-pose search, whose wrist is known only roughly, points are dropped only
+    beyond ``wrist_clip_m + wrist_margin_m``; after the articulated stage, beyond
+    ``wrist_clip_m``."""
     max_points: int = 200_000
     """A larger cloud is randomly subsampled to this many points first."""
     min_points: int = 20
@@ -126,8 +137,11 @@ class FitPointsConfig:
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
+        clip = self.wrist_clip_m
+        if clip is not None and not (isinstance(clip, (int, float)) and math.isfinite(clip)):
+            raise ValueError(f"wrist_clip_m must be a number of metres or None, got {clip!r}")
         for name in ("shape_weight", "pose_weight", "limit_weight", "betas_weight",
-                     "normal_weight", "coverage_weight"):
+                     "normal_weight", "coverage_weight", "wrist_margin_m"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a non-negative number, got {value!r}")

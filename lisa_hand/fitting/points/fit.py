@@ -34,8 +34,10 @@ from typing import Any
 import numpy as np
 import torch
 
+from ...geometry.planes import Plane
 from ...skeleton import NUM_JOINTS, POSE_DIM, check_side
 from ...skeleton.params import HandParams
+from ...skeleton.wrist import wrist_plane
 from ...utils.threads import cpu_threads
 from ..sides import mirror_cloud, mirror_hand
 from ..stages import HistoryRecord, StageReport
@@ -62,7 +64,11 @@ class FitResult:
     inlier_fraction: fraction of points with ``|G(x)| < 3 sigma`` (``sigma = robust_scale_mm``).
     seconds: wall time of the fit; stage_seconds: per stage ('proxy', 'align', 'pose',
         'field', 'finish').
-    num_points: points fitted (after ``max_points``).
+    num_points: points fitted (after ``max_points``, without those beyond the wrist).
+    beyond_wrist_points: points left out as lying beyond the wrist (``config.wrist_clip_m``).
+    wrist_plane: the fitted hand's wrist cut (:func:`lisa_hand.skeleton.wrist.wrist_plane`
+        ``config.wrist_clip_m`` beyond the wrist joint, or sooner where the scan stops; None
+        without one), where the written mesh and the metrics end.
     candidate_energies: proxy energy of each candidate (24 orientations per initial finger
         pose) after the first part of the alignment (the 'align' report's
         ``screened_energies``).
@@ -84,6 +90,8 @@ class FitResult:
     candidate_energies: list[float]
     history: list[HistoryRecord]
     reports: dict[str, StageReport] = field(default_factory=dict)
+    beyond_wrist_points: int = 0
+    wrist_plane: Plane | None = None
 
     def summary(self) -> dict[str, Any]:
         """The scalar results as a JSON-able dict (what ``params.extra["fit"]`` holds)."""
@@ -95,6 +103,8 @@ class FitResult:
             "seconds": self.seconds,
             "stage_seconds": dict(self.stage_seconds),
             "num_points": self.num_points,
+            "beyond_wrist_points": self.beyond_wrist_points,
+            "wrist_plane": None if self.wrist_plane is None else self.wrist_plane.to_dict(),
         }
 
 
@@ -144,25 +154,58 @@ def _start_hand(model, cloud: TargetCloud, rest_joints: torch.Tensor | None):
     return template, hand, (rest_joints, shape_code, color)
 
 
+def _clip_cloud(cloud: TargetCloud, hand: HandParams, offset: float | None, min_points: int
+                ) -> TargetCloud:
+    """``cloud`` without its points beyond ``hand``'s wrist cut at ``offset`` metres
+    (:func:`lisa_hand.skeleton.wrist.wrist_plane`); unchanged when ``offset`` is None or fewer
+    than ``min_points`` would be left."""
+    if offset is None:
+        return cloud
+    plane = wrist_plane(hand, offset)
+    keep = torch.from_numpy(plane.keeps(cloud.points.detach().cpu().double().numpy()))
+    if int(keep.sum()) < min_points or bool(keep.all()):
+        return cloud
+    keep = keep.to(cloud.points.device)
+    return TargetCloud(cloud.points[keep], None if cloud.normals is None else
+                       cloud.normals[keep], cloud.generator)
+
+
+def _cut_offset(hand: HandParams, cloud: TargetCloud, clip: float | None) -> float | None:
+    """Where the fitted hand ends, metres beyond its wrist joint: ``clip``, or sooner where the
+    scan itself stops (the 99.9th percentile of its points' distance beyond the joint, towards
+    the forearm); None without a cut."""
+    if clip is None:
+        return None
+    beyond = -wrist_plane(hand, 0.0).signed_distance(cloud.points.detach().cpu().double().numpy())
+    return float(min(clip, np.quantile(beyond, 0.999)))
+
+
 def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints, monitor
-                ) -> tuple[HandParams, dict[str, StageReport]]:
-    """The three stages on a right hand's cloud -> (hand, {stage: its report})."""
+                ) -> tuple[HandParams, dict[str, StageReport], TargetCloud]:
+    """The three stages on a right hand's cloud -> (hand, {stage: its report}, the cloud the
+    last stage fitted: without what lies beyond the wrist, ``config.wrist_clip_m``)."""
     since = monitor.start
     template, start, (rest, shape_code, color) = _start_hand(model, cloud, rest_joints)
     proxy = build_surface_proxy(model, rest, shape_code, color, config.proxy_points,
                                 cloud.generator)
+    clip = config.wrist_clip_m
+    if clip is not None:
+        proxy = proxy.without_forearm(clip)
     since = monitor.lap("proxy", since)
     reports = {}
     candidates, reports["align"] = search_global_pose(proxy, cloud, config, start,
                                                       monitor=monitor)
     since = monitor.lap("align", since)
+    cloud = _clip_cloud(cloud, candidates[0], None if clip is None else
+                        clip + config.wrist_margin_m, config.min_points)
     candidates, reports["pose"] = fit_proxy_pose(proxy, cloud, candidates, config,
                                                  monitor=monitor)
     since = monitor.lap("pose", since)
+    cloud = _clip_cloud(cloud, candidates[0], clip, config.min_points)
     hand, reports["field"] = fit_surface(model, cloud, candidates, config, template=template,
                                          pivot=proxy.pivot, monitor=monitor)
     monitor.lap("field", since)
-    return hand, reports
+    return hand, reports, cloud
 
 
 def fit_points(
@@ -212,7 +255,9 @@ def fit_points(
     threads = config.num_threads if device.type == "cpu" else None
     try:
         with cpu_threads(threads), frozen_field(model):
-            hand, reports = _run_stages(model, cloud, config, rest_joints, monitor)
+            total_points = cloud.num_points
+            hand, reports, cloud = _run_stages(model, cloud, config, rest_joints, monitor)
+            cut = _cut_offset(hand, cloud, config.wrist_clip_m)
             since = time.perf_counter()
             residual = surface_residuals(model, hand, cloud.points)
             monitor.lap("finish", since)
@@ -228,6 +273,8 @@ def fit_points(
         seconds=time.perf_counter() - monitor.start,
         stage_seconds=monitor.stage_seconds,
         num_points=cloud.num_points,
+        beyond_wrist_points=total_points - cloud.num_points,
+        wrist_plane=None if cut is None else wrist_plane(params, cut),
         candidate_energies=reports["align"].screened_energies,
         history=monitor.history,
         reports=reports,

@@ -320,7 +320,12 @@ def fit_point_file(
     params.model = "default" if model_path is None else str(Path(model_path).resolve())
     params.extra["input"] = {"path": str(points_path), "unit": cloud.unit,
                              "num_input_points": cloud.num_input, "notes": cloud.notes}
-    mesh = mesh_hand(model, params, resolution, MeshConfig(colors=model.has_color))
-    metrics = None if truth is None else ground_truth_metrics(mesh, truth)
+    if fit.beyond_wrist_points:
+        log(f"{points_path}: {fit.beyond_wrist_points} points lie beyond the wrist cut "
+            f"({1000 * config.wrist_clip_m:g} mm past the fitted wrist joint) and were left "
+            "out; the mesh and the metrics end at the same cut")
+    mesh = mesh_hand(model, params, resolution, MeshConfig(colors=model.has_color),
+                     clip=fit.wrist_plane)
+    metrics = None if truth is None else ground_truth_metrics(mesh, truth, fit.wrist_plane)
     written = write_fit_outputs(out_dir, params, mesh, metrics)
     return FitPointsReport(cloud=cloud, fit=fit, mesh=mesh, metrics=metrics, written=written)

@@ -73,6 +73,14 @@ class SurfaceProxy:
             rest, weights = rest[subset], weights[subset]
         return linear_blend_skinning(rest, weights, kinematics.transforms)
 
+    def without_forearm(self, offset: float) -> SurfaceProxy:
+        """The proxy without its points farther than ``offset`` metres beyond the wrist joint
+        (rest pose: a right hand's forearm runs along +x), the same pivot: what a scan cut at
+        the wrist does not show (:mod:`lisa_hand.skeleton.wrist`)."""
+        keep = self.points_rest[:, 0] <= self.rest_joints[0, 0] + offset
+        return SurfaceProxy(self.points_rest[keep], self.weights[keep], self.rest_joints,
+                            self.pivot)
+
     def world(self, batch: CandidateBatch, subset: torch.Tensor | None = None) -> torch.Tensor:
         """[K, P, 3] world metres: the proxy posed by the candidates (on its own skeleton)."""
         local = self.posed(batch.finger_pose, subset)

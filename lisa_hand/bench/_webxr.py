@@ -1,0 +1,211 @@
+"""The artist-made WebXR hand (``shared/data/webxr_hand``, MIT, Amazon): a hand the project did
+not make, posed with its own rig, scanned whole or from one side, with its forearm stub as it is,
+run on into a forearm, or cut short at the wrist (``python -m lisa_hand.bench fit --webxr``).
+
+Wrist variants (issue 14): ``as-is`` (the artist's 2.2 cm stub beyond the wrist joint),
+``forearm`` (the stub cut 1.5 cm beyond the wrist joint and its cut rim extruded 12 cm along the
+forearm axis, the far end closed), ``cut`` (scan points beyond the wrist joint dropped: a scan
+that stops exactly at the wrist). The fit leaves out what lies beyond its wrist cut
+(:attr:`lisa_hand.fitting.points.config.FitPointsConfig.wrist_clip_m`), and the distances are
+taken with both meshes cut at the fit's plane (``FitResult.wrist_plane``), as ``lisa
+fit-points --gt`` does; the ground truth of ``cut`` is the artist's mesh cut at the wrist joint.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..utils.threads import cpu_threads
+
+__all__ = ["WEBXR_POSES", "WEBXR_WRISTS", "pose_webxr_hand", "webxr_wrist", "extend_forearm",
+           "webxr_wrist_variant", "run_webxr_fits"]
+
+WEBXR_WRISTS = ("as-is", "forearm", "cut")
+"""What the scans do beyond the wrist (see the module docstring)."""
+FOREARM_START_M = 0.015
+FOREARM_LENGTH_M = 0.12
+
+WEBXR_POSES = {
+    "rest": {},
+    "bent_index": {"index-finger": (0.9, 1.2, 0.7)},
+    "fist": {**{finger: (1.3, 1.5, 0.9) for finger in ("index-finger", "middle-finger",
+                                                        "ring-finger", "pinky-finger")},
+             "thumb": (0.3, 0.5, 0.5)},
+}
+"""Flexion (radians) of each finger's three joints (MCP, PIP, DIP; thumb CMC, MCP, IP)."""
+
+
+def pose_webxr_hand(path: str | Path, pose: str = "rest") -> tuple[np.ndarray, np.ndarray]:
+    """The WebXR hand (``right_hand.npz``: millimetres, 25 OpenXR joints, its own skinning
+    weights) posed by linear blend skinning, in metres.
+
+    Each finger joint of :data:`WEBXR_POSES` turns about the axis ``bone x palm normal`` (palm
+    normal ``thumb x fingers``, the MANO right-hand convention), so positive angles curl the
+    finger towards the palm. -> (vertices [V, 3] metres, faces [F, 3]).
+    """
+    from ..geometry import axis_angle_to_matrix
+
+    if pose not in WEBXR_POSES:
+        raise ValueError(f"unknown WebXR pose {pose!r}: one of {', '.join(WEBXR_POSES)}")
+    with np.load(path, allow_pickle=False) as data:
+        vertices = data["vertices"] * 1e-3
+        faces, weights = data["faces"], data["weights"]
+        joints = data["joints"].astype(np.float64) * 1e-3
+        parents, names = data["parents"], [str(n) for n in data["joint_names"]]
+    index = {name: number for number, name in enumerate(names)}
+    fingers = joints[index["middle-finger-phalanx-proximal"]] - joints[0]
+    fingers /= np.linalg.norm(fingers)
+    thumb = joints[index["thumb-phalanx-proximal"]] - joints[0]
+    thumb -= fingers * (thumb @ fingers)
+    palm_normal = np.cross(thumb / np.linalg.norm(thumb), fingers)
+    local = np.tile(np.eye(4), (len(names), 1, 1))
+    for finger, angles in WEBXR_POSES[pose].items():
+        chain = (["thumb-metacarpal", "thumb-phalanx-proximal", "thumb-phalanx-distal"]
+                 if finger == "thumb" else
+                 [f"{finger}-phalanx-{part}" for part in ("proximal", "intermediate", "distal")])
+        ends = chain[1:] + [f"{finger}-tip"]
+        for joint_name, end_name, angle in zip(chain, ends, angles, strict=True):
+            joint, end = index[joint_name], index[end_name]
+            axis = np.cross(joints[end] - joints[joint], palm_normal)
+            axis_angle = torch.from_numpy(angle * axis / np.linalg.norm(axis))
+            rotation = axis_angle_to_matrix(axis_angle).numpy()
+            local[joint, :3, :3] = rotation
+            local[joint, :3, 3] = joints[joint] - rotation @ joints[joint]
+    world = np.empty_like(local)
+    for joint in range(len(names)):  # parents come first in the OpenXR order
+        world[joint] = local[joint] if parents[joint] < 0 else world[parents[joint]] @ local[joint]
+    blended = np.einsum("vj,jab->vab", weights, world)
+    posed = np.einsum("vab,vb->va", blended[:, :3, :3], vertices) + blended[:, :3, 3]
+    return posed, faces
+
+
+def webxr_wrist(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """(the wrist joint [3] metres, the unit forearm direction [3]: middle knuckle -> wrist) of
+    the WebXR hand; its poses move only the fingers, so these hold in every pose."""
+    with np.load(path, allow_pickle=False) as data:
+        joints = data["joints"].astype(np.float64) * 1e-3
+        names = [str(n) for n in data["joint_names"]]
+    wrist = joints[names.index("wrist")]
+    forearm = wrist - joints[names.index("middle-finger-phalanx-proximal")]
+    return wrist, forearm / np.linalg.norm(forearm)
+
+
+def extend_forearm(vertices: np.ndarray, faces: np.ndarray, wrist: np.ndarray,
+                   forearm: np.ndarray, start: float = FOREARM_START_M,
+                   length: float = FOREARM_LENGTH_M, rings: int = 12
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """A closed hand mesh cut ``start`` metres beyond the wrist joint and its cut rim extruded
+    ``length`` metres along ``forearm`` (in ``rings`` rings; the far end closed by a fan).
+
+    vertices: [V, 3] metres; faces: [F, 3] outward; wrist: [3] metres; forearm: [3] unit.
+    -> (vertices [V', 3] metres, faces [F', 3]), outward, closed.
+    """
+    from ..geometry.planes import Plane, clip_mesh
+
+    cut = Plane(wrist + start * forearm, -forearm)
+    kept, kept_faces = clip_mesh(vertices, faces, cut)
+    edges = np.concatenate([kept_faces[:, [0, 1]], kept_faces[:, [1, 2]], kept_faces[:, [2, 0]]])
+    key = np.sort(edges, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    rim = edges[counts[inverse.reshape(-1)] == 1]  # directed as in their faces
+    rim_vertices = np.unique(rim)
+    count = len(kept)
+    new_vertices = [kept]
+    ring_index = {}
+    for ring in range(1, rings + 1):
+        offset = forearm * (length * ring / rings)
+        ring_index[ring] = {v: count + k for k, v in enumerate(rim_vertices)}
+        new_vertices.append(kept[rim_vertices] + offset)
+        count += len(rim_vertices)
+    ring_index[0] = {v: v for v in rim_vertices}
+    new_faces = [kept_faces]
+    for ring in range(rings):
+        low, high = ring_index[ring], ring_index[ring + 1]
+        for a, b in rim:  # the face holding a -> b lies on the hand's side
+            new_faces.append(np.array([[low[b], low[a], high[a]], [low[b], high[a], high[b]]]))
+    centre = kept[rim_vertices].mean(0) + forearm * length
+    new_vertices.append(centre[None])
+    last = ring_index[rings]
+    new_faces.append(np.array([[last[b], last[a], count] for a, b in rim]))
+    return np.concatenate(new_vertices), np.concatenate(new_faces).astype(np.int64)
+
+
+def webxr_wrist_variant(vertices: np.ndarray, faces: np.ndarray, wrist: np.ndarray,
+                   forearm: np.ndarray, variant: str) -> tuple[np.ndarray, np.ndarray]:
+    """The mesh to scan and to compare against for a wrist variant (module docstring)."""
+    from ..geometry.planes import Plane, clip_mesh
+
+    if variant == "forearm":
+        return extend_forearm(vertices, faces, wrist, forearm)
+    if variant == "cut":
+        return clip_mesh(vertices, faces, Plane(wrist, -forearm))
+    return vertices, faces
+
+
+def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int = 0,
+                   threads: int = 1, wrists: tuple[str, ...] = ("as-is",),
+                   config=None, log=None) -> list[dict]:
+    """Fit ``model`` to the WebXR hand in each pose of :data:`WEBXR_POSES` and each wrist
+    variant of ``wrists`` (:data:`WEBXR_WRISTS`), from a full scan and from a one-view partial
+    scan (noise 0.3 mm), each in a random placement (the same for every variant of a pose).
+
+    config: the :class:`~lisa_hand.fitting.points.config.FitPointsConfig` (None: defaults with
+    ``num_threads=threads`` and ``seed``). log: called with each row as it is measured.
+    -> one dict per fit: pose, wrist, scan kind, seconds, points left out beyond the wrist, the
+    four distances (mm, fitted 128^3 mesh against the variant's mesh, both cut at the fit's
+    wrist plane).
+    """
+    import dataclasses
+
+    from ..data.scans import ScanConfig, simulate_scan
+    from ..fitting.points.fit import FitPointsConfig, fit_points
+    from ..geometry import axis_angle_to_matrix
+    from ..geometry.planes import Plane
+    from ..inference import MeshConfig, mesh_hand
+    from ..metrics import mesh_distances
+
+    for variant in wrists:
+        if variant not in WEBXR_WRISTS:
+            raise ValueError(f"unknown wrist variant {variant!r}: one of {WEBXR_WRISTS}")
+    config = FitPointsConfig(num_threads=threads, seed=seed) if config is None else \
+        dataclasses.replace(config, num_threads=threads)
+    generator = torch.Generator().manual_seed(seed)
+    plain = MeshConfig(colors=False, skin_weights=False)
+    wrist, forearm = webxr_wrist(path)
+    rows = []
+    for pose in WEBXR_POSES:
+        posed, faces = pose_webxr_hand(path, pose)
+        turn = 3.0 * torch.rand(3, generator=generator, dtype=torch.float64)
+        rotation = axis_angle_to_matrix(turn).numpy()
+        centre = posed.mean(0)
+
+        def place(points, rotation=rotation, centre=centre):
+            return (points - centre) @ rotation.T + 0.3 * np.array([0, 0, 1.0])
+
+        for variant in wrists:
+            vertices, variant_faces = webxr_wrist_variant(posed, faces, wrist, forearm, variant)
+            placed = place(vertices)
+            for partial in (False, True):
+                scan_mesh = place(posed) if variant == "cut" else placed
+                scan = simulate_scan(scan_mesh, faces if variant == "cut" else variant_faces,
+                                     ScanConfig(num_points=num_points, partial=partial,
+                                                noise_normal_std=3e-4), seed=seed)
+                points = scan.points
+                if variant == "cut":  # the scanner stopped at the wrist joint
+                    points = points[Plane(place(wrist[None])[0],
+                                          -(forearm @ rotation.T)).keeps(points)]
+                with cpu_threads(threads):  # the fit and its mesh on ``threads`` threads
+                    fit = fit_points(model, points, None, config)
+                    mesh = mesh_hand(model, fit.params, 128, plain, clip=fit.wrist_plane)
+                distances = mesh_distances(mesh.vertices, mesh.faces, placed, variant_faces,
+                                           clip=fit.wrist_plane)
+                rows.append({"pose": pose, "wrist": variant,
+                             "scan": "partial" if partial else "full", "seconds": fit.seconds,
+                             "beyond_wrist_points": fit.beyond_wrist_points,
+                             **distances.to_dict()})
+                if log is not None:
+                    log(rows[-1])
+    return rows
