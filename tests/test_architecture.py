@@ -32,10 +32,12 @@ ALLOWED = {
                 "model", "render", "inference"},
     "evaluation": {"utils", "geometry", "skeleton", "handmodel", "data", "metrics", "fields",
                    "model", "render", "inference", "training", "fitting"},
+    "viewer": {"utils", "geometry", "skeleton", "handmodel", "data", "metrics", "fields",
+               "model", "render", "inference", "training", "fitting", "evaluation"},
     "bench": {"utils", "geometry", "skeleton", "handmodel", "data", "metrics", "fields",
               "model", "render", "inference", "training", "fitting", "evaluation"},
     "cli": {"utils", "geometry", "skeleton", "handmodel", "data", "metrics", "fields", "model",
-            "render", "inference", "training", "fitting", "evaluation"},
+            "render", "inference", "training", "fitting", "evaluation", "viewer"},
 }
 """Layer -> the layers it may import (besides itself and the top-level ``lisa_hand``)."""
 

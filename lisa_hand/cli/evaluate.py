@@ -65,6 +65,21 @@ def eval_command(
     = "points,images",
     workers: Annotated[int, typer.Option(help="Fits run at once (one CPU thread each).")] = 2,
     device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "cpu",
+    real: Annotated[bool, typer.Option(
+        "--real", help="DATA is an imported real split ('lisa import freihand' or "
+                       "'interhand2.6m'): fit each frame's photo with its own camera (the "
+                       "'lisa fit-photo' fit) and score it as the dataset's benchmark does "
+                       "(FreiHAND: MPJPE, PA-MPJPE, PA-MPVPE, F@5 mm, F@15 mm; InterHand2.6M: "
+                       "MPJPE root- and Procrustes-aligned); writes OUT/results.json.")] = False,
+    split: Annotated[str, typer.Option(help="--real: the split of DATA to score.")] = "test",
+    keypoints: Annotated[str, typer.Option(
+        help="--real: 'given' (the dataset's 2D keypoints) or 'detect' (MediaPipe).")]
+    = "given",
+    frames: Annotated[int | None, typer.Option(
+        "--frames", min=1, help="--real: at most this many frames.")] = None,
+    fit_model: Annotated[Path | None, typer.Option(
+        "--fit-model", help="--real: the trained model that fits (default: the shipped one).")
+    ] = None,
 ) -> None:
     """Build the paper's Tables 1-3 on the held-out (test) subjects of DATA: shape from point
     clouds (V2V, V2S in mm, both ways; many subjects, and one subject in many poses), shape
@@ -74,6 +89,8 @@ def eval_command(
     --workers processes; an interrupted run resumes from OUT/jobs/."""
     import dataclasses
 
+    if real:
+        return _eval_real(data, out, split, keypoints, frames, fit_model, device)
     from ..evaluation.config import EvalConfig
     from ..evaluation.quick import QUICK_EVAL, quick_models
     from ..evaluation.tables import run_eval
@@ -95,6 +112,23 @@ def eval_command(
                             resolution=resolution, tables=table_names, workers=workers,
                             device=device)
     run_eval(data, models, out, config, log=typer.echo)
+
+
+def _eval_real(data: Path | None, out: Path, split: str, keypoints: str, frames: int | None,
+               model: Path | None, device: str) -> None:
+    """``lisa eval DATA --real``: the photo fit scored on an imported real split."""
+    from ..evaluation.real_formats import evaluate_split, photo_fit_predictor
+
+    if data is None:
+        raise ValueError("--real needs DATA: a split imported by 'lisa import'")
+    predict = photo_fit_predictor(out / "fits", keypoints=keypoints, model_path=model,
+                                  device=device)
+    scores = evaluate_split(data, split, predict, out=out / "results.json", max_frames=frames,
+                            log=typer.echo)
+    means = ", ".join(f"{key} {value:.4g}" for key, value in scores.means.items())
+    typer.echo(f"{scores.dataset}: {len(scores.frames)} frames scored, {len(scores.failed)} "
+               f"failed; means: {means}")
+    typer.echo(f"wrote {out / 'results.json'}")
 
 
 def register(app: typer.Typer) -> None:

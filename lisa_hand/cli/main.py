@@ -15,11 +15,13 @@ from . import (
     fit_images,
     fit_photo,
     fit_points,
+    import_data,
     mesh,
     metrics,
     render,
     synth,
     train,
+    view,
 )
 
 app = typer.Typer(
@@ -43,7 +45,7 @@ def _root() -> None:
 
 # Each verb lives in its own module with a ``register(app)`` function.
 for _module in (demo, synth, train, fit_points, fit_images, fit_photo, mesh, render, animate,
-                blend, metrics, evaluate):
+                blend, metrics, evaluate, view, import_data):
     _module.register(app)
 
 

@@ -26,6 +26,10 @@
           images/NAME.png       RGB, 8 bit
           masks/NAME.png        foreground mask, 8 bit (0 or 255)
           depth/NAME.png        depth along the camera z axis, uint16, units of 0.1 mm, 0 = none
+          sources.json          optional (written by ``lisa import``): {"images": {NAME: path},
+                                "masks": {NAME: path}}, the original files of views that have no
+                                ``images/NAME.png`` / ``masks/NAME.png`` here (paths absolute or
+                                relative to the frame folder; any format imageio reads, e.g. JPEG)
 
 A frame folder is also the input format of ``lisa fit-images``: ``cameras.json`` and ``images/``
 are required; ``masks/`` and ``keypoints.json`` are optional. Every writer here is atomic.
@@ -33,6 +37,7 @@ are required; ``masks/`` and ``keypoints.json`` are optional. Every writer here 
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -59,11 +64,15 @@ __all__ = [
     "read_npz",
     "read_split",
     "list_frames",
+    "SOURCES_FILE",
+    "read_sources",
 ]
 
 FORMAT_NAME = "lisa-synth"
 FORMAT_VERSION = 1
 DEPTH_UNIT_M = 1e-4  # depth PNGs store units of 0.1 mm: up to 6.5 m in uint16
+SOURCES_FILE = "sources.json"
+"""A frame's references to original image and mask files outside the frame folder."""
 
 
 def subject_id(index: int) -> str:
@@ -109,13 +118,49 @@ class FramePaths:
         return self.root / "keypoints.json"
 
     def image(self, view: str) -> Path:
-        return self.root / "images" / f"{view}.png"
+        """``images/NAME.png``, or the original file ``sources.json`` names when that is absent."""
+        return _local_or_source(self.root, "images", view)
 
     def mask(self, view: str) -> Path:
-        return self.root / "masks" / f"{view}.png"
+        """``masks/NAME.png``, or the original file ``sources.json`` names when that is absent."""
+        return _local_or_source(self.root, "masks", view)
 
     def depth(self, view: str) -> Path:
         return self.root / "depth" / f"{view}.png"
+
+
+def _local_or_source(root: Path, kind: str, view: str) -> Path:
+    local = root / kind / f"{view}.png"
+    if local.exists() or not (root / SOURCES_FILE).is_file():
+        return local
+    source = read_sources(root).get(kind, {}).get(view)
+    return local if source is None else source
+
+
+def read_sources(root: str | os.PathLike) -> dict[str, dict[str, Path]]:
+    """The ``sources.json`` of a frame folder: ``{"images": {view: Path}, "masks": {...}}``,
+    relative paths resolved against the folder; empty when there is none. ValueError naming the
+    file when it is malformed. Cached per file modification time."""
+    path = Path(root) / SOURCES_FILE
+    if not path.is_file():
+        return {}
+    cached = _read_sources(path, path.stat().st_mtime_ns)
+    return {kind: dict(entries) for kind, entries in cached.items()}  # the cache stays intact
+
+
+@functools.lru_cache(maxsize=256)
+def _read_sources(path: Path, mtime_ns: int) -> dict[str, dict[str, Path]]:
+    data = read_json(path)
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{path}: expected a JSON object with 'images' and/or 'masks'")
+    sources: dict[str, dict[str, Path]] = {}
+    for kind in ("images", "masks"):
+        entries = data.get(kind, {})
+        if not isinstance(entries, Mapping) or not all(
+                isinstance(value, str) for value in entries.values()):
+            raise ValueError(f"{path}: {kind!r} must map view names to file paths")
+        sources[kind] = {str(view): (path.parent / value) for view, value in entries.items()}
+    return sources
 
 
 def write_image(path: str | os.PathLike, rgb: np.ndarray) -> Path:

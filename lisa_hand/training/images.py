@@ -115,6 +115,10 @@ class ImageTrainConfig:
     """The widest band kept in memory (``band_px`` must not exceed it)."""
     background_per_view: int = 4096
     """Background pixels kept per view (chosen once at load) for the background rays."""
+    stream: bool = False
+    """Read the drawn frames' images, masks and scans when a step draws them
+    (:mod:`lisa_hand.training.streaming`: memory flat in the size of the split) instead of
+    loading the whole split first."""
     eikonal_ray_points: int = 256
     """Per frame: samples of the rendered rays where L_Eik is evaluated."""
     eikonal_uniform_points: int = 256
@@ -273,12 +277,18 @@ def load_image_data(
 ) -> tuple[RayFrames, ScanFrames | None]:
     """The rays of ``data_dir``'s split and, for L_w (``lambda_w > 0`` with skinning points),
     its scans (their points and template weights), else None."""
-    rays = RayFrames(data_dir, config.split, max_band_px=config.max_band_px,
-                     background_per_view=config.background_per_view, seed=config.trainer.seed)
+    if config.stream:
+        from .streaming import StreamingRayFrames, StreamingScanFrames
+
+        ray_type, scan_type = StreamingRayFrames, StreamingScanFrames
+    else:
+        ray_type, scan_type = RayFrames, ScanFrames
+    rays = ray_type(data_dir, config.split, max_band_px=config.max_band_px,
+                    background_per_view=config.background_per_view, seed=config.trainer.seed)
     if not (config.lambda_w > 0 and config.skinning_points):
         return rays, None
     try:
-        return rays, ScanFrames(data_dir, config.split)
+        return rays, scan_type(data_dir, config.split)
     except FileNotFoundError as exc:
         raise FileNotFoundError(f"{exc} (L_w reads the frames' scan.npz: points and "
                                 "template_weights; set lambda_w=0 to train without)") from None

@@ -78,6 +78,10 @@ class PriorConfig:
     step can leave a culled bone without a gradient; 'allreduce' also works."""
     split: str = "train"
     """Dataset split whose subjects get a shape code and whose scans are fitted."""
+    stream: bool = False
+    """Read the drawn frames' ``scan.npz`` when a step draws them
+    (:class:`lisa_hand.training.streaming.StreamingScanFrames`: memory flat in the size of the
+    split) instead of loading every scan first."""
     frames_per_step: int = 8
     """Frames (posed scans) per step (the global batch, split among processes)."""
     surface_points: int = 2048
@@ -232,7 +236,12 @@ def train_prior(
     config = PriorConfig() if config is None else config
     if not isinstance(config, PriorConfig):
         raise TypeError(f"config must be a PriorConfig, got {type(config).__name__}")
-    scans = ScanFrames(data_dir, config.split)
+    if config.stream:
+        from .streaming import StreamingScanFrames
+
+        scans = StreamingScanFrames(data_dir, config.split)
+    else:
+        scans = ScanFrames(data_dir, config.split)
     model = seeded(config.trainer.seed, lambda: PriorModel(
         config.field, scans.subject_ids, latent_init_std=config.latent_init_std,
         init_rest_joints=scans.table.rest_joints.mean(dim=0)))
