@@ -73,6 +73,10 @@ class PhotoSceneConfig:
     """JPEG quality (PIL's 1-95 scale)."""
     voxels_per_length: float = 250.0
     """Mesh resolution: hand length / voxel size (250: about 0.7 mm voxels, the dataset's)."""
+    hand_model: str = "v1"
+    """Version of the open hand model photographed (``lisa synth --hand-model``): "v1", the one
+    the shipped model was trained on, or "v2" (rounded, padded palm, forearm stub: a hand the
+    model never saw the like of, closer to a real one)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -197,8 +201,8 @@ def make_photo(config: PhotoSceneConfig, index: int, out_dir: Path) -> Synthetic
 
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, _STREAM_PHOTO, index]))
     subjects = held_out_subjects()
-    record = make_subject(SynthConfig(seed=_TRAINING_SEED), subjects[index % len(subjects)],
-                          fit_template=False)
+    record = make_subject(SynthConfig(seed=_TRAINING_SEED, hand_model=config.hand_model),
+                          subjects[index % len(subjects)], fit_template=False)
     side = "left" if index % 2 else "right"
     hand = dataclasses.replace(record.hand, side=side)
     generator = torch.Generator().manual_seed(int(rng.integers(0, 2**62)))

@@ -437,7 +437,8 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(prog="python -m lisa_hand.bench photo",
                                      description=__doc__.split("\n\n")[0])
     parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
-    parser.add_argument("--photos", type=int, default=12, help="synthetic photos (two of each of the 6 held-out subjects)")
+    parser.add_argument("--photos", type=int, default=12,
+                        help="synthetic photos (two of each of the 6 held-out subjects)")
     parser.add_argument("--shared", type=Path, default=None,
                         help="folder of the shared real photos (default ../shared/data/photos)")
     parser.add_argument("--out", type=Path, default=None,
@@ -446,16 +447,23 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--threads", type=int, default=2, help="torch threads (CPU)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the synthetic photos")
+    parser.add_argument("--hand-model", default="v1", choices=("v1", "v2"),
+                        help="open hand model version of the synthetic photos (default v1, "
+                             "the shipped model's)")
     parser.add_argument("--true-keypoints", action="store_true",
                         help="give the fit the true 2D keypoints and side of the synthetic photos "
                              "instead of detecting them (the fit's error without the detector's)")
     args = parser.parse_args(argv)
     print(f"photo fitting: {args.photos} synthetic photos (held-out subjects), then the shared "
           f"photos; {args.threads} torch threads, {args.device}")
+    from ._photo_scenes import PhotoSceneConfig
+
     result = run_photo_benchmark(args.photos, shared_dir=args.shared, work_dir=args.out,
                                  threads=args.threads, device=args.device,
                                  model_path=args.model, seed=args.seed,
-                                 detect=False if args.true_keypoints else None)
+                                 detect=False if args.true_keypoints else None,
+                                 scene=PhotoSceneConfig(seed=args.seed,
+                                                        hand_model=args.hand_model))
     print()
     print("\n".join(_table(result)))
     print()

@@ -44,6 +44,11 @@ def synth(
         help="Write into a non-empty OUT, first removing a previous dataset's subject folders, "
              "dataset.json and split.json (nothing else).",
     )] = False,
+    hand_model: Annotated[str, typer.Option(
+        "--hand-model", metavar="v1|v2",
+        help="Version of the open hand model: v1 (default; what the shipped model was trained "
+             "on) or v2 (rounded, padded palm, forearm stub, D-shaped fingers, shapes drawn "
+             "from adult hand anthropometry).")] = "v1",
     quiet: Annotated[bool, typer.Option("--quiet", help="No progress bar.")] = False,
 ) -> None:
     """Write a synthetic dataset (LISA-open layout, docs/data_formats.md) and/or a preview sheet.
@@ -61,7 +66,7 @@ def synth(
         num_subjects=subjects, num_poses=poses, num_views=views,
         resolution=parse_resolution(resolution), seed=seed, num_workers=workers,
         scan=ScanConfig(num_points=scan_points), num_sdf_samples=sdf_samples,
-        voxels_per_length=mesh_resolution,
+        voxels_per_length=mesh_resolution, hand_model=hand_model,
     )
     if out is not None:
         summary = synthesize(out, config, progress=not quiet, overwrite=overwrite)

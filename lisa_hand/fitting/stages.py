@@ -34,7 +34,8 @@ under :class:`StageReport`'s ``history``)."""
 class StageReport:
     """Diagnostics of one fitting stage (every stage of every fitter returns one).
 
-    stage: its name: 'align', 'pose', 'field' (point fit), 'keypoints', 'color' (image fit).
+    stage: its name: 'align', 'pose', 'fingers', 'field' (point fit), 'keypoints', 'color'
+        (image fit).
     seconds: its wall time, seconds.
     loss: the final objective of the best hand it returns (NaN when the stage did not run,
         e.g. a reused keypoint-stage hand): the point stages' energy (robust distances,
@@ -57,6 +58,7 @@ class StageReport:
     screened_energies: the point fit's global-pose search: the proxy energy (metres) of every
         initial candidate (24 orientations per initial finger pose) after the first part of
         the alignment; else empty.
+    notes: what the stage did, in words (the point fit's 'fingers': which fingers it moved).
     """
 
     stage: str
@@ -67,6 +69,7 @@ class StageReport:
     keypoint_error_px: float = math.nan
     candidate: int | None = None
     screened_energies: list[float] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
 
 
 def history_columns(history: list[HistoryRecord], stage: str | None = None

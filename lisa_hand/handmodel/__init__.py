@@ -4,16 +4,28 @@ A right hand (left = mirror image) on MANO's skeleton, defined as a signed dista
 the posed point: per-bone round cones and a palm body blended with a smooth union (joints bulge
 and crease when flexed), fingernails, creases, palm lines and fine bumps; per-subject shape
 (:class:`HandShape`), appearance (:class:`Appearance`) and detail; natural poses from a synergy
-space within joint limits. :class:`OpenHand` is the entry point; :meth:`OpenHand.posed` gives
-the exact SDF, skinning weights, albedo, joints, keypoints, watertight meshes and surface samples.
+space within joint limits. Two versions (:data:`HAND_MODELS`, ``OpenHand(model=...)``): v1
+(default) and v2 (:mod:`.parts_v2`: rounded, padded palm, forearm stub, D-shaped fingers; shapes
+from adult anthropometry, :mod:`.anthropometry`). :class:`OpenHand` is the entry point;
+:meth:`OpenHand.posed` gives the exact SDF, skinning weights, albedo, joints, keypoints,
+watertight meshes and surface samples.
 
 Rest-pose convention (MANO's right-hand axes): wrist joint at the origin, fingers along -x, palm
 facing -y, thumb on +z, metres. See :mod:`.shape` and :mod:`.poses`.
 """
 
+from .anthropometry import sample_anthropometric_shape
 from .appearance import APPEARANCE_BOUNDS, Appearance, albedo, sample_appearance, skin_color
-from .hand import DEFAULT_VOXELS_PER_LENGTH, OpenHand, PosedHand, SurfaceSamples, sample_hand
+from .hand import (
+    DEFAULT_VOXELS_PER_LENGTH,
+    HAND_MODELS,
+    OpenHand,
+    PosedHand,
+    SurfaceSamples,
+    sample_hand,
+)
 from .parts import HandParts, build_hand_parts
+from .parts_v2 import build_hand_parts_v2
 from .poses import (
     JOINT_LIMITS,
     POSE_NAMES,
@@ -42,6 +54,7 @@ __all__ = [
     "sample_appearance",
     "skin_color",
     "DEFAULT_VOXELS_PER_LENGTH",
+    "HAND_MODELS",
     "OpenHand",
     "PosedHand",
     "SurfaceSamples",
@@ -66,6 +79,8 @@ __all__ = [
     "render_preview",
     "HandParts",
     "build_hand_parts",
+    "build_hand_parts_v2",
+    "sample_anthropometric_shape",
     "HandFieldOutput",
     "PosedField",
     "SHAPE_BOUNDS",

@@ -22,8 +22,10 @@ import torch
 
 from ..skeleton.kinematics import check_side, forward_kinematics, mirror_points, mirror_pose
 from ..skeleton.tree import FINGER_JOINTS, FINGER_NAMES, NUM_JOINTS, POSE_DIM, joints_to_keypoints
+from .anthropometry import sample_anthropometric_shape
 from .appearance import Appearance, albedo, sample_appearance
 from .parts import HandParts, build_hand_parts
+from .parts_v2 import build_hand_parts_v2
 from .sdf import HandFieldOutput, PosedField, single_threaded
 from .shape import HandShape, sample_shape
 
@@ -33,11 +35,18 @@ __all__ = [
     "SurfaceSamples",
     "sample_hand",
     "DEFAULT_VOXELS_PER_LENGTH",
+    "HAND_MODELS",
 ]
 
 DEFAULT_VOXELS_PER_LENGTH = 255
 """Default meshing resolution: voxels per hand length (0.73 mm for an 18.5 cm hand: 100k-150k
 vertices in any pose, since the surface area scales with the squared length)."""
+
+HAND_MODELS = ("v1", "v2")
+"""Versions of the open hand model: ``"v1"`` (the default: slab palm, round fingers, independent
+clipped-normal shape draws; :mod:`.parts`, :func:`.shape.sample_shape`) and ``"v2"`` (rounded,
+padded palm, forearm stub, D-shaped fingers; shape draws from adult anthropometry, jointly;
+:mod:`.parts_v2`, :mod:`.anthropometry`)."""
 
 _MIRROR = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=torch.float64))
 # Gradient bound passed to the mesher: the displacements keep |grad sdf| below about 1.1.
@@ -52,12 +61,14 @@ class OpenHand:
     appearance: its skin :class:`Appearance`.
     detail_seed: seeds the fine detail (creases, palm lines, bumps).
     side: 'right' or 'left' (the left hand is the mirror image of the right one).
+    model: the hand model version, one of :data:`HAND_MODELS` (default "v1").
     """
 
     shape: HandShape = field(default_factory=HandShape)
     appearance: Appearance = field(default_factory=Appearance)
     detail_seed: int = 0
     side: str = "right"
+    model: str = "v1"
 
     def __post_init__(self) -> None:
         if not isinstance(self.shape, HandShape):
@@ -71,10 +82,14 @@ class OpenHand:
         ):
             raise TypeError(f"detail_seed must be an int, got {self.detail_seed!r}")
         check_side(self.side)
+        check_hand_model(self.model)
 
     @functools.cached_property
     def parts(self) -> HandParts:
-        """The right-hand rest-pose parts and detail (float64, CPU; :mod:`.parts`)."""
+        """The right-hand rest-pose parts and detail (float64, CPU; :mod:`.parts` for v1,
+        :mod:`.parts_v2` for v2)."""
+        if self.model == "v2":
+            return build_hand_parts_v2(self.shape, int(self.detail_seed))
         return build_hand_parts(self.shape, int(self.detail_seed))
 
     @property
@@ -105,14 +120,30 @@ class OpenHand:
         return PosedHand(self, pose, translation, dtype, device)
 
 
-def sample_hand(generator: torch.Generator, side: str = "right") -> OpenHand:
-    """A random subject: shape (:func:`sample_shape`), appearance (:func:`sample_appearance`) and
-    detail seed, all from ``generator`` (same seed, same subject)."""
+def check_hand_model(model: str) -> str:
+    """``model`` if it is one of :data:`HAND_MODELS`, else ValueError naming the choices."""
+    if model not in HAND_MODELS:
+        raise ValueError(f"hand model must be one of {', '.join(HAND_MODELS)}, got {model!r}")
+    return model
+
+
+def sample_hand(generator: torch.Generator, side: str = "right", model: str = "v1") -> OpenHand:
+    """A random subject: shape (:func:`sample_shape` for v1, the anthropometric
+    :func:`~lisa_hand.handmodel.anthropometry.sample_anthropometric_shape` for v2), appearance
+    (:func:`sample_appearance`) and detail seed, all from ``generator`` (same seed, same subject).
+
+    model: the hand model version, one of :data:`HAND_MODELS`.
+    """
     check_side(side)
-    shape = sample_shape(generator)
+    check_hand_model(model)
+    if model == "v2":
+        shape = sample_anthropometric_shape(generator)
+    else:
+        shape = sample_shape(generator)
     appearance = sample_appearance(generator)
     detail_seed = int(torch.randint(0, 2**31 - 1, (), generator=generator))
-    return OpenHand(shape=shape, appearance=appearance, detail_seed=detail_seed, side=side)
+    return OpenHand(shape=shape, appearance=appearance, detail_seed=detail_seed, side=side,
+                    model=model)
 
 
 @dataclass(frozen=True)

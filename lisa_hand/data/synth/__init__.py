@@ -1,7 +1,7 @@
 """The dataset generator behind ``lisa synth`` (:func:`synthesize`, :mod:`.dataset`): subjects of
 the open hand model (:mod:`.scene`: the seeded random choices), each frame written by
 :mod:`.frame` (mesh, scan, SDF samples, images, masks, depth, keypoints), settings and summary in
-:mod:`.config`, a contact sheet in :mod:`.preview`."""
+:mod:`.config`, a contact sheet in :mod:`.preview`, hand model v1 beside v2 in :mod:`.compare`."""
 
 from .dataset import (
     GENERATOR_VERSION,

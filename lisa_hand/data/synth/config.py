@@ -24,6 +24,7 @@ __all__ = ["SynthConfig", "SynthSummary", "parse_resolution", "check_integer"]
 
 _MAX_IMAGE_SIDE = 16384
 _MAX_WORKERS = 8
+_HAND_MODELS = ("v1", "v2")  # lisa_hand.handmodel.HAND_MODELS (checked equal by the tests)
 
 
 @dataclass(frozen=True)
@@ -86,6 +87,10 @@ class SynthConfig:
     num_workers: int = 0
     """Worker processes (1: in this process; 0: one per CPU core, at most 8). The dataset does
     not depend on it."""
+    hand_model: str = "v1"
+    """Version of the open hand model the subjects are made of (``lisa_hand.handmodel.
+    HAND_MODELS``): "v1" (default, what the shipped model was trained on) or "v2" (rounded,
+    padded palm, forearm stub, D-shaped fingers, anthropometric shape draws)."""
 
     def __post_init__(self) -> None:
         for name in ("num_subjects", "num_poses", "num_views", "supersample"):
@@ -136,6 +141,9 @@ class SynthConfig:
             raise ValueError(f"fov_deg must be in (0, 180) degrees, got {self.fov_deg!r}")
         if not isinstance(self.write_depth, bool):
             raise TypeError(f"write_depth must be a bool, got {self.write_depth!r}")
+        if self.hand_model not in _HAND_MODELS:
+            raise ValueError(f"hand_model must be one of {', '.join(_HAND_MODELS)}, got "
+                             f"{self.hand_model!r}")
 
     @property
     def width(self) -> int:
@@ -158,9 +166,12 @@ class SynthConfig:
 
     def to_dict(self) -> dict[str, Any]:
         """The settings that define the dataset, JSON-able (``num_workers`` left out: it does not
-        change what is written)."""
+        change what is written; ``hand_model`` only when it is not the default "v1", so that a v1
+        dataset's ``dataset.json`` is what it was before versions existed)."""
         data = dataclasses.asdict(self)
         del data["num_workers"]
+        if data["hand_model"] == "v1":
+            del data["hand_model"]
         return data
 
 

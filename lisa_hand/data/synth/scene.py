@@ -65,6 +65,7 @@ class SubjectRecord:
             "shape": dataclasses.asdict(hand.shape),
             "appearance": dataclasses.asdict(hand.appearance),
             "detail_seed": int(hand.detail_seed),
+            **({"hand_model": hand.model} if hand.model != "v1" else {}),
             "rest_joints": hand.rest_joints.tolist(),
             "template_betas": self.template_betas.tolist(),
             "template_rest_joints": self.template_rest_joints.tolist(),
@@ -137,8 +138,8 @@ def split_subjects(num_subjects: int, fractions: Sequence[float] = (0.7, 0.1, 0.
 
 
 def make_subject(config: SynthConfig, index: int, fit_template: bool = True) -> SubjectRecord:
-    """Subject ``index`` of the dataset ``config`` describes (depends on the seed, the index and
-    ``left_fraction`` only).
+    """Subject ``index`` of the dataset ``config`` describes (depends on the seed, the index,
+    ``left_fraction`` and ``hand_model`` only).
 
     fit_template: fit the MANO-like template (``template_betas``, ``template_rest_joints``);
     False leaves them empty (previews).
@@ -149,7 +150,7 @@ def make_subject(config: SynthConfig, index: int, fit_template: bool = True) -> 
     index = check_integer(index, "index", 0)
     rng = _numpy_rng(config.seed, _STREAM_SUBJECT, index)
     side = "left" if rng.random() < config.left_fraction else "right"
-    hand = sample_hand(_torch_generator(rng), side=side)
+    hand = sample_hand(_torch_generator(rng), side=side, model=config.hand_model)
     betas = np.zeros(0)
     template_joints = np.zeros((0, 3))
     if fit_template:

@@ -27,6 +27,10 @@ class FitPointsConfig:
     """Distinct candidates (best alignment energies) that go on to the pose and field stages."""
     pose_iters: int = 60
     """Adam steps of the articulated proxy stage (pose and translation; no network)."""
+    finger_iters: int = 30
+    """Per-finger restarts after the articulated stage (:mod:`.finger_search`): proxy steps of
+    the best candidate's copies with one finger restarted from flat, relaxed and fist (the thumb
+    also from the opposed pinch and ok thumbs); 0 turns them off."""
     field_iters: int = 200
     """Adam steps of the field stage (all unknowns, the LISA field)."""
     prune_after: tuple[float, ...] = (0.15, 0.35)
@@ -119,7 +123,7 @@ class FitPointsConfig:
     def __post_init__(self) -> None:
         from .global_pose import initial_finger_pose
 
-        check_int_fields(self, ("align_iters", "pose_iters", "field_iters"), 0)
+        check_int_fields(self, ("align_iters", "pose_iters", "finger_iters", "field_iters"), 0)
         check_int_fields(self, ("align_keep", "num_restarts", "points_per_iteration",
                                 "proxy_points", "max_points", "min_points"), 1)
         if not self.init_poses:

@@ -11,6 +11,9 @@ a function from hands (:class:`~lisa_hand.skeleton.params.HandParams`) to hands:
    best distinct candidates go on.
 2. **Articulated proxy** (:func:`.proxy.fit_proxy_pose`, 'pose', no network): the candidates
    also fit the finger pose on the proxy.
+   **Per-finger restarts** (:func:`.finger_search.restart_fingers`, 'fingers', no network): the
+   best candidate with each finger restarted from other poses; the best chain of each finger
+   combined replaces the last candidate when it fits better.
 3. **Surface** (:func:`.surface_stage.fit_surface`, 'field'): all unknowns on the LISA field
    (rotation, translation, finger pose, shape code, the template's betas), candidates pruned
    to one (8 -> 3 -> 1).
@@ -43,12 +46,13 @@ from ..sides import mirror_cloud, mirror_hand
 from ..stages import HistoryRecord, StageReport
 from .cloud import TargetCloud, target_cloud
 from .config import FitPointsConfig
+from .finger_search import restart_fingers
 from .global_pose import search_global_pose
 from .monitor import FitMonitor, FitStep
 from .proxy import build_surface_proxy, fit_proxy_pose
 from .surface_stage import fit_surface, frozen_field, surface_residuals
 
-__all__ = ["FitPointsConfig", "FitStep", "FitResult", "fit_points"]
+__all__ = ["FitPointsConfig", "FitStep", "FitResult", "fit_points", "start_hand"]
 
 _MM = 1e-3
 
@@ -63,7 +67,7 @@ class FitResult:
     residual_median_mm, residual_mean_mm: median and mean ``|G(x)|`` over the whole cloud, mm.
     inlier_fraction: fraction of points with ``|G(x)| < 3 sigma`` (``sigma = robust_scale_mm``).
     seconds: wall time of the fit; stage_seconds: per stage ('proxy', 'align', 'pose',
-        'field', 'finish').
+        'fingers', 'field', 'finish').
     num_points: points fitted (after ``max_points``, without those beyond the wrist).
     beyond_wrist_points: points left out as lying beyond the wrist (``config.wrist_clip_m``).
     wrist_plane: the fitted hand's wrist cut (:func:`lisa_hand.skeleton.wrist.wrist_plane`
@@ -76,7 +80,7 @@ class FitResult:
         (since the fit started)}`` (:data:`lisa_hand.fitting.stages.HistoryRecord`), every
         stage in order.
     reports: each stage's :class:`lisa_hand.fitting.stages.StageReport` ({"align", "pose",
-        "field"}), as the image fit's ``reports``.
+        "fingers", "field"}), as the image fit's ``reports``.
     """
 
     params: HandParams
@@ -126,7 +130,7 @@ def _check_rest_joints(rest_joints) -> torch.Tensor | None:
     return rest_joints
 
 
-def _start_hand(model, cloud: TargetCloud, rest_joints: torch.Tensor | None):
+def start_hand(model, cloud: TargetCloud, rest_joints: torch.Tensor | None):
     """(the template or None, the right hand at rest every candidate starts from: the fixed
     skeleton or the template's mean one, the mean shape and colour codes, on the cloud's
     device and dtype)."""
@@ -185,7 +189,7 @@ def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints,
     """The three stages on a right hand's cloud -> (hand, {stage: its report}, the cloud the
     last stage fitted: without what lies beyond the wrist, ``config.wrist_clip_m``)."""
     since = monitor.start
-    template, start, (rest, shape_code, color) = _start_hand(model, cloud, rest_joints)
+    template, start, (rest, shape_code, color) = start_hand(model, cloud, rest_joints)
     proxy = build_surface_proxy(model, rest, shape_code, color, config.proxy_points,
                                 cloud.generator)
     clip = config.wrist_clip_m
@@ -201,6 +205,9 @@ def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints,
     candidates, reports["pose"] = fit_proxy_pose(proxy, cloud, candidates, config,
                                                  monitor=monitor)
     since = monitor.lap("pose", since)
+    candidates, reports["fingers"] = restart_fingers(proxy, cloud, candidates, config,
+                                                     monitor=monitor)
+    since = monitor.lap("fingers", since)
     cloud = _clip_cloud(cloud, candidates[0], clip, config.min_points)
     hand, reports["field"] = fit_surface(model, cloud, candidates, config, template=template,
                                          pivot=proxy.pivot, monitor=monitor)
@@ -250,7 +257,7 @@ def fit_points(
                             else mirror_cloud(cloud.normals, side), cloud.generator)
         rest_joints = None if rest_joints is None else mirror_cloud(rest_joints, side)
         callback = _left_callback(callback)
-    total = config.align_iters + config.pose_iters + config.field_iters
+    total = config.align_iters + config.pose_iters + config.finger_iters + config.field_iters
     monitor = FitMonitor(progress_total=total if progress else None, callback=callback)
     threads = config.num_threads if device.type == "cpu" else None
     try:

@@ -125,12 +125,14 @@ def build_surface_proxy(model, rest_joints: torch.Tensor, shape_code: torch.Tens
 
 
 def proxy_energy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, config,
-                 scale: float, subset: torch.Tensor | None = None) -> torch.Tensor:
-    """[K] the proxy energy of the module docstring at robust scale ``scale`` (metres), on 256
-    random cloud points (drawn from ``cloud.generator``) and the proxy points ``subset`` (all:
-    None). config: a :class:`~lisa_hand.fitting.points.config.FitPointsConfig`."""
+                 scale: float, subset: torch.Tensor | None = None,
+                 num_points: int = _PROXY_STAGE_POINTS) -> torch.Tensor:
+    """[K] the proxy energy of the module docstring at robust scale ``scale`` (metres), on
+    ``num_points`` random cloud points (drawn from ``cloud.generator``; 256 by default, the
+    same for every candidate) and the proxy points ``subset`` (all: None). config: a
+    :class:`~lisa_hand.fitting.points.config.FitPointsConfig`."""
     proxy_points = proxy.world(batch, subset)
-    points = cloud.points[cloud.sample(_PROXY_STAGE_POINTS)]
+    points = cloud.points[cloud.sample(num_points)]
     distance = nearest_distance(points.expand(batch.count, -1, -1), proxy_points)
     energy = robust_loss(distance, config.robust_loss, scale).mean(-1)
     if config.coverage_weight > 0:
@@ -147,9 +149,10 @@ def optimise_on_proxy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateB
                       monitor: FitMonitor | None = None) -> torch.Tensor:
     """Adam on :func:`proxy_energy` for steps ``step_offset .. step_offset + iterations`` of a
     stage of ``total`` steps (the schedules' length; default ``iterations``), in place on
-    ``batch``: 'align' moves the rotation and position, 'pose' also the finger pose (with the
-    finger-pose and joint-limit prior). ``like`` and the batch's fixed skeletons make the
-    monitor's hands (:meth:`CandidateBatch.hand`). -> [K] the final proxy energies."""
+    ``batch``: 'align' moves the rotation and position, any other stage ('pose', 'fingers')
+    also the finger pose (with the finger-pose and joint-limit prior). ``like`` and the batch's
+    fixed skeletons make the monitor's hands (:meth:`CandidateBatch.hand`). -> [K] the final
+    proxy energies."""
     total = iterations if total is None else total
     rates = (config.lr_rotation, config.lr_translation, config.lr_pose)
     tensors = batch.unknowns(with_shape=False)[: 2 if stage == "align" else 3]
@@ -162,7 +165,7 @@ def optimise_on_proxy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateB
         energy = proxy_energy(proxy, cloud, batch, config, annealed_scale(start, end, step, total),
                               proxy_subset)
         loss = energy
-        if stage == "pose":
+        if stage != "align":
             loss = loss + point_prior(config, batch, mean_fingers, None)
         batch.clear_grads()
         loss.sum().backward()
