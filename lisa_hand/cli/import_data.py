@@ -122,6 +122,17 @@ def scans(
     split: Annotated[str, typer.Option("--as-split", help="The split the subjects go into.")
                      ] = "train",
     mano: ManoOpt = None,
+    side: Annotated[str, typer.Option(
+        "--side", help="right or left: the side of scans whose files do not say it.")
+    ] = "right",
+    pose_search: Annotated[bool, typer.Option(
+        "--pose-search/--no-pose-search",
+        help="Scans without NAME.keypoints3d.json or MANO parameters: find their pose with the "
+             "point-cloud fit of 'lisa fit-points' (about 20 s a scan on a CPU), or skip them."
+    )] = True,
+    model: Annotated[Path | None, typer.Option(
+        "--model", help="--pose-search: the trained model that fits (default: the shipped "
+                        "one).")] = None,
     overwrite: OverwriteOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
@@ -130,8 +141,29 @@ def scans(
 
     config = ScanImportConfig(root=str(folder), units=units, num_points=points,
                               num_sdf_samples=sdf_samples, split=split,
-                              mano=None if mano is None else str(mano))
-    typer.echo(import_scans(config, out, overwrite=overwrite, progress=not quiet).describe())
+                              mano=None if mano is None else str(mano), side=side)
+    keypoints_fn = scan_pose_search(model) if pose_search else None
+    typer.echo(import_scans(config, out, overwrite=overwrite, progress=not quiet,
+                            keypoints_fn=keypoints_fn).describe())
+
+
+def scan_pose_search(model_path: Path | None):
+    """The pose search of ``lisa import scans``: a callable (points [N, 3] metres, normals or
+    None, side) -> [21, 3] keypoints metres, from :func:`lisa_hand.fitting.points.fit.fit_points`
+    with the trained model (loaded on first use) and its fitted hand's keypoints."""
+    state: dict = {}
+
+    def search(points, normals, side):
+        from ..fitting.outputs import hand_keypoints_3d
+        from ..fitting.points.fit import fit_points
+        from ..model.trained import load_trained
+
+        if "model" not in state:
+            state["model"] = load_trained(model_path, "cpu")
+        fit = fit_points(state["model"], points, normals, side=side)
+        return hand_keypoints_3d(fit.params)
+
+    return search
 
 
 def register(app: typer.Typer) -> None:

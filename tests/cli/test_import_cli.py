@@ -52,3 +52,37 @@ def test_missing_input_is_one_line(tmp_path, capsys, verb):
 def test_help_explains(capsys):
     code, output = run(capsys, "import", "interhand2.6m", "--help")
     assert code == 0 and "--mano" in output.out and "--every" in output.out
+
+
+def test_scans_cli_pose_search_or_skip(tmp_path, capsys, monkeypatch):
+    """A scan with no keypoints or MANO file: fitted by the point-cloud pose search (here a
+    stand-in for the fit that returns the template's keypoints), or skipped and counted with
+    --no-pose-search."""
+    import torch
+
+    import lisa_hand.cli.import_data as import_data
+    from lisa_hand.data.meshio import save_mesh
+    from lisa_hand.geometry.meshing import Mesh
+    from lisa_hand.handmodel.template import load_template
+
+    template = load_template().to(dtype=torch.float64)
+    posed = template(torch.zeros(1, 48, dtype=torch.float64),
+                     torch.zeros(1, template.num_betas, dtype=torch.float64),
+                     torch.tensor([[0.0, 0.0, 0.4]], dtype=torch.float64))
+    (tmp_path / "scans").mkdir()
+    save_mesh(tmp_path / "scans" / "bare.ply", Mesh(vertices=posed.vertices[0].numpy(),
+                                                    faces=template.faces.numpy()))
+    models = []
+
+    def stand_in(model_path):
+        models.append(model_path)
+        return lambda points, normals, side: posed.keypoints[0].numpy()
+
+    monkeypatch.setattr(import_data, "scan_pose_search", stand_in)
+    code, output = run(capsys, "import", "scans", tmp_path / "scans", "--out", tmp_path / "D",
+                       "--points", "1000", "--sdf-samples", "200", "--quiet")
+    assert code == 0, output.err
+    assert "1 frames" in output.out and models == [None]
+    code, output = run(capsys, "import", "scans", tmp_path / "scans", "--out", tmp_path / "E",
+                       "--no-pose-search", "--quiet")
+    assert code == 2 and "no frame could be imported" in output.err

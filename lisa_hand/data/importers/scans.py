@@ -16,14 +16,17 @@ points), ``template_weights`` (skinning pseudo ground truth, :mod:`.skinning`: t
 nearest vertex of the posed user's MANO when ``--mano`` and MANO parameters are given, else of
 the posed MANO-like template), ``sdf_points`` / ``sdf`` (exact distances to a mesh; for a cloud,
 points offset along the normals by at most 2 mm with the offset as distance, an approximation).
-A scan needs MANO parameters or 3D keypoints for its pose: the point-cloud pose search lives in
-``lisa_hand.fitting`` and is not run here (the scan is skipped and counted).
+A scan without MANO parameters or 3D keypoints gets its keypoints from ``keypoints_fn`` when
+one is given (``lisa import scans`` passes the point-cloud fit of ``lisa fit-points``,
+:func:`lisa_hand.fitting.points.fit.fit_points`, and its fitted 21 keypoints: the pose search
+lives in ``lisa_hand.fitting``, above this layer); without one it is skipped and counted. Such a
+scan's side is ``config.side``.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
@@ -41,7 +44,7 @@ from .common import FrameRecord, ImportReport, SkipFrame, prepare_output, write_
 from .mano_params import interhand_mano, load_mano_layers
 from .skinning import skinning_pseudo_ground_truth
 
-__all__ = ["ScanImportConfig", "import_scans", "scan_records"]
+__all__ = ["ScanImportConfig", "KeypointsFn", "import_scans", "scan_records"]
 
 _CLOUD_SDF_SIGMA_M = 0.002
 
@@ -64,6 +67,13 @@ class ScanImportConfig:
     """Folder of the user's MANO models (pose and skinning pseudo ground truth from MANO)."""
     seed: int = 0
     """Seed of the surface and SDF sampling."""
+    side: str = "right"
+    """The side of scans whose files do not say it (no keypoints or MANO file)."""
+
+
+KeypointsFn = Callable[[np.ndarray, "np.ndarray | None", str], np.ndarray]
+"""(points [N, 3] metres, normals [N, 3] or None, side) -> the scan's 21 keypoints [21, 3]
+metres (OpenPose order): the pose search of scans without annotations."""
 
 
 def _scan_files(root: Path) -> list[tuple[str, Path]]:
@@ -98,18 +108,34 @@ def _read_geometry(path: Path, units: str) -> dict[str, Any]:
             "scale": unit.metres_per_unit}
 
 
-def scan_records(config: ScanImportConfig, report: ImportReport, mano_sides: set[str]
-                 ) -> Iterator[FrameRecord]:
-    """The records of a scan folder (geometry is read again when scan.npz is written)."""
+def _searched_keypoints(geometry: dict[str, Any], side: str, keypoints_fn: KeypointsFn,
+                        seed: int) -> np.ndarray:
+    """The keypoints ``keypoints_fn`` finds on a scan (a mesh: 20,000 surface samples)."""
+    from ..scans import sample_surface
+
+    points, normals = geometry["vertices"], geometry["normals"]
+    if geometry["faces"] is not None:
+        samples = sample_surface(points, geometry["faces"], 20000, seed)
+        points, normals = samples.points, samples.normals
+    keypoints = np.asarray(keypoints_fn(points, normals, side), np.float64)
+    if keypoints.shape != (21, 3) or not np.isfinite(keypoints).all():
+        raise ValueError(f"the pose search gave keypoints of shape {keypoints.shape}")
+    return keypoints
+
+
+def scan_records(config: ScanImportConfig, report: ImportReport, mano_sides: set[str],
+                 keypoints_fn: KeypointsFn | None = None) -> Iterator[FrameRecord]:
+    """The records of a scan folder (geometry is read again when scan.npz is written);
+    ``keypoints_fn``: the pose search of scans without annotations (module docstring)."""
     root = Path(config.root)
     for person, path in _scan_files(root):
         stem = path.with_suffix("")
         try:
             mano_file, keypoint_file = Path(f"{stem}.mano.json"), Path(f"{stem}.keypoints3d.json")
-            mano, keypoints, side = None, None, "right"
+            mano, keypoints, side = None, None, check_side(config.side)
             if keypoint_file.is_file():
                 data = read_json(keypoint_file)
-                side = check_side(str(data.get("side", "right")))
+                side = check_side(str(data.get("side", side)))
                 geometry = _read_geometry(path, config.units)
                 keypoints = np.asarray(data["keypoints"], np.float64).reshape(21, 3) * geometry[
                     "scale"]
@@ -118,12 +144,14 @@ def scan_records(config: ScanImportConfig, report: ImportReport, mano_sides: set
                 side = check_side(str(data.get("side", side)))
                 if side in mano_sides:
                     mano = interhand_mano(data, str(mano_file))
-            if keypoints is None and mano is None:
+            if keypoints is None and mano is None and keypoints_fn is None:
                 raise SkipFrame(f"{path}: no {stem.name}.keypoints3d.json (or .mano.json with "
                                 "--mano): its pose is unknown", "no pose")
             geometry = _read_geometry(path, config.units)
             if geometry["faces"] is None and geometry["normals"] is None:
                 raise SkipFrame(f"{path}: a point cloud needs normals (nx ny nz)", "no normals")
+            if keypoints is None and mano is None:
+                keypoints = _searched_keypoints(geometry, side, keypoints_fn, config.seed)
         except SkipFrame as exc:
             report.skip(exc)
             continue
@@ -186,8 +214,10 @@ def _mano_keypoints(records: list[FrameRecord], layers: dict[str, ManoLayer]) ->
 
 
 def import_scans(config: ScanImportConfig, out: str | os.PathLike, *, overwrite: bool = False,
-                 progress: bool = True) -> ImportReport:
-    """Import a folder of scans into ``out`` (see the module docstring)."""
+                 progress: bool = True, keypoints_fn: KeypointsFn | None = None
+                 ) -> ImportReport:
+    """Import a folder of scans into ``out`` (see the module docstring; ``keypoints_fn``: the
+    pose search of scans without keypoints or MANO parameters, None to skip them)."""
     root = Path(config.root)
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: no such folder of scans")
@@ -195,7 +225,7 @@ def import_scans(config: ScanImportConfig, out: str | os.PathLike, *, overwrite:
         prepare_output(Path(out), overwrite)  # raises before reading the scans
     layers = load_mano_layers(config.mano)
     report = ImportReport(root=Path(out), dataset="scans")
-    records = list(scan_records(config, report, set(layers or {})))
+    records = list(scan_records(config, report, set(layers or {}), keypoints_fn))
     if layers:
         _mano_keypoints(records, layers)
     out = prepare_output(Path(out), overwrite)

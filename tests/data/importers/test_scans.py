@@ -112,3 +112,42 @@ def test_point_cloud_without_normals_is_skipped(tmp_path):
         import_scans(ScanImportConfig(root=str(folder), units="m"), tmp_path / "D",
                      progress=False)
     assert not (tmp_path / "D" / "dataset.json").exists()
+
+
+def test_a_scan_without_annotations_gets_its_pose_from_the_pose_search(tmp_path):
+    """``keypoints_fn`` (``lisa import scans --pose-search``: the point-cloud fit) is asked for
+    the scans that have no keypoints or MANO file, with the scan's points in metres; its
+    keypoints pose the frame. Here a stand-in returns the true keypoints."""
+    template = load_template().to(dtype=F64)
+    pose = sample_pose(torch.Generator().manual_seed(3), 1, global_orient=True).to(F64)
+    betas = torch.zeros(1, template.num_betas, dtype=F64)
+    posed = template(pose, betas, torch.tensor([[0.0, 0.1, 0.5]], dtype=F64))
+    folder = tmp_path / "scans" / "bob"
+    folder.mkdir(parents=True)
+    save_mesh(folder / "bare.ply", Mesh(vertices=posed.vertices[0].numpy() * 1e3,
+                                        faces=template.faces.numpy()))
+    asked = []
+
+    def search(points, normals, side):
+        asked.append((points.shape, None if normals is None else normals.shape, side))
+        assert np.abs(points).max() < 1.0  # metres, not the file's millimetres
+        return posed.keypoints[0].numpy()
+
+    out = tmp_path / "DATA"
+    report = import_scans(ScanImportConfig(root=str(tmp_path / "scans"), num_points=2000,
+                                           num_sdf_samples=500, side="right"), out,
+                          progress=False, keypoints_fn=search)
+    assert report.num_frames == 1 and not report.skipped
+    assert asked == [((20000, 3), (20000, 3), "right")]
+    params = json.loads((out / "s000" / "f000" / "params.json").read_text())
+    # The frame's keypoints are the search's, to the IK's accuracy (1 mm).
+    error = np.linalg.norm(np.asarray(params["keypoints"]) - posed.keypoints[0].numpy(), axis=1)
+    assert error.max() < 1e-3
+
+    def broken(points, normals, side):
+        return np.zeros((5, 3))
+
+    with pytest.raises(ValueError, match="no frame could be imported"):
+        import_scans(ScanImportConfig(root=str(tmp_path / "scans"), num_points=2000,
+                                      num_sdf_samples=500), tmp_path / "D2", progress=False,
+                     keypoints_fn=broken)
