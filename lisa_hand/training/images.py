@@ -116,9 +116,16 @@ class ImageTrainConfig:
     background_per_view: int = 4096
     """Background pixels kept per view (chosen once at load) for the background rays."""
     stream: bool = False
-    """Read the drawn frames' images, masks and scans when a step draws them
-    (:mod:`lisa_hand.training.streaming`: memory flat in the size of the split) instead of
-    loading the whole split first."""
+    """Read frames while training runs (:mod:`lisa_hand.training.streaming`: a DataLoader with
+    ``stream_workers`` processes decodes the images and masks, cropped to the hand, into a
+    buffer of ``stream_cache`` frames; under torchrun each rank reads its share of the split;
+    memory flat in the size of the split) instead of loading the whole split first."""
+    stream_workers: int = 2
+    """With ``stream``: the DataLoader's worker processes (0: frames read in the training
+    process; the frames drawn are the same whatever this number)."""
+    stream_cache: int = 64
+    """With ``stream``: frames held in memory (the buffer a step draws its frames from); at
+    least ``num_frames``."""
     eikonal_ray_points: int = 256
     """Per frame: samples of the rendered rays where L_Eik is evaluated."""
     eikonal_uniform_points: int = 256
@@ -180,6 +187,11 @@ class ImageTrainConfig:
             check_positive_int(self, name)
         if self.num_rays % self.num_frames:
             raise ValueError(f"num_rays ({self.num_rays}) must be a multiple of num_frames "
+                             f"({self.num_frames})")
+        check_positive_int(self, "stream_workers", allow_zero=True)
+        check_positive_int(self, "stream_cache")
+        if self.stream and self.stream_cache < self.num_frames:
+            raise ValueError(f"stream_cache ({self.stream_cache}) must be at least num_frames "
                              f"({self.num_frames})")
         for name in ("band_px", "max_band_px", "background_per_view", "eikonal_ray_points",
                      "eikonal_uniform_points", "skinning_points"):
@@ -281,14 +293,18 @@ def load_image_data(
         from .streaming import StreamingRayFrames, StreamingScanFrames
 
         ray_type, scan_type = StreamingRayFrames, StreamingScanFrames
+        ray_options = dict(cache_frames=config.stream_cache, workers=config.stream_workers)
+        scan_options = dict(cache_frames=config.stream_cache)  # read by frame, no loader
     else:
         ray_type, scan_type = RayFrames, ScanFrames
+        ray_options, scan_options = {}, {}
     rays = ray_type(data_dir, config.split, max_band_px=config.max_band_px,
-                    background_per_view=config.background_per_view, seed=config.trainer.seed)
+                    background_per_view=config.background_per_view, seed=config.trainer.seed,
+                    **ray_options)
     if not (config.lambda_w > 0 and config.skinning_points):
         return rays, None
     try:
-        return rays, scan_type(data_dir, config.split)
+        return rays, scan_type(data_dir, config.split, **scan_options)
     except FileNotFoundError as exc:
         raise FileNotFoundError(f"{exc} (L_w reads the frames' scan.npz: points and "
                                 "template_weights; set lambda_w=0 to train without)") from None

@@ -79,9 +79,17 @@ class PriorConfig:
     split: str = "train"
     """Dataset split whose subjects get a shape code and whose scans are fitted."""
     stream: bool = False
-    """Read the drawn frames' ``scan.npz`` when a step draws them
-    (:class:`lisa_hand.training.streaming.StreamingScanFrames`: memory flat in the size of the
-    split) instead of loading every scan first."""
+    """Read the frames' ``scan.npz`` while training runs
+    (:class:`lisa_hand.training.streaming.StreamingScanFrames`: a DataLoader with
+    ``stream_workers`` processes fills a buffer of ``stream_cache`` frames; under torchrun each
+    rank reads its share of the split; memory flat in the size of the split) instead of loading
+    every scan first."""
+    stream_workers: int = 2
+    """With ``stream``: the DataLoader's worker processes (0: scans read in the training
+    process; the frames drawn are the same whatever this number)."""
+    stream_cache: int = 256
+    """With ``stream``: scans held in memory (the buffer a step draws its frames from); at
+    least ``frames_per_step``."""
     frames_per_step: int = 8
     """Frames (posed scans) per step (the global batch, split among processes)."""
     surface_points: int = 2048
@@ -126,6 +134,11 @@ class PriorConfig:
             raise ValueError(f"split must be one of {SPLITS}, got {self.split!r}")
         for name in ("frames_per_step", "surface_points"):
             check_positive_int(self, name)
+        check_positive_int(self, "stream_workers", allow_zero=True)
+        check_positive_int(self, "stream_cache")
+        if self.stream and self.stream_cache < self.frames_per_step:
+            raise ValueError(f"stream_cache ({self.stream_cache}) must be at least "
+                             f"frames_per_step ({self.frames_per_step})")
         if isinstance(self.space_points, bool) or not isinstance(self.space_points, int) \
                 or self.space_points < 0:
             raise ValueError(f"space_points must be an int >= 0, got {self.space_points!r}")
@@ -239,7 +252,8 @@ def train_prior(
     if config.stream:
         from .streaming import StreamingScanFrames
 
-        scans = StreamingScanFrames(data_dir, config.split)
+        scans = StreamingScanFrames(data_dir, config.split, cache_frames=config.stream_cache,
+                                    workers=config.stream_workers, seed=config.trainer.seed)
     else:
         scans = ScanFrames(data_dir, config.split)
     model = seeded(config.trainer.seed, lambda: PriorModel(
