@@ -145,15 +145,38 @@ def webxr_wrist_variant(vertices: np.ndarray, faces: np.ndarray, wrist: np.ndarr
     return vertices, faces
 
 
+def _refined_row(model, fit, points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+                 refine, threads: int) -> dict:
+    """The distances of ``fit`` refined on ``points`` (``refined_`` + the four keys) and the
+    refinement's seconds."""
+    from ..fitting.points.refine import refine_surface
+    from ..inference import MeshConfig, mesh_hand
+    from ..metrics import mesh_distances
+
+    keep = fit.wrist_plane.keeps(points) if fit.wrist_plane is not None else slice(None)
+    with cpu_threads(threads):
+        refined, report = refine_surface(model, fit.params,
+                                         torch.as_tensor(points[keep], dtype=torch.float32),
+                                         None, refine)
+        mesh = mesh_hand(refined, fit.params, 128, MeshConfig(colors=False, skin_weights=False),
+                         clip=fit.wrist_plane)
+    distances = mesh_distances(mesh.vertices, mesh.faces, vertices, faces, clip=fit.wrist_plane)
+    return {"refine_seconds": report.seconds,
+            **{f"refined_{key}": value for key, value in distances.to_dict().items()}}
+
+
 def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int = 0,
                    threads: int = 1, wrists: tuple[str, ...] = ("as-is",),
-                   config=None, log=None) -> list[dict]:
+                   config=None, refine=None, log=None) -> list[dict]:
     """Fit ``model`` to the WebXR hand in each pose of :data:`WEBXR_POSES` and each wrist
     variant of ``wrists`` (:data:`WEBXR_WRISTS`), from a full scan and from a one-view partial
     scan (noise 0.3 mm), each in a random placement (the same for every variant of a pose).
 
     config: the :class:`~lisa_hand.fitting.points.config.FitPointsConfig` (None: defaults with
-    ``num_threads=threads`` and ``seed``). log: called with each row as it is measured.
+    ``num_threads=threads`` and ``seed``). refine: a
+    :class:`~lisa_hand.fitting.points.refine.RefineConfig`: each fit is also refined
+    (``lisa fit-points --refine``) and measured again (``refined_*`` keys, ``refine_seconds``).
+    log: called with each row as it is measured.
     -> one dict per fit: pose, wrist, scan kind, seconds, points left out beyond the wrist, the
     four distances (mm, fitted 128^3 mesh against the variant's mesh, both cut at the fit's
     wrist plane).
@@ -206,6 +229,9 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                              "scan": "partial" if partial else "full", "seconds": fit.seconds,
                              "beyond_wrist_points": fit.beyond_wrist_points,
                              **distances.to_dict()})
+                if refine is not None:
+                    rows[-1].update(_refined_row(model, fit, points, placed, variant_faces,
+                                                 refine, threads))
                 if log is not None:
                     log(rows[-1])
     return rows

@@ -320,6 +320,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--webxr-wrists", default="as-is",
                         help="comma-separated wrist variants of the WebXR scans: "
                              f"{', '.join(WEBXR_WRISTS)} (default as-is)")
+    parser.add_argument("--webxr-refine", action="store_true",
+                        help="also refine each WebXR fit (lisa fit-points --refine) and measure it")
     parser.add_argument("--only-webxr", action="store_true",
                         help="skip the self-consistency benchmark")
     args = parser.parse_args(argv)
@@ -337,9 +339,21 @@ def main(argv: list[str] | None = None) -> None:
                   f"{row['v2v_recon_to_scan_mm']:6.2f} {row['v2v_scan_to_recon_mm']:6.2f}  "
                   f"({row['seconds']:.1f} s, {row['beyond_wrist_points']} points beyond the "
                   "wrist)", flush=True)
+            if "refine_seconds" in row:
+                print(f"  {'refined':>26}: {row['refined_v2s_recon_to_scan_mm']:6.2f} "
+                      f"{row['refined_v2s_scan_to_recon_mm']:6.2f}  "
+                      f"{row['refined_v2v_recon_to_scan_mm']:6.2f} "
+                      f"{row['refined_v2v_scan_to_recon_mm']:6.2f}  "
+                      f"(+{row['refine_seconds']:.1f} s)", flush=True)
 
+        refine = None
+        if args.webxr_refine:
+            from ..fitting.points.refine import RefineConfig
+
+            refine = RefineConfig(seed=args.seed)
         numbers["webxr"] = run_webxr_fits(model, args.webxr, seed=args.seed,
-                                          threads=args.threads, wrists=wrists, log=shown_row)
+                                          threads=args.threads, wrists=wrists, refine=refine,
+                                          log=shown_row)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(numbers, indent=2))

@@ -36,6 +36,13 @@ def fit_points(
         "--side", help="right or left hand (a left one is fitted as the mirrored right hand).")
     ] = Side.right,
     seed: Annotated[int, typer.Option(help="Seed of the random point subsets.")] = 0,
+    refine: Annotated[bool, typer.Option(
+        "--refine", help="After the fit, fine-tune the model's per-bone SDF networks on this "
+                         "scan (beyond the learned shape space; about 30 s on a CPU); writes the "
+                         "refined model as OUT/model.pt, which params.json names, so that "
+                         "'lisa mesh', 'render' and 'animate' use it.")] = False,
+    refine_iters: Annotated[int | None, typer.Option(
+        "--refine-iters", min=1, help="Steps of --refine (default 300).")] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
@@ -49,7 +56,14 @@ def fit_points(
     if restarts is not None:
         overrides["num_restarts"] = restarts
     config = FitPointsConfig(**overrides)
+    refine_config = None
+    if refine:
+        from ..fitting.points.refine import RefineConfig
+
+        refine_config = RefineConfig(seed=seed, **({} if refine_iters is None
+                                                   else {"iters": refine_iters}))
     report = fit_point_file(points, out, model_path=model, gt_path=gt, units=units.value,
+                            refine=refine_config,
                             resolution=res, config=config, device=device, side=side.value,
                             progress=progress, log=typer.echo)
     fit = report.fit

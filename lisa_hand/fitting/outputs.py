@@ -65,8 +65,9 @@ __all__ = [
     "write_fit_outputs",
 ]
 
-FIT_FILES = ("params.json", "mesh.ply", "keypoints.json", "metrics.json")
-"""The files a fit writes into its output folder (``metrics.json`` only with metrics)."""
+FIT_FILES = ("params.json", "mesh.ply", "keypoints.json", "metrics.json", "model.pt")
+"""The files a fit writes into its output folder (``metrics.json`` only with metrics,
+``model.pt`` only with a refined model: ``lisa fit-points --refine``)."""
 
 Allowed = Callable[[Path], bool]
 """Which entries a fit's output folder may hold: called with each entry's path (a file or a
@@ -368,12 +369,15 @@ def write_fit_outputs(
     mesh: Mesh,
     metrics: dict[str, Any] | None = None,
     keypoints: dict[str, Any] | None = None,
+    model: Any = None,
 ) -> list[Path]:
     """Write ``params.json``, ``mesh.ply``, ``keypoints.json`` and (when ``metrics`` is given)
     ``metrics.json`` as the folder ``out_dir`` (created), all or nothing (:func:`write_folder`).
 
     keypoints: what ``keypoints.json`` holds (default: :func:`keypoints_3d_record`, the fitted
-    hand's 3D keypoints in the world frame). The folder holds this fit's files and nothing
+    hand's 3D keypoints in the world frame). model: a refined
+    :class:`~lisa_hand.model.trained.TrainedModel` written as ``model.pt`` (full precision), or
+    None. The folder holds this fit's files and nothing
     else (a previous fit's ``metrics.json`` does not survive). ``out_dir`` must be new, empty or
     hold only :data:`FIT_FILES` (:func:`check_output_folder`).
     -> the written paths, in that order.
@@ -390,6 +394,10 @@ def write_fit_outputs(
                  write_json(staging / "keypoints.json", json_safe(record))]
         if metrics is not None:
             files.append(write_json(staging / "metrics.json", json_safe(metrics)))
+        if model is not None:
+            from ..model.trained import export_trained
+
+            files.append(export_trained(model, staging / "model.pt")[0])
         return files
 
     return write_folder(out_dir, write)

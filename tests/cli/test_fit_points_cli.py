@@ -142,3 +142,35 @@ def test_bad_inputs_give_one_line_errors(lisa, files, capsys):
     assert lisa(["fit-points", str(root / "mm.npy"), "--out", str(root / "failed"), "--units",
                  "m", "--model", str(root / "tiny.pt"), *FAST_ARGS]) == 2
     assert "looks like millimetres" in capsys.readouterr().err
+
+
+def test_refine_writes_the_refined_model_that_params_json_names(lisa, files, capsys):
+    """``--refine``: the per-bone SDF MLPs fine-tuned on the scan (a tiny model: few steps) and
+    written as OUT/model.pt; params.json names it, so the verbs over a hand load it; the
+    surface is nearer the scan than the unrefined fit's; only the SDF networks changed."""
+    import torch
+
+    from lisa_hand.inference.hand_field import load_hand
+    from lisa_hand.model.trained import load_trained
+
+    root, points = files
+    out = root / "refined"
+    assert lisa(["fit-points", str(root / "scan.npz"), "--out", str(out), "--model",
+                 str(root / "tiny.pt"), *FAST_ARGS, "--refine", "--refine-iters", "40"]) == 0
+    printed = capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "model.pt",
+                                                     "params.json"]
+    params = read_params(out / "params.json")
+    assert params.model == str((out / "model.pt").resolve())
+    record = params.extra["refine"]
+    assert record["mean_abs_sdf_after_mm"] < record["mean_abs_sdf_before_mm"]
+    assert "refined the surface" in printed
+    model, hand = load_hand(out / "params.json")
+    original = load_trained(root / "tiny.pt")
+    changed = {name for name, value in model.field.state_dict().items()
+               if not torch.equal(value, original.field.state_dict()[name])}
+    assert changed and all(name.startswith("sdf_mlp.") for name in changed)
+    # The verbs over a hand use it: lisa mesh of the refined hand.
+    assert lisa(["mesh", str(out / "params.json"), "--res", "32", "--out",
+                 str(root / "refined_mesh.ply")]) == 0
+    assert (root / "refined_mesh.ply").is_file()

@@ -54,7 +54,8 @@ def test_a_folder_with_other_files_is_refused_before_the_work(tmp_path):
     with pytest.raises(FileExistsError, match="notes.txt"):
         write_fit_outputs(out, hand(), MESH)
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt", "params.json", "renders"]
-    assert set(FIT_FILES) == {"params.json", "mesh.ply", "keypoints.json", "metrics.json"}
+    assert set(FIT_FILES) == {"params.json", "mesh.ply", "keypoints.json", "metrics.json",
+                              "model.pt"}
     check_output_folder(tmp_path / "new" / "fit")  # creates nothing
     assert not (tmp_path / "new").exists()
 

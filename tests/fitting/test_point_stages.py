@@ -169,3 +169,11 @@ def test_a_finger_left_straight_is_restarted_bent():
     # Off: the candidates come back as they were.
     same, off = restart_fingers(proxy, cloud, [start], FitPointsConfig(**FAST, finger_iters=0))
     assert same == [start] and off.energies == []
+
+
+def test_refine_config_refuses_bad_values():
+    from lisa_hand.fitting.points.refine import RefineConfig
+
+    for bad in ({"iters": 0}, {"lr": 0.0}, {"anchor_weight": -1.0}, {"eikonal_offset_mm": 0}):
+        with pytest.raises(ValueError):
+            RefineConfig(**bad)

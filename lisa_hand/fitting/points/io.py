@@ -259,7 +259,7 @@ class FitPointsReport:
         weights).
     metrics: the four distances (mm) to the ground truth (``MeshDistances.to_dict`` keys; None
         where undefined), or None without one.
-    written: the files written, in order.
+    written: the files written, in order (``model.pt``, the refined model, with ``refine``).
     """
 
     cloud: PointCloud
@@ -267,6 +267,8 @@ class FitPointsReport:
     mesh: Any
     metrics: dict[str, float | None] | None
     written: list[Path]
+    refine: Any = None
+    """The refinement's :class:`~lisa_hand.fitting.stages.StageReport` (``--refine``), or None."""
 
 
 def fit_point_file(
@@ -282,10 +284,14 @@ def fit_point_file(
     side: str = "right",
     progress: bool = False,
     log: Callable[[str], None] | None = None,
+    refine: Any = None,
 ) -> FitPointsReport:
     """Read a cloud, fit the model, write ``params.json``, ``mesh.ply`` (skinning weights, and
     vertex colours from the mean colour code when the model has colour) and (with ``gt_path``)
-    ``metrics.json`` into ``out_dir``.
+    ``metrics.json`` into ``out_dir``; with ``refine`` (a
+    :class:`lisa_hand.fitting.points.refine.RefineConfig`) the model's per-bone SDF networks are
+    then fine-tuned on the scan (:func:`lisa_hand.fitting.points.refine.refine_surface`), the
+    refined model is written as ``model.pt`` and ``params.json`` names it.
 
     Every input is checked before the fit (the cloud, the ground truth, the model, the output
     folder: new, empty or holding only a previous fit's files), and the files are written all or
@@ -324,8 +330,45 @@ def fit_point_file(
         log(f"{points_path}: {fit.beyond_wrist_points} points lie beyond the wrist cut "
             f"({1000 * config.wrist_clip_m:g} mm past the fitted wrist joint) and were left "
             "out; the mesh and the metrics end at the same cut")
+    refined = None
+    if refine is not None:
+        model, refined = _refined(model, fit, cloud, side, refine, progress, log, points_path)
+        params.model = str((out_dir / "model.pt").resolve())
     mesh = mesh_hand(model, params, resolution, MeshConfig(colors=model.has_color),
                      clip=fit.wrist_plane)
     metrics = None if truth is None else ground_truth_metrics(mesh, truth, fit.wrist_plane)
-    written = write_fit_outputs(out_dir, params, mesh, metrics)
-    return FitPointsReport(cloud=cloud, fit=fit, mesh=mesh, metrics=metrics, written=written)
+    written = write_fit_outputs(out_dir, params, mesh, metrics,
+                                model=None if refined is None else model)
+    return FitPointsReport(cloud=cloud, fit=fit, mesh=mesh, metrics=metrics, written=written,
+                           refine=refined)
+
+
+def _refined(model, fit, cloud: PointCloud, side: str, config, progress: bool, log,
+             points_path: Path):
+    """-> (the refined model, its :class:`~lisa_hand.fitting.stages.StageReport`): the scan's
+    points on the hand's side of the wrist cut, a left hand's mirrored (LISA is a right hand)."""
+    import torch
+
+    from ...skeleton import mirror_points
+    from ..sides import mirror_hand
+    from .refine import refine_surface
+
+    points = np.asarray(cloud.points, np.float64)
+    normals = None if cloud.normals is None else np.asarray(cloud.normals, np.float64)
+    if fit.wrist_plane is not None:
+        keep = fit.wrist_plane.keeps(points)
+        points, normals = points[keep], None if normals is None else normals[keep]
+    hand = fit.params
+    points_t = torch.from_numpy(points).float()
+    normals_t = None if normals is None else torch.from_numpy(normals).float()
+    if side == "left":
+        hand = mirror_hand(hand)
+        points_t = mirror_points(points_t)
+        normals_t = None if normals_t is None else mirror_points(normals_t)
+    refined, report = refine_surface(model, hand, points_t, normals_t, config, progress)
+    before, after = (1e3 * value for value in report.energies)
+    log(f"{points_path}: refined the surface in {report.seconds:.1f} s: mean |G| at the points "
+        f"{before:.2f} -> {after:.2f} mm")
+    fit.params.extra["refine"] = {"seconds": report.seconds, "mean_abs_sdf_before_mm": before,
+                                  "mean_abs_sdf_after_mm": after}
+    return refined, report
