@@ -162,7 +162,21 @@ def _refined_row(model, fit, points: np.ndarray, vertices: np.ndarray, faces: np
                          clip=fit.wrist_plane)
     distances = mesh_distances(mesh.vertices, mesh.faces, vertices, faces, clip=fit.wrist_plane)
     return {"refine_seconds": report.seconds,
-            **{f"refined_{key}": value for key, value in distances.to_dict().items()}}
+            **{f"refined_{key}": value for key, value in distances.to_dict().items()},
+            "refined_scan_points_to_recon_mm": _points_to_mesh_mm(points, mesh, fit.wrist_plane)}
+
+
+def _points_to_mesh_mm(points: np.ndarray, mesh, plane) -> float:
+    """Mean distance (mm) from the scan's own points on the hand's side of the wrist cut to the
+    fitted surface: scan->recon over what the scanner saw (for a one-sided scan, its seen side;
+    the V2S keys count the artist's whole mesh)."""
+    import point_cloud_utils as pcu
+
+    kept = points if plane is None else points[plane.keeps(points)]
+    distances, _, _ = pcu.closest_points_on_mesh(np.asarray(kept, np.float64),
+                                                 np.asarray(mesh.vertices, np.float64),
+                                                 np.asarray(mesh.faces, np.int64))
+    return float(np.mean(distances) * 1000.0)
 
 
 def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int = 0,
@@ -179,7 +193,8 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
     log: called with each row as it is measured.
     -> one dict per fit: pose, wrist, scan kind, seconds, points left out beyond the wrist, the
     four distances (mm, fitted 128^3 mesh against the variant's mesh, both cut at the fit's
-    wrist plane).
+    wrist plane) and ``scan_points_to_recon_mm`` (the scan's own points to the fitted surface:
+    the seen side of a one-sided scan).
     """
     import dataclasses
 
@@ -228,7 +243,9 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                 rows.append({"pose": pose, "wrist": variant,
                              "scan": "partial" if partial else "full", "seconds": fit.seconds,
                              "beyond_wrist_points": fit.beyond_wrist_points,
-                             **distances.to_dict()})
+                             **distances.to_dict(),
+                             "scan_points_to_recon_mm": _points_to_mesh_mm(points, mesh,
+                                                                           fit.wrist_plane)})
                 if refine is not None:
                     rows[-1].update(_refined_row(model, fit, points, placed, variant_faces,
                                                  refine, threads))

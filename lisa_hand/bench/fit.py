@@ -338,13 +338,14 @@ def main(argv: list[str] | None = None) -> None:
                   f"{row['v2s_recon_to_scan_mm']:6.2f} {row['v2s_scan_to_recon_mm']:6.2f}  "
                   f"{row['v2v_recon_to_scan_mm']:6.2f} {row['v2v_scan_to_recon_mm']:6.2f}  "
                   f"({row['seconds']:.1f} s, {row['beyond_wrist_points']} points beyond the "
-                  "wrist)", flush=True)
+                  f"wrist; scan points {row['scan_points_to_recon_mm']:.2f})", flush=True)
             if "refine_seconds" in row:
                 print(f"  {'refined':>26}: {row['refined_v2s_recon_to_scan_mm']:6.2f} "
                       f"{row['refined_v2s_scan_to_recon_mm']:6.2f}  "
                       f"{row['refined_v2v_recon_to_scan_mm']:6.2f} "
                       f"{row['refined_v2v_scan_to_recon_mm']:6.2f}  "
-                      f"(+{row['refine_seconds']:.1f} s)", flush=True)
+                      f"(+{row['refine_seconds']:.1f} s; scan points "
+                      f"{row['refined_scan_points_to_recon_mm']:.2f})", flush=True)
 
         refine = None
         if args.webxr_refine:
