@@ -39,6 +39,8 @@ from __future__ import annotations
 
 import functools
 import os
+import re
+import shutil
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -66,6 +68,8 @@ __all__ = [
     "list_frames",
     "SOURCES_FILE",
     "read_sources",
+    "DATASET_FILES",
+    "prepare_dataset_folder",
 ]
 
 FORMAT_NAME = "lisa-synth"
@@ -73,6 +77,38 @@ FORMAT_VERSION = 1
 DEPTH_UNIT_M = 1e-4  # depth PNGs store units of 0.1 mm: up to 6.5 m in uint16
 SOURCES_FILE = "sources.json"
 """A frame's references to original image and mask files outside the frame folder."""
+
+
+DATASET_FILES = ("dataset.json", "split.json", "import_report.json")
+"""The files of a dataset folder besides its subject folders (``import_report.json``: ``lisa
+import``'s)."""
+_SUBJECT_DIR = re.compile(r"^s\d{3,}$")
+
+
+def prepare_dataset_folder(out: str | os.PathLike, overwrite: bool, hint: str = "--overwrite"
+                           ) -> Path:
+    """Make ``out`` ready for a dataset (``lisa synth``, ``lisa import``) and return it: created
+    if missing; it must be empty unless ``overwrite``, which removes a previous dataset's subject
+    folders and :data:`DATASET_FILES` only (anything else is left alone). ``hint``: how the
+    error message names the way to overwrite."""
+    from ..utils.io import ensure_writable_dir
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"{out}: exists and is not a folder")
+    if out.is_dir():
+        entries = sorted(p.name for p in out.iterdir())
+        if entries and not overwrite:
+            shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
+            raise FileExistsError(f"{out}: output folder is not empty ({shown}); choose another "
+                                  f"folder or pass {hint}")
+        for name in entries if overwrite else ():
+            path = out / name
+            if path.is_dir() and _SUBJECT_DIR.match(name):
+                shutil.rmtree(path)
+            elif name in DATASET_FILES and path.is_file():
+                path.unlink()
+    return ensure_writable_dir(out)
 
 
 def subject_id(index: int) -> str:

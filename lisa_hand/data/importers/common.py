@@ -25,7 +25,6 @@ Bad input of one frame (:class:`SkipFrame`) skips that frame with one line and a
 from __future__ import annotations
 
 import os
-import shutil
 import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
@@ -40,9 +39,9 @@ from ...geometry.cameras import Camera, save_cameras
 from ...skeleton.inverse_kinematics import inverse_kinematics, mean_skeleton, split_keypoints
 from ...skeleton.kinematics import mirror_points, mirror_pose
 from ...skeleton.mano import ManoLayer
-from ...utils.io import ensure_writable_dir, write_json
+from ...utils.io import write_json
 from ..keypoints import write_keypoints
-from ..layout import FORMAT_NAME, FORMAT_VERSION, SOURCES_FILE, FramePaths
+from ..layout import FORMAT_NAME, FORMAT_VERSION, SOURCES_FILE, FramePaths, prepare_dataset_folder
 
 __all__ = [
     "IMPORT_FORMAT_VERSION",
@@ -165,24 +164,10 @@ class ImportReport:
 
 
 def prepare_output(out: Path, overwrite: bool) -> Path:
-    """Create ``out``; it must be empty unless ``overwrite`` (which removes a previous dataset's
-    subject folders and dataset files only)."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise NotADirectoryError(f"{out}: exists and is not a folder")
-    if out.is_dir():
-        entries = sorted(p.name for p in out.iterdir())
-        if entries and not overwrite:
-            shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
-            raise FileExistsError(f"{out}: output folder is not empty ({shown}); choose another "
-                                  "folder or pass --overwrite")
-        for name in entries if overwrite else ():
-            path = out / name
-            if path.is_dir() and name.startswith("s") and name[1:].isdigit():
-                shutil.rmtree(path)
-            elif name in ("dataset.json", "split.json", "import_report.json") and path.is_file():
-                path.unlink()
-    return ensure_writable_dir(out)
+    """Create ``out``; it must be empty unless ``overwrite`` (which removes a previous
+    dataset's subject folders and dataset files only):
+    :func:`lisa_hand.data.layout.prepare_dataset_folder`."""
+    return prepare_dataset_folder(out, overwrite)
 
 
 def template_reference() -> torch.Tensor:

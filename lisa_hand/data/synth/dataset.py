@@ -59,8 +59,6 @@ command does).
 from __future__ import annotations
 
 import os
-import re
-import shutil
 import time
 from concurrent.futures import Executor, as_completed
 from pathlib import Path
@@ -68,9 +66,9 @@ from typing import Any
 
 import numpy as np
 
-from ...utils.io import ensure_writable_dir, write_json
+from ...utils.io import write_json
 from ...utils.pool import worker_pool
-from ..layout import FORMAT_NAME, FORMAT_VERSION
+from ..layout import FORMAT_NAME, FORMAT_VERSION, prepare_dataset_folder
 from .config import SynthConfig, SynthSummary, parse_resolution
 from .frame import write_frame
 from .preview import write_preview
@@ -101,9 +99,6 @@ __all__ = [
 GENERATOR_VERSION = 1
 """Version of the generator: bumped whenever the files written for a given seed change."""
 
-_SUBJECT_DIR = re.compile(r"^s\d{3,}$")
-# Files of a previous dataset that ``overwrite`` removes (besides the subject folders).
-_DATASET_FILES = ("dataset.json", "split.json")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -145,27 +140,6 @@ def _frame_task(root: str, config: SynthConfig, subject_json: dict[str, Any],
 
 # ------------------------------------------------------------------------------------------------
 # The dataset
-
-
-def _prepare_output(out: Path, overwrite: bool) -> None:
-    if out.exists() and not out.is_dir():
-        raise NotADirectoryError(f"{out}: exists and is not a folder")
-    if out.is_dir():
-        entries = sorted(p.name for p in out.iterdir())
-        if entries and not overwrite:
-            shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
-            raise FileExistsError(f"{out}: output folder is not empty ({shown}); choose another "
-                                  f"folder or overwrite it (overwrite=True, --overwrite)")
-        if overwrite:
-            # Only what a dataset holds: subject folders and the dataset files; anything else the
-            # folder contains is left alone.
-            for name in entries:
-                path = out / name
-                if path.is_dir() and _SUBJECT_DIR.match(name):
-                    shutil.rmtree(path)
-                elif name in _DATASET_FILES and path.is_file():
-                    path.unlink()
-    ensure_writable_dir(out)
 
 
 def _run_tasks(out: Path, config: SynthConfig, executor: Executor, bar) -> dict[str, float]:
@@ -227,7 +201,7 @@ def synthesize(out: str | os.PathLike, config: SynthConfig | None = None, progre
     if not isinstance(config, SynthConfig):
         raise TypeError(f"config must be a SynthConfig, got {type(config).__name__}")
     out = Path(out)
-    _prepare_output(out, overwrite)
+    prepare_dataset_folder(out, overwrite, "--overwrite (overwrite=True)")
     start = time.perf_counter()
     from tqdm.auto import tqdm
 
