@@ -8,7 +8,17 @@ from typing import Annotated
 
 import typer
 
-from .options import DeviceOpt, FitModelOpt, GuardOpt, ShapeFit, ShapeFitOpt, Side, Units
+from .options import (
+    DeviceOpt,
+    FitModelOpt,
+    GuardOpt,
+    ShapeFit,
+    ShapeFitOpt,
+    Side,
+    ThreadsOpt,
+    Units,
+    image_fit_overrides,
+)
 
 
 def fit_images(
@@ -41,9 +51,7 @@ def fit_images(
     res: Annotated[int, typer.Option(
         "--res", min=16, max=1024, help="Marching-cubes samples per axis of the mesh.")] = 128,
     device: DeviceOpt = "auto",
-    threads: Annotated[int, typer.Option(
-        "--threads", min=0, help="CPU threads of torch during the fit (0: torch's default; "
-                                 "1 is fastest on a busy machine).")] = 1,
+    threads: ThreadsOpt = 1,
     shape_fit: ShapeFitOpt = ShapeFit.space,
     guard: GuardOpt = True,
     seed: Annotated[int, typer.Option(help="Seed of the restarts and of the rays.")] = 0,
@@ -63,12 +71,9 @@ def fit_images(
         names = [name.strip() for name in views.split(",") if name.strip()]
         if not names:
             raise ValueError(f"--views {views!r}: no camera name given")
-    overrides: dict = {"seed": seed, "num_threads": threads if threads > 0 else None,
-                       "shape_fit": shape_fit.value, "guard": guard}
-    for key, value in (("keypoint_iters", keypoint_iters), ("color_iters", color_iters),
-                       ("num_rays", rays)):
-        if value is not None:
-            overrides[key] = value
+    overrides = image_fit_overrides(seed=seed, threads=threads, shape_fit=shape_fit,
+                                    guard=guard, keypoint_iters=keypoint_iters,
+                                    color_iters=color_iters, rays=rays)
     config = FitImagesConfig(**overrides)
     report = fit_image_folder(frame, out, views=names, model_path=model, gt_path=gt,
                               units=units.value, resolution=res, config=config,

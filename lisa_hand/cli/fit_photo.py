@@ -8,7 +8,15 @@ from typing import Annotated
 
 import typer
 
-from .options import DeviceOpt, FitModelOpt, GuardOpt, ShapeFit, ShapeFitOpt
+from .options import (
+    DeviceOpt,
+    FitModelOpt,
+    GuardOpt,
+    ShapeFit,
+    ShapeFitOpt,
+    ThreadsOpt,
+    image_fit_overrides,
+)
 
 
 class PhotoSide(str, Enum):
@@ -69,9 +77,7 @@ def fit_photo(
         "--rays", min=1, help="Rays rendered per colour iteration (default 256).")] = None,
     res: Annotated[int, typer.Option(
         "--res", min=16, max=1024, help="Marching-cubes samples per axis of the mesh.")] = 128,
-    threads: Annotated[int, typer.Option(
-        "--threads", min=0, help="CPU threads of torch during the fit (0: torch's default; "
-                                 "1 is fastest on a busy machine).")] = 1,
+    threads: ThreadsOpt = 1,
     shape_fit: ShapeFitOpt = ShapeFit.space,
     guard: GuardOpt = True,
     seed: Annotated[int, typer.Option(help="Seed of the restarts and of the rays.")] = 0,
@@ -84,12 +90,9 @@ def fit_photo(
     pixels, 3D in the camera frame), camera.json, mask.png, overlay.png and report.html."""
     from ..fitting.photo.fit import FitPhotoConfig, fit_photo_folder, photo_fit_defaults
 
-    overrides: dict = {"seed": seed, "num_threads": threads if threads > 0 else None,
-                       "shape_fit": shape_fit.value, "guard": guard}
-    for key, value in (("keypoint_iters", keypoint_iters), ("color_iters", color_iters),
-                       ("num_rays", rays)):
-        if value is not None:
-            overrides[key] = value
+    overrides = image_fit_overrides(seed=seed, threads=threads, shape_fit=shape_fit,
+                                    guard=guard, keypoint_iters=keypoint_iters,
+                                    color_iters=color_iters, rays=rays)
     config = FitPhotoConfig(fit=photo_fit_defaults(**overrides), mesh_resolution=res)
     reports = fit_photo_folder(
         photos, out, side=side.value, camera_json=camera or None, focal_px=focal_px,
