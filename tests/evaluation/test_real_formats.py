@@ -19,6 +19,19 @@ from tests.data.importers.fixtures import freihand_fixture
 from tests.skeleton.synthetic_mano import write_synthetic_mano
 
 
+def imported_freihand(tmp_path, num: int):
+    """A FreiHAND fixture of ``num`` samples (with a synthetic MANO) imported into
+    ``tmp_path / "DATA"`` with its vertices -> that folder."""
+    mano_dir = tmp_path / "mano"
+    mano_dir.mkdir()
+    write_synthetic_mano(mano_dir / "MANO_RIGHT.pkl", "right", seed=2)
+    freihand_fixture(tmp_path / "FreiHAND", num=num, mano_dir=mano_dir)
+    data = tmp_path / "DATA"
+    import_freihand(FreiHandConfig(root=str(tmp_path / "FreiHAND"), vertices=True,
+                                   mano=str(mano_dir), skinning_points=0), data, progress=False)
+    return data
+
+
 def test_f_score_closed_form():
     true = np.zeros((4, 3))
     true[:, 0] = [0.0, 0.01, 0.02, 0.03]
@@ -54,13 +67,7 @@ def test_procrustes_scores_ignore_similarities():
 
 
 def test_evaluate_an_imported_freihand_split(tmp_path):
-    mano_dir = tmp_path / "mano"
-    mano_dir.mkdir()
-    write_synthetic_mano(mano_dir / "MANO_RIGHT.pkl", "right", seed=2)
-    freihand_fixture(tmp_path / "FreiHAND", num=3, mano_dir=mano_dir)
-    data = tmp_path / "DATA"
-    import_freihand(FreiHandConfig(root=str(tmp_path / "FreiHAND"), vertices=True,
-                                   mano=str(mano_dir), skinning_points=0), data, progress=False)
+    data = imported_freihand(tmp_path, num=3)
     from lisa_hand.data.layout import read_npz
 
     def perfect(paths):
@@ -94,13 +101,7 @@ def test_photo_fit_predictor_on_an_imported_freihand_frame(tmp_path):
     from tests.fitting.image_scene import tiny_model
     from tests.fitting.photo.test_fit_photo import fast_config
 
-    mano_dir = tmp_path / "mano"
-    mano_dir.mkdir()
-    write_synthetic_mano(mano_dir / "MANO_RIGHT.pkl", "right", seed=2)
-    freihand_fixture(tmp_path / "FreiHAND", num=1, mano_dir=mano_dir)
-    data = tmp_path / "DATA"
-    import_freihand(FreiHandConfig(root=str(tmp_path / "FreiHAND"), skinning_points=0,
-                                   vertices=True, mano=str(mano_dir)), data, progress=False)
+    data = imported_freihand(tmp_path, num=1)
     model_path, _ = export_trained(tiny_model(), tmp_path / "model.pt")
     predict = photo_fit_predictor(tmp_path / "fits", model_path=model_path, device="cpu",
                                   config=fast_config())
@@ -130,13 +131,7 @@ def test_lisa_eval_real_scores_an_imported_split(tmp_path, monkeypatch, capsys):
     from lisa_hand.cli.main import main
     from lisa_hand.data.layout import read_npz
 
-    mano_dir = tmp_path / "mano"
-    mano_dir.mkdir()
-    write_synthetic_mano(mano_dir / "MANO_RIGHT.pkl", "right", seed=2)
-    freihand_fixture(tmp_path / "FreiHAND", num=3, mano_dir=mano_dir)
-    data = tmp_path / "DATA"
-    import_freihand(FreiHandConfig(root=str(tmp_path / "FreiHAND"), vertices=True,
-                                   mano=str(mano_dir), skinning_points=0), data, progress=False)
+    data = imported_freihand(tmp_path, num=3)
     seen = {}
 
     def stand_in(work_dir, *, keypoints="given", model_path=None, device="auto"):
