@@ -9,7 +9,7 @@ import shutil
 import numpy as np
 import pytest
 
-from lisa_hand.cli import fit_images, main
+from lisa_hand.cli import main
 from lisa_hand.data.layout import write_image
 from lisa_hand.data.meshio import load_mesh, save_mesh
 from lisa_hand.inference import mesh_hand
@@ -29,12 +29,8 @@ def _one_thread():
 
 
 @pytest.fixture()
-def lisa(monkeypatch):
-    """``lisa_hand.cli.main.main`` with fit-images registered (the lead adds it to main.py)."""
-    commands = list(main.app.registered_commands)
-    monkeypatch.setattr(main.app, "registered_commands", commands)
-    if not any(command.name == "fit-images" for command in commands):
-        fit_images.register(main.app)
+def lisa():
+    """``lisa_hand.cli.main.main`` (it registers every verb, fit-images included)."""
     return main.main
 
 

@@ -12,7 +12,7 @@ import re
 import numpy as np
 import pytest
 
-from lisa_hand.cli import fit_photo, main
+from lisa_hand.cli import main
 from lisa_hand.data.layout import read_mask, write_mask
 from lisa_hand.data.meshio import load_mesh
 from lisa_hand.metrics import mpjpe, pa_mpjpe
@@ -45,12 +45,8 @@ def _one_thread():
 
 
 @pytest.fixture()
-def lisa(monkeypatch):
-    """``lisa_hand.cli.main.main`` with fit-photo registered."""
-    commands = list(main.app.registered_commands)
-    monkeypatch.setattr(main.app, "registered_commands", commands)
-    if not any(command.name == "fit-photo" for command in commands):
-        fit_photo.register(main.app)
+def lisa():
+    """``lisa_hand.cli.main.main`` (it registers every verb, fit-photo included)."""
     return main.main
 
 
