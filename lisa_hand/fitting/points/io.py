@@ -349,8 +349,7 @@ def _refined(model, fit, cloud: PointCloud, side: str, config, progress: bool, l
     points on the hand's side of the wrist cut, a left hand's mirrored (LISA is a right hand)."""
     import torch
 
-    from ...skeleton import mirror_points
-    from ..sides import mirror_hand
+    from ..sides import mirror_cloud, mirror_hand
     from .refine import refine_surface
 
     points = np.asarray(cloud.points, np.float64)
@@ -358,13 +357,9 @@ def _refined(model, fit, cloud: PointCloud, side: str, config, progress: bool, l
     if fit.wrist_plane is not None:
         keep = fit.wrist_plane.keeps(points)
         points, normals = points[keep], None if normals is None else normals[keep]
-    hand = fit.params
-    points_t = torch.from_numpy(points).float()
-    normals_t = None if normals is None else torch.from_numpy(normals).float()
-    if side == "left":
-        hand = mirror_hand(hand)
-        points_t = mirror_points(points_t)
-        normals_t = None if normals_t is None else mirror_points(normals_t)
+    hand = mirror_hand(fit.params) if side == "left" else fit.params
+    points_t = mirror_cloud(torch.from_numpy(points).float(), side)
+    normals_t = None if normals is None else mirror_cloud(torch.from_numpy(normals).float(), side)
     refined, report = refine_surface(model, hand, points_t, normals_t, config, progress)
     before, after = (1e3 * value for value in report.energies)
     log(f"{points_path}: refined the surface in {report.seconds:.1f} s: mean |G| at the points "
