@@ -7,7 +7,10 @@ stacked SDF MLP on the culled (point, bone) pairs, timed on the same pairs.
 * ``grouped_mm``: ``torch.nn.functional.grouped_mm`` on the sorted pairs;
 * ``padded_bmm``: the pairs padded to ``[J, max rows, C]`` and one ``baddbmm`` a layer;
 * ``index_select_scatter``: per bone, ``index_select`` of its points and ``index_copy`` back;
-* with ``compile_mlp``: the sorted loop through a ``torch.compile``'d chunk MLP.
+* ``sorted_loop_fused``: the sorted loop with the compiled fused chunk chains
+  (:mod:`lisa_hand.fields.fused`; eager where compilation is unavailable);
+* with ``compile_mlp``: the sorted loop through a ``torch.compile``'d chunk MLP with the stock
+  Softplus (what the compiler alone gives).
 
 The leading underscore keeps this module out of :func:`lisa_hand.bench.benchmark_names`.
 """
@@ -21,6 +24,7 @@ import torch
 import torch.nn.functional as F
 
 from ..fields.encoding import positional_encoding
+from ..fields.fused import fused_inference
 from ..model.lisa import FrameState, LisaModel
 from ..skeleton import NUM_JOINTS
 from ._timing import interleaved_best, mlp_flops
@@ -78,6 +82,10 @@ class PairStrategies:
     def loop_chunked(self) -> torch.Tensor:
         enc, sizes = self.sorted_pairs()
         return self.mlp.forward_grouped(enc, sizes, self.bias)
+
+    def loop_fused(self) -> torch.Tensor:
+        with fused_inference(True):
+            return self.loop_chunked()
 
     def loop_unchunked(self) -> torch.Tensor:
         enc, sizes = self.sorted_pairs()
@@ -156,6 +164,7 @@ def time_pair_strategies(
     repeats: int,
     log: Callable[[str], None],
     compile_mlp: bool = False,
+    fused: bool = True,
 ) -> dict:
     """Time the ways of running the stacked SDF MLP on the culled (point, bone) pairs.
 
@@ -173,6 +182,7 @@ def time_pair_strategies(
     strategies = {
         "sorted_loop_chunked": pairs_run.loop_chunked,
         "sorted_loop_unchunked": pairs_run.loop_unchunked,
+        **({"sorted_loop_fused": pairs_run.loop_fused} if fused else {}),
         "grouped_mm": pairs_run.grouped_mm,
         "padded_bmm": pairs_run.padded_bmm,
         "index_select_scatter": pairs_run.index_select_scatter,

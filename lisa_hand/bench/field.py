@@ -14,7 +14,20 @@ The optimised field is measured step by step, each step adding one idea to the p
    bone, the conditioning folded into a per-frame bias (``cull=False``).
 2. ``culled``: each bone's MLPs run only on the points inside its region, the skinning MLP only
    on points in two or more regions (``cull=True``).
-3. ``culled_bf16``: as 2 with the hidden layers' products in bfloat16.
+3. ``culled_mixed`` and ``culled_bf16``: as 2 with the colour MLPs' (or all MLPs') hidden
+   products in bfloat16.
+4. ``culled_fused``: as 2 with each row chunk's layer chain compiled (``torch.compile``,
+   :mod:`lisa_hand.fields.fused`): bias, a polynomial Softplus and the SDF's output dot product
+   fused into one pass after each product. Its compilation time is reported beside it and the
+   number of calls that amortise it; where compilation is unavailable it runs eagerly (and says
+   so). ``--no-fused`` leaves it out.
+
+The headline is the fastest step within the tolerances. The training side is timed too
+(``backward``): a step of the loss ``mean(sdf^2)`` back to every weight (conditioning included),
+and an Eikonal step (the SDF's gradient with its graph, then ``mean(sdf^2) + mean((|grad| -
+1)^2)`` back to the weights: the double backward), both on the culled field in float32, with
+nominal GFLOP/s (:data:`lisa_hand.bench._timing.BACKWARD_FLOP_FACTOR`). The share of the
+forward spent inside the MLPs (``mlp_share``) tells how much is left outside them.
 
 Beside the model, the ways of running the stacked MLP on the culled (point, bone) pairs are
 timed on the same pairs (``pair_strategies``, :mod:`lisa_hand.bench._pairs`): the sorted pairs
@@ -26,7 +39,8 @@ from the unsorted points.
 from __future__ import annotations
 
 import dataclasses
-import json
+import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -37,10 +51,17 @@ from torch import nn
 from ..fields import FieldConfig, bone_segments, capsule_distance, masked_softmax, pose_features
 from ..fields.bones import SEGMENT_BONES, bone_centres
 from ..fields.encoding import positional_encoding
+from ..fields.fused import fused_inference, fused_stats
 from ..model.lisa import FieldOutput, FrameState, LisaModel
 from ..skeleton import NUM_JOINTS
+from ..utils.io import write_json
 from ._pairs import time_pair_strategies
-from ._timing import interleaved_best, mlp_flops
+from ._timing import (
+    interleaved_best,
+    mlp_flops,
+    mlp_share,
+    time_training_steps,
+)
 
 __all__ = [
     "BENCH_REST_JOINTS",
@@ -245,12 +266,15 @@ def _max_error(a: torch.Tensor | None, b: torch.Tensor | None) -> float:
 
 
 _STEPS = {
-    # name: (cull, inference precision, what it adds)
-    "stacked": (False, "float32", "stacked weights, conditioning folded into a per-frame bias"),
-    "culled": (True, "float32", "bone culling (regions), skinning MLP only where 2+ bones"),
-    "culled_mixed": (True, "mixed", "colour MLPs' hidden products in bfloat16"),
-    "culled_bf16": (True, "bfloat16", "all MLPs' hidden products in bfloat16"),
-}
+    # name: (cull, inference precision, fused, what it adds)
+    "stacked": (False, "float32", False,
+                "stacked weights, conditioning folded into a per-frame bias"),
+    "culled": (True, "float32", False, "bone culling (regions), skinning MLP only where 2+ bones"),
+    "culled_mixed": (True, "mixed", False, "colour MLPs' hidden products in bfloat16"),
+    "culled_bf16": (True, "bfloat16", False, "all MLPs' hidden products in bfloat16"),
+    "culled_fused": (True, "float32", True,
+                     "culled, chunk chains compiled: bias + polynomial Softplus in one pass"),
+}  # fmt: skip
 
 
 @dataclass
@@ -267,6 +291,14 @@ class _BenchHand:
     color_code: torch.Tensor
     points: torch.Tensor
     """[1, N, 3] world metres."""
+    translation: torch.Tensor
+    """[1, 3] metres."""
+
+    def prepare(self) -> FrameState:
+        """The frame's state again (with autograd recording, for training steps)."""
+        return self.model.prepare(
+            self.pose, self.translation, self.rest_joints[None], self.shape_code, self.color_code
+        )
 
 
 def _bench_hand(config: FieldConfig, num_points: int, seed: int) -> _BenchHand:
@@ -285,7 +317,9 @@ def _bench_hand(config: FieldConfig, num_points: int, seed: int) -> _BenchHand:
     with torch.no_grad():
         state = model.prepare(pose, translation, rest_joints[None], shape_code, color_code)
         points = sample_bench_points(model, state, num_points, generator)
-    return _BenchHand(model, state, pose, rest_joints, shape_code, color_code, points)
+    return _BenchHand(
+        model, state, pose, rest_joints, shape_code, color_code, points, translation
+    )
 
 
 def _region_counts(hand: _BenchHand, extra: dict, log: Callable[[str], None]) -> tuple[int, int]:
@@ -306,10 +340,11 @@ def _region_counts(hand: _BenchHand, extra: dict, log: Callable[[str], None]) ->
     return pairs, multi
 
 
-def _time_steps(hand: _BenchHand, config: FieldConfig, repeats: int):
+def _time_steps(hand: _BenchHand, config: FieldConfig, repeats: int, steps: dict, log):
     """Best times of the reference and of every step (geometry, and with colour), interleaved,
-    and of a large matmul; then each one's outputs. -> (best {name: s}, reference outputs
-    (geometry, colour), {step: (geometry, colour) outputs}, matmul GFLOP/s)."""
+    and of a large matmul; then each one's outputs. The fused step is compiled (its first
+    calls, timed) before. -> (best {name: s}, reference outputs (geometry, colour), {step:
+    (geometry, colour) outputs}, matmul GFLOP/s, compilation {...} or None, run_step)."""
     model, state, points = hand.model, hand.state, hand.points
     reference = ReferenceField(model).eval()
 
@@ -322,15 +357,32 @@ def _time_steps(hand: _BenchHand, config: FieldConfig, repeats: int):
 
     models = {
         name: dataclasses.replace(config, inference_precision=precision)
-        for name, (_, precision, _) in _STEPS.items()
+        for name, (_, precision, _, _) in steps.items()
     }
 
     def run_step(name: str, color: bool) -> FieldOutput:
         model.config = models[name]
         try:
-            return model.field(state, points, with_color=color, cull=_STEPS[name][0])
+            with fused_inference(steps[name][2]):
+                return model.field(state, points, with_color=color, cull=steps[name][0])
         finally:
             model.config = config
+
+    compilation = None
+    if "culled_fused" in steps:
+        with torch.no_grad():
+            before, start = fused_stats()["compile_seconds"], time.perf_counter()
+            run_step("culled_fused", False)
+            run_step("culled_fused", True)
+            first = time.perf_counter() - start
+        stats = fused_stats()
+        compilation = {"first_calls_s": first,
+                       "compile_s": stats["compile_seconds"] - before,
+                       "compiled": stats["disabled_reason"] is None,
+                       "disabled_reason": stats["disabled_reason"]}  # fmt: skip
+        log(f"culled_fused: first calls (geometry, colour; compiling) {first:.1f} s"
+            + ("" if compilation["compiled"] else
+               f"; compilation unavailable, runs eagerly: {stats['disabled_reason']}"))
 
     size = 2048
     mat_a, mat_b = torch.randn(size, size), torch.randn(size, size)
@@ -338,15 +390,15 @@ def _time_steps(hand: _BenchHand, config: FieldConfig, repeats: int):
     for color in (False, True):
         suffix = "_color" if color else ""
         fns["reference" + suffix] = lambda c=color: run_reference(c)
-        for name in _STEPS:
+        for name in steps:
             fns[name + suffix] = lambda n=name, c=color: run_step(n, c)
     with torch.no_grad():
         slow = ("reference", "reference_color", "stacked", "stacked_color")
         best = interleaved_best(fns, repeats, slow=slow, slow_rounds=max(1, min(repeats, 2)))
         ref_outputs = run_reference(False), run_reference(True)
-        outputs = {name: (run_step(name, False), run_step(name, True)) for name in _STEPS}
+        outputs = {name: (run_step(name, False), run_step(name, True)) for name in steps}
     peak = 2.0 * size**3 / best["matmul"] / 1e9
-    return best, ref_outputs, outputs, peak
+    return best, ref_outputs, outputs, peak, compilation, run_step
 
 
 def _flop_counts(model: LisaModel, num_points: int, pairs: int, multi: int
@@ -369,7 +421,7 @@ def _flop_counts(model: LisaModel, num_points: int, pairs: int, multi: int
 
 
 def _step_results(best: dict[str, float], ref_outputs, outputs, flops, num_points: int,
-                  log: Callable[[str], None]) -> dict[str, dict]:
+                  steps: dict, log: Callable[[str], None]) -> dict[str, dict]:
     """Speed, GFLOP/s and the largest errors against the reference of every step (logged)."""
     ref_geo, ref_col = ref_outputs
     ref_time, ref_time_color = best["reference"], best["reference_color"]
@@ -385,7 +437,7 @@ def _step_results(best: dict[str, float], ref_outputs, outputs, flops, num_point
     # the SDF is the same either way.
     inside = ref_geo.region_mask.any(-1)
     results = {}
-    for name, (_, _, adds) in _STEPS.items():
+    for name, (_, _, _, adds) in steps.items():
         geo, col = outputs[name]
         geo_time, col_time = best[name], best[name + "_color"]
         errors = {
@@ -425,6 +477,19 @@ def _step_results(best: dict[str, float], ref_outputs, outputs, flops, num_point
     return results
 
 
+def _amortisation(compilation: dict, best: dict[str, float], log: Callable[[str], None]) -> None:
+    """Add to ``compilation`` the time its first calls took beyond steady ones and the number of
+    calls (geometry) after which the fused step has paid for it against ``culled``."""
+    extra_s = compilation["first_calls_s"] - best["culled_fused"] - best["culled_fused_color"]
+    saved = best["culled"] - best["culled_fused"]
+    compilation["first_calls_extra_s"] = extra_s
+    compilation["saved_per_call_s"] = saved
+    compilation["break_even_calls"] = math.ceil(extra_s / saved) if saved > 0 else None
+    log(f"culled_fused: compilation {compilation['compile_s']:.1f} s ({extra_s:.1f} s beyond "
+        f"steady calls), saves {saved * 1e3:.1f} ms a geometry call: pays for itself after "
+        f"{compilation['break_even_calls']} calls")
+
+
 def _headlines(results: dict[str, dict]) -> tuple[str, str]:
     """The fastest step within the tolerances, geometry and with colour (else 'culled')."""
 
@@ -443,12 +508,15 @@ def run_field_benchmark(
     repeats: int = 5,
     seed: int = 0,
     compile_mlp: bool = False,
+    fused: bool = True,
+    backward: bool = True,
     log: Callable[[str], None] = print,
 ) -> FieldBenchmark:
     """Measure the field and the reference on ``num_points`` points around a posed hand.
 
     The headline (``points_per_s``, ``speedup``, ``gflops``) is the fastest step whose outputs
-    stay within the tolerances (SDF and weights; with colour under ``*_color``).
+    stay within the tolerances (SDF and weights; with colour under ``*_color``). ``fused``: also
+    the compiled step ``culled_fused``; ``backward``: also the training steps (``backward``).
     """
     config = FieldConfig() if config is None else config
     if config.composition != "lisa" or not config.use_color:
@@ -456,10 +524,23 @@ def run_field_benchmark(
     hand = _bench_hand(config, num_points, seed)
     extra: dict = {"threads": torch.get_num_threads(), "config": config.to_dict()}
     pairs, multi = _region_counts(hand, extra, log)
-    best, ref_outputs, outputs, peak = _time_steps(hand, config, repeats)
+    steps = {name: step for name, step in _STEPS.items() if fused or not step[2]}
+    best, ref_outputs, outputs, peak, compilation, run_step = _time_steps(
+        hand, config, repeats, steps, log
+    )
     log(f"large fp32 matmul (2048^3): {peak:.1f} GFLOP/s")
     flops = _flop_counts(hand.model, num_points, pairs, multi)
-    results = _step_results(best, ref_outputs, outputs, flops, num_points, log)
+    results = _step_results(best, ref_outputs, outputs, flops, num_points, steps, log)
+    if compilation is not None:
+        _amortisation(compilation, best, log)
+        results["culled_fused"]["compilation"] = compilation
+    extra["mlp_share"] = {
+        name: mlp_share(lambda n=name: run_step(n, False),
+                        [hand.model.sdf_mlp, hand.model.skinning_mlp], max(2, repeats // 2))
+        for name in ("culled", "culled_fused") if name in steps
+    }  # fmt: skip
+    log("share of the geometry forward inside the MLPs: " + ", ".join(
+        f"{name} {share:.0%}" for name, share in extra["mlp_share"].items()))
     headline, headline_color = _headlines(results)
     top, top_color = results[headline], results[headline_color]
     ref_time, ref_time_color = best["reference"], best["reference_color"]
@@ -482,8 +563,17 @@ def run_field_benchmark(
         }
     )
     extra["pair_strategies"] = time_pair_strategies(
-        hand.model, hand.state, hand.points, repeats, log, compile_mlp=compile_mlp
+        hand.model, hand.state, hand.points, repeats, log, compile_mlp=compile_mlp, fused=fused
     )
+    if backward:
+        log("training steps (culled, float32, eager: autograd records):")
+        with fused_inference(False):
+            train = time_training_steps(
+                hand.model, hand.prepare, hand.points, flops["culled"][0], max(2, repeats // 2), log
+            )
+        extra.update({"backward": train, "backward_gflops": train["backward"]["gflops_nominal"],
+                      "backward_points_per_s": train["backward"]["points_per_s"],
+                      "eikonal_gflops": train["eikonal"]["gflops_nominal"]})  # fmt: skip
     result = FieldBenchmark(
         num_points=num_points,
         points_per_s=top["points_per_s"],
@@ -493,13 +583,29 @@ def run_field_benchmark(
         matmul_gflops=peak,
         extra=extra,
     )
-    log(
-        f"headline ({headline}): {result.points_per_s:,.0f} points/s vs reference "
-        f"{result.reference_points_per_s:,.0f}: x{result.speedup:.1f}, {result.gflops:.1f} "
-        f"GFLOP/s (large matmul {peak:.1f}); with colour ({headline_color}): "
-        f"{top_color['points_per_s_color']:,.0f} points/s, x{top_color['speedup_color']:.1f}"
-    )
+    _log_summary(result, log)
     return result
+
+
+def _log_summary(result: FieldBenchmark, log: Callable[[str], None]) -> None:
+    """The headline line, and the training steps' line when they were timed."""
+    extra, peak = result.extra, result.matmul_gflops
+    log(
+        f"headline ({extra['headline_step']}): {result.points_per_s:,.0f} points/s vs reference "
+        f"{result.reference_points_per_s:,.0f}: x{result.speedup:.1f}, {result.gflops:.1f} "
+        f"GFLOP/s = {result.gflops / peak:.0%} of the large matmul's {peak:.1f}; with colour "
+        f"({extra['headline_step_color']}): {extra['points_per_s_color']:,.0f} points/s, "
+        f"x{extra['speedup_color']:.1f}"
+    )
+    if "backward" in extra:
+        train = extra["backward"]
+        peak = train["matmul_gflops"]  # timed beside the training steps
+        log(f"backward (loss of the SDF to the weights): {train['backward']['points_per_s']:,.0f}"
+            f" points/s, {train['backward']['gflops_nominal']:.1f} GFLOP/s nominal = "
+            f"{train['backward']['gflops_nominal'] / peak:.0%} of the large matmul's {peak:.1f}; "
+            f"Eikonal (double backward): {train['eikonal']['points_per_s']:,.0f} points/s, "
+            f"{train['eikonal']['gflops_nominal']:.1f} GFLOP/s nominal = "
+            f"{train['eikonal']['gflops_nominal'] / peak:.0%}")
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -516,15 +622,24 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
-        "--compile", action="store_true", help="also time a torch.compile'd MLP (slow to build)"
+        "--compile", action="store_true",
+        help="also time a torch.compile'd MLP with the stock Softplus on the pairs",
+    )
+    parser.add_argument(
+        "--no-fused", action="store_true",
+        help="leave out the compiled step culled_fused (its compilation takes tens of seconds)",
+    )
+    parser.add_argument(
+        "--no-backward", action="store_true", help="leave out the training (backward) steps"
     )
     args = parser.parse_args(argv)
     if args.points < 1:
         raise ValueError(f"--points must be >= 1, got {args.points}")
     result = run_field_benchmark(
-        args.points, repeats=args.repeats, seed=args.seed, compile_mlp=args.compile
-    )
+        args.points, repeats=args.repeats, seed=args.seed, compile_mlp=args.compile,
+        fused=not args.no_fused, backward=not args.no_backward,
+    )  # fmt: skip
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result.to_dict(), indent=2))
+        write_json(args.json, result.to_dict())
         print(f"wrote {args.json}")

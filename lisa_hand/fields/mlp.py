@@ -12,6 +12,9 @@ Two evaluation modes share the weights:
   weights a layer (in row chunks).
 * :meth:`StackedMLP.forward_grouped`: rows already grouped by bone (culled (point, bone) pairs
   sorted by bone); each group runs through all layers in row chunks that stay in cache.
+  Without gradients and with :func:`lisa_hand.fields.fused.set_fused_inference` on, each float32
+  chunk runs through a compiled chain instead (bias and activation fused, a polynomial Softplus
+  within 1e-8 of ``F.softplus``; :mod:`lisa_hand.fields.fused`); with gradients it is eager.
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ import math
 import torch
 import torch.nn.functional as F
 from torch import nn
+
+from .fused import fused_chain, fused_inference_enabled
 
 __all__ = ["StackedMLP", "ACTIVATIONS", "geometric_init_", "soft_min_init_"]
 
@@ -164,6 +169,29 @@ class StackedMLP(nn.Module):
                 outputs.append(hidden.transpose(0, 1))
         return torch.cat(outputs, dim=0).reshape(batch, num, groups, self.out_dim)
 
+    def _fused(
+        self,
+        rows: torch.Tensor,
+        group: int,
+        bias: torch.Tensor,
+        layers: list[tuple[torch.Tensor, torch.Tensor]],
+        low_precision: bool,
+    ) -> torch.Tensor | None:
+        """Group ``group``'s MLP on ``rows`` through the compiled fused chain
+        (:func:`lisa_hand.fields.fused.fused_chain`), or None where it does not apply (turned
+        off, gradients recorded, ``low_precision``, not float32, too few rows, compilation
+        failed).
+
+        rows: [R, point_dim]; bias: [hidden] or [R, hidden] (first layer); layers: from
+        :meth:`layers`. -> [R, out_dim]
+        """
+        if low_precision or not fused_inference_enabled():
+            return None
+        group_layers = [(weight[group], layer_bias[group]) for weight, layer_bias in layers]
+        return fused_chain(
+            rows, self.point_weight[group], bias, group_layers, self.activation, self.beta
+        )
+
     def forward_grouped(
         self,
         points: torch.Tensor,
@@ -177,9 +205,12 @@ class StackedMLP(nn.Module):
         """Rows grouped by MLP: rows ``[o_g, o_g + group_sizes[g])`` go through MLP ``g``.
 
         points: [Q, point_dim], rows sorted by group.
-        group_sizes: G ints summing to Q.
-        first_bias: [G, hidden] (one bias per group: a single frame), or [Q, hidden] with
-            ``bias_per_row`` (gathered from :meth:`condition`'s output for each row's frame).
+        group_sizes: G ints summing to Q; or, with a per-frame ``first_bias`` [B, G, hidden],
+            G lists of B ints: the rows of each group sorted by frame (``group_sizes[g][b]`` rows
+            of group g in frame b), each frame's rows taking that frame's bias.
+        first_bias: [G, hidden] (one bias per group: a single frame); [B, G, hidden] (from
+            :meth:`condition`: several frames, no per-row gather); or [Q, hidden] with
+            ``bias_per_row`` (gathered for each row's frame).
         low_precision: run the hidden layers' products in bfloat16 (inference only; the
             first layer and the output stay in the input dtype).
         -> [Q, out_dim]
@@ -193,13 +224,20 @@ class StackedMLP(nn.Module):
         weights 934 ms (padding every bone to the largest bone's count, the palm's, multiplies
         the work). It also supports double backward (Eikonal loss).
         """
-        if len(group_sizes) != self.num_groups or sum(group_sizes) != points.shape[0]:
+        per_frame = first_bias.dim() == 3 and not bias_per_row
+        sizes = [sum(size) for size in group_sizes] if per_frame else group_sizes
+        if len(group_sizes) != self.num_groups or sum(sizes) != points.shape[0]:
             raise ValueError(
-                f"group_sizes must be {self.num_groups} ints summing to {points.shape[0]}, "
+                f"group_sizes must be {self.num_groups} "
+                f"{'lists of ints' if per_frame else 'ints'} summing to {points.shape[0]}, "
                 f"got {group_sizes}"
             )
-        expected = (points.shape[0] if bias_per_row else self.num_groups, self.hidden)
-        if first_bias.shape != expected:
+        if per_frame:
+            expected = (len(group_sizes[0]) if group_sizes else 0, self.num_groups, self.hidden)
+        else:
+            expected = (points.shape[0] if bias_per_row else self.num_groups, self.hidden)
+        if first_bias.shape != expected or (per_frame and any(len(size) != expected[0]
+                                                              for size in group_sizes)):
             raise ValueError(
                 f"first_bias must have shape {list(expected)}, got {list(first_bias.shape)}"
             )
@@ -208,27 +246,55 @@ class StackedMLP(nn.Module):
             layers = [(w.to(torch.bfloat16), b.to(torch.bfloat16)) for w, b in layers[:-1]] + [
                 layers[-1]
             ]
+        # The chunks as one split (not slices: the backward of Q slices of a [Q, D] tensor fills
+        # a [Q, D] zero gradient each, quadratic in the number of chunks; a split's is one cat).
+        # Per-group weights by one unbind each (not by indexing: the backward of every
+        # ``weight[group]`` fills a zero gradient of the whole [G, in, out] stack).
+        point_weights = self.point_weight.unbind(0)
+        group_layers = [(weight.unbind(0), layer_bias.unbind(0)) for weight, layer_bias in layers]
+        segments = _chunk_segments(group_sizes, first_bias, per_frame, bias_per_row, chunk_rows)
+        lengths = [length for _, length, _ in segments]
+        point_chunks = torch.split(points, lengths)
+        bias_chunks = torch.split(first_bias, lengths) if bias_per_row else None
         outputs = []
-        start = 0
-        for group, size in enumerate(group_sizes):
-            for lo in range(start, start + size, chunk_rows):
-                hi = min(lo + chunk_rows, start + size)
-                bias = first_bias[lo:hi] if bias_per_row else first_bias[group]
-                hidden = self.act(torch.addmm(bias, points[lo:hi], self.point_weight[group]))
-                if low_precision:
-                    hidden = hidden.to(torch.bfloat16)
-                for index, (weight, layer_bias) in enumerate(layers):
-                    last = index == len(layers) - 1
-                    if last and low_precision:
-                        hidden = hidden.to(points.dtype)
-                    hidden = torch.addmm(layer_bias[group], hidden, weight[group])
-                    if not last:
-                        hidden = self.act(hidden)
-                outputs.append(hidden)
-            start += size
+        for index_chunk, (group, _, group_bias) in enumerate(segments):
+            bias = bias_chunks[index_chunk] if bias_per_row else group_bias
+            fused = self._fused(point_chunks[index_chunk], group, bias, layers, low_precision)
+            if fused is not None:
+                outputs.append(fused)
+                continue
+            hidden = self.act(torch.addmm(bias, point_chunks[index_chunk],
+                                          point_weights[group]))
+            if low_precision:
+                hidden = hidden.to(torch.bfloat16)
+            for index, (weight, layer_bias) in enumerate(group_layers):
+                last = index == len(group_layers) - 1
+                if last and low_precision:
+                    hidden = hidden.to(points.dtype)
+                hidden = torch.addmm(layer_bias[group], hidden, weight[group])
+                if not last:
+                    hidden = self.act(hidden)
+            outputs.append(hidden)
         if not outputs:
             return points.new_zeros(0, self.out_dim)
         return torch.cat(outputs, dim=0)
+
+
+def _chunk_segments(group_sizes: list, first_bias: torch.Tensor, per_frame: bool,
+                    bias_per_row: bool, chunk_rows: int) -> list[tuple]:
+    """The row chunks of :meth:`StackedMLP.forward_grouped` in row order: (group, rows, first
+    layer bias [hidden] or None with ``bias_per_row``); with ``per_frame`` the (group, frame)
+    segments, each with its frame's bias. Biases by one unbind (see the caller)."""
+    if per_frame:
+        frame_biases = [bias.unbind(0) for bias in first_bias.unbind(0)]
+        return [(group, min(chunk_rows, size - lo), frame_biases[frame][group])
+                for group, frame_sizes in enumerate(group_sizes)
+                for frame, size in enumerate(frame_sizes)
+                for lo in range(0, size, chunk_rows)]
+    group_biases = None if bias_per_row else first_bias.unbind(0)
+    return [(group, min(chunk_rows, size - lo), None if bias_per_row else group_biases[group])
+            for group, size in enumerate(group_sizes)
+            for lo in range(0, size, chunk_rows)]
 
 
 @torch.no_grad()

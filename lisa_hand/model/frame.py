@@ -3,7 +3,8 @@
 :class:`FrameState` is what :meth:`LisaModel.prepare` computes once per frame (kinematics, bone
 frames, region segments, the conditioning folded into first-layer biases); :class:`FieldOutput`
 is what :meth:`LisaModel.field` returns for a batch of points; :func:`region_bounds` is the box
-where a frame's field is more than its analytic stand-in.
+where a frame's field is more than its analytic stand-in; :func:`group_points` pads the points of
+several frames into one batch (the grouped callbacks of :class:`LisaModel`).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from ..skeleton import Kinematics
 if TYPE_CHECKING:
     from .lisa import LisaModel
 
-__all__ = ["FrameState", "FieldOutput", "region_bounds"]
+__all__ = ["FrameState", "FieldOutput", "region_bounds", "group_points"]
 
 
 @dataclass
@@ -91,3 +92,34 @@ def region_bounds(state: FrameState, model: LisaModel) -> tuple[torch.Tensor, to
     ends = torch.cat([start, end], dim=1) + state.region_origin.detach()[:, None]
     radius = float(max(model.config.palm_region_radius, model.config.finger_region_radius))
     return ends.amin(dim=1) - radius, ends.amax(dim=1) + radius
+
+
+_FAR_POINT_M = 1.0e3
+"""Where :func:`group_points` puts padding: outside every bone's region of any hand (metres),
+so padding costs no MLP evaluation (only the distance to the regions)."""
+
+
+def group_points(
+    points: torch.Tensor, groups: torch.Tensor, num_frames: int
+) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+    """Flat points of several frames into one padded batch.
+
+    points: [N, 3] metres; groups: [N] long in [0, num_frames), the frame of each point.
+    -> (padded [num_frames, M, 3] metres, M the largest frame's count, the rest far away;
+    index (frame [N], position [N]) such that ``padded[index] == points``). Differentiable with
+    respect to ``points``.
+    """
+    if groups.shape != points.shape[:1]:
+        raise ValueError(f"groups must have shape [N]=({points.shape[0]},), got "
+                         f"{tuple(groups.shape)}")
+    counts = torch.bincount(groups, minlength=num_frames)
+    if counts.numel() != num_frames:
+        raise ValueError(f"groups must be in [0, {num_frames}), got up to {int(groups.max())}")
+    starts = torch.cumsum(counts, 0) - counts
+    sorted_groups, order = torch.sort(groups, stable=True)
+    position = torch.empty_like(groups)
+    position[order] = torch.arange(groups.numel(), device=groups.device) - starts[sorted_groups]
+    size = int(counts.max()) if groups.numel() else 0
+    padded = points.new_full((num_frames, size, 3), _FAR_POINT_M)
+    index = (groups, position)
+    return padded.index_put(index, points), index

@@ -49,7 +49,7 @@ from ..fields.encoding import encoding_dim, positional_encoding
 from ..fields.mlp import StackedMLP, geometric_init_, soft_min_init_
 from ..fields.pose import local_pose_mask, pose_feature_dim, pose_features
 from ..skeleton import NUM_JOINTS, POSE_DIM, check_pose, forward_kinematics
-from .frame import FieldOutput, FrameState, region_bounds
+from .frame import FieldOutput, FrameState, group_points, region_bounds
 
 __all__ = ["FrameState", "FieldOutput", "LisaModel", "build_model", "region_bounds"]
 
@@ -384,6 +384,35 @@ class LisaModel(nn.Module):
 
         return field
 
+    def grouped_sdf_fn(self, state: FrameState) -> Callable[[torch.Tensor, torch.Tensor],
+                                                          torch.Tensor]:
+        """``(points [N, 3], groups [N]) -> sdf [N]``: every frame of a batched state in one
+        evaluation, point ``i`` in frame ``groups[i]`` (a
+        :class:`~lisa_hand.geometry.fields.GroupedSdfFn`: sphere tracing several frames at once).
+        """
+
+        def sdf(points: torch.Tensor, groups: torch.Tensor) -> torch.Tensor:
+            padded, index = group_points(points, groups, state.batch_size)
+            return self.field(state, padded, with_color=False).sdf[index]
+
+        return sdf
+
+    def grouped_field_fn(self, state: FrameState) -> Callable[..., tuple[torch.Tensor,
+                                                                          torch.Tensor]]:
+        """``(points [N, 3], directions [N, 3], groups [N]) -> (sdf [N], rgb [N, 3])`` for every
+        frame of a batched state in one evaluation (a
+        :class:`~lisa_hand.geometry.fields.GroupedFieldFn`: rendering several frames at once)."""
+        if self.color_mlp is None:
+            raise ValueError("grouped_field_fn needs colour; the model was built with "
+                             "use_color=False")
+
+        def field(points: torch.Tensor, directions: torch.Tensor, groups: torch.Tensor):
+            padded, index = group_points(points, groups, state.batch_size)
+            out = self.field(state, padded, with_color=True)
+            return out.sdf[index], out.rgb[index]
+
+        return field
+
     @staticmethod
     def _check_single_frame(state: FrameState) -> None:
         if state.batch_size != 1:
@@ -417,19 +446,25 @@ class LisaModel(nn.Module):
         distance = torch.cat([palm, distance[..., cut:]], dim=-1)
         return distance - points.new_tensor(self.region_radii)
 
-    def _pair_bias(
-        self,
-        bias: torch.Tensor,
-        num_points: int,
-        point_index: torch.Tensor,
-        group_index: torch.Tensor,
-    ) -> tuple[torch.Tensor, bool]:
-        """First-layer bias of culled rows: per group for one frame, else gathered per row."""
-        batch, groups, hidden = bias.shape
-        if batch == 1:
-            return bias[0], False
-        frame = torch.div(point_index, num_points, rounding_mode="floor")
-        return bias.reshape(batch * groups, hidden)[frame * groups + group_index], True
+    @staticmethod
+    def _group_rows(mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, list]:
+        """The culled rows of a [B, N, G] mask, sorted by group, then frame, then point.
+
+        -> (group index [Q], flat point index [Q] into B * N, sizes: G ints for one frame, else
+        G lists of B ints, as :meth:`StackedMLP.forward_grouped` takes them with the bias
+        [1, G, H] -> [G, H] or [B, G, H] of :meth:`_first_bias`).
+        """
+        batch, num, groups = mask.shape
+        group_index, point_index = mask.reshape(batch * num, groups).t().nonzero(as_tuple=True)
+        counts = mask.sum(dim=1)  # [B, G]
+        sizes = counts[0].tolist() if batch == 1 else counts.t().tolist()
+        return group_index, point_index, sizes
+
+    @staticmethod
+    def _first_bias(bias: torch.Tensor) -> torch.Tensor:
+        """The per-frame first-layer bias [B, G, H] as forward_grouped takes it with
+        :meth:`_group_rows`' sizes."""
+        return bias[0] if bias.shape[0] == 1 else bias
 
     def _evaluate(
         self,
@@ -453,20 +488,17 @@ class LisaModel(nn.Module):
             )
 
         num_pairs_all = batch * num * NUM_JOINTS
-        flat_active = active.reshape(-1, NUM_JOINTS)
         # 'bfloat16': every MLP; 'mixed': only the colour MLPs. The skinning MLP stays exact in
         # 'mixed': its logits reach tens (a soft minimum of the SDFs), where bfloat16's 8 bits
         # move the weights by ~1e-1.
         mlp_options = {"low_precision": precision == "bfloat16"}
         color_options = {"low_precision": precision != "float32"}
         if cull:
-            bone_index, point_index = flat_active.t().nonzero(as_tuple=True)  # bone-major
-            group_sizes = flat_active.sum(dim=0).tolist()
+            bone_index, point_index, group_sizes = self._group_rows(active)  # bone-major
             pair_flat = point_index * NUM_JOINTS + bone_index
             encoded = positional_encoding(local.reshape(-1, 3)[pair_flat], config.pe_frequencies)
-            bias, per_row = self._pair_bias(state.sdf_bias, num, point_index, bone_index)
             sdf_pairs = self.sdf_mlp.forward_grouped(
-                encoded, group_sizes, bias, bias_per_row=per_row, **mlp_options
+                encoded, group_sizes, self._first_bias(state.sdf_bias), **mlp_options
             )[:, 0]
             bone_sdf = stand_in.reshape(num_pairs_all).index_put((pair_flat,), sdf_pairs * scale)
             bone_sdf = bone_sdf.reshape(batch, num, NUM_JOINTS)
@@ -483,17 +515,14 @@ class LisaModel(nn.Module):
             color_mask = active & (weights > 0)
             if cull:
                 if not torch.equal(color_mask, active):  # NASA: only the chosen bone
-                    flat_mask = color_mask.reshape(-1, NUM_JOINTS)
-                    bone_index, point_index = flat_mask.t().nonzero(as_tuple=True)
-                    group_sizes = flat_mask.sum(dim=0).tolist()
+                    bone_index, point_index, group_sizes = self._group_rows(color_mask)
                     pair_flat = point_index * NUM_JOINTS + bone_index
                     encoded = positional_encoding(
                         local.reshape(-1, 3)[pair_flat], config.pe_frequencies
                     )
-                bias, per_row = self._pair_bias(state.color_bias, num, point_index, bone_index)
                 color_pairs = torch.sigmoid(
                     self.color_mlp.forward_grouped(
-                        encoded, group_sizes, bias, bias_per_row=per_row, **color_options
+                        encoded, group_sizes, self._first_bias(state.color_bias), **color_options
                     )
                 )
                 weight_pairs = weights.reshape(num_pairs_all)[pair_flat]
@@ -572,21 +601,18 @@ class LisaModel(nn.Module):
         outside_sdf = stand_in.amin(dim=-1)  # the nearest region's stand-in
         rgb = None
         if cull:
-            rows = inside.reshape(-1).nonzero()[:, 0]
+            _, rows, sizes = self._group_rows(inside[..., None])
             encoded = positional_encoding(local.reshape(-1, 3)[rows], config.pe_frequencies)
-            zeros = torch.zeros_like(rows)
             options = {"low_precision": precision == "bfloat16"}
-            bias, per_row = self._pair_bias(state.sdf_bias, num, rows, zeros)
             sdf_rows = self.sdf_mlp.forward_grouped(
-                encoded, [rows.numel()], bias, bias_per_row=per_row, **options
+                encoded, sizes, self._first_bias(state.sdf_bias), **options
             )[:, 0]
             options = {"low_precision": precision != "float32"}
             sdf = outside_sdf.reshape(-1).index_put((rows,), sdf_rows * scale).reshape(batch, num)
             if with_color:
-                bias, per_row = self._pair_bias(state.color_bias, num, rows, zeros)
                 color_rows = torch.sigmoid(
                     self.color_mlp.forward_grouped(
-                        encoded, [rows.numel()], bias, bias_per_row=per_row, **options
+                        encoded, sizes, self._first_bias(state.color_bias), **options
                     )
                 )
                 rgb = torch.full_like(points, _STAND_IN_COLOR).reshape(-1, 3)

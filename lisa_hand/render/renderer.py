@@ -107,16 +107,22 @@ def place_samples(
     far: torch.Tensor,
     beta: torch.Tensor,
     generator: torch.Generator | None,
+    groups: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Sample distances ``t_vals [R, S]`` (sorted, metres) by ``config.sampler``.
 
     sdf_fn: points [N, 3] metres -> sdf [N] metres (None only for 'uniform'). origins: [R, 3]
     metres. directions: [R, 3] unit. near, far: [R] metres. beta: the density's Laplace scale,
     metres ([] tensor). generator: for stratified draws. ``S = config.samples_per_ray``.
-    Not differentiable (the samplers run under ``torch.no_grad``).
+    groups: [R] long, the field of each ray, for a grouped ``sdf_fn`` (the 'sphere_traced' and
+    'uniform' samplers only). Not differentiable (the samplers run under ``torch.no_grad``).
     """
+    if groups is not None and config.sampler == "error_bounded":
+        raise ValueError("the 'error_bounded' sampler does not take groups (several fields in "
+                         "one pass); use 'sphere_traced' or 'uniform'")
     if config.sampler == "uniform":
-        return uniform_samples(near, far, config.num_samples, config.stratified, generator)
+        return uniform_samples(near, far, config.num_samples, config.stratified, generator,
+                               groups)
     if sdf_fn is None:
         raise ValueError(f"sdf_fn is required by the {config.sampler!r} sampler")
     if config.sampler == "error_bounded":
@@ -150,6 +156,7 @@ def place_samples(
         band_inside=config.sphere_band_inside,
         stratified=config.stratified,
         generator=generator,
+        groups=groups,
     )
 
 
@@ -228,6 +235,7 @@ def render_rays(
     hit: torch.Tensor | None = None,
     background: torch.Tensor | None = None,
     generator: torch.Generator | None = None,
+    groups: torch.Tensor | None = None,
 ) -> RenderOutput:
     """Volume-render rays: ``c = int_near^far T(t) sigma(r(t)) c(r(t), d) dt`` over a background.
 
@@ -250,13 +258,20 @@ def render_rays(
     density: the VolSDF density (its ``beta`` drives the samplers).
     hit: [R] bool, rays to process; None means ``far > near``.
     background: [C] or [R, C]; None uses ``config.background``.
-    generator: random generator for stratified sampling (on the rays' device).
+    generator: random generator for stratified sampling (on the rays' device), or one per group
+        (:class:`~lisa_hand.render.samplers.GroupGenerators`, with ``groups``).
+    groups: [R] long, the field each ray belongs to (several frames in one pass); the callbacks
+        are then grouped (:class:`~lisa_hand.geometry.fields.GroupedFieldFn`,
+        :class:`~lisa_hand.geometry.fields.GroupedSdfFn`): called with the group of every point.
     Returns RenderOutput with rgb [R, C], opacity [R], depth [R], weights [R, S], t_vals [R, S]
     (``S = config.samples_per_ray``; zeros for skipped rays).
     """
     hit, background = _check_rays_and_background(
         origins, directions, near, far, config, hit, background
     )
+    if groups is not None and (groups.shape != hit.shape or groups.dtype != torch.long):
+        raise ValueError(f"groups must be a long tensor of shape [R]=({hit.shape[0]},), got "
+                         f"{groups.dtype} {tuple(groups.shape)}")
     num_channels = background.shape[-1]
     num_samples = config.samples_per_ray
     beta = density.beta.detach()
@@ -265,13 +280,16 @@ def render_rays(
     for start in range(0, ray_ids.shape[0], config.chunk_size):
         ids = ray_ids[start : start + config.chunk_size]
         ray_o, ray_d, ray_far = origins[ids], directions[ids], far[ids]
+        ray_groups = None if groups is None else groups[ids]
         t_vals = place_samples(
-            config, sdf_fn, ray_o, ray_d, near[ids], ray_far, beta, generator
+            config, sdf_fn, ray_o, ray_d, near[ids], ray_far, beta, generator, ray_groups
         ).detach()
         points = ray_o[:, None, :] + t_vals[..., None] * ray_d[:, None, :]
         view_dirs = ray_d[:, None, :].expand(-1, num_samples, -1)
+        point_groups = None if groups is None else ray_groups.repeat_interleave(num_samples)
         sdf, rgb = call_field(
-            field_fn, points.reshape(-1, 3), view_dirs.reshape(-1, 3), num_channels
+            field_fn, points.reshape(-1, 3), view_dirs.reshape(-1, 3), num_channels,
+            groups=point_groups,
         )
         sigma = density(sdf).reshape(ids.shape[0], num_samples)
         chunk_bg = background if background.dim() == 1 else background[ids]

@@ -21,6 +21,7 @@ from .density import volsdf_density
 
 __all__ = [
     "ErrorBoundedSamples",
+    "GroupGenerators",
     "uniform_samples",
     "error_bounded_sampling",
     "error_bounded_samples",
@@ -45,10 +46,49 @@ def _check_near_far(near, far) -> None:
         )
 
 
+def _check_groups(groups: torch.Tensor | None, num_rays: int) -> None:
+    if groups is None:
+        return
+    if not isinstance(groups, torch.Tensor) or groups.shape != (num_rays,) \
+            or groups.dtype != torch.long:
+        raise ValueError(f"groups must be a long tensor of shape [R]=({num_rays},), got "
+                         f"{getattr(groups, 'dtype', type(groups).__name__)} "
+                         f"{tuple(getattr(groups, 'shape', ()))}")
+
+
 def _eval_sdf(sdf_fn: SdfFn, origins, directions, t_vals) -> torch.Tensor:
     """sdf at ``o + t d`` for t_vals [R, M] -> [R, M] (same dtype as t_vals)."""
     points = origins[:, None, :] + t_vals[..., None] * directions[:, None, :]
     return call_sdf(sdf_fn, points.reshape(-1, 3)).reshape(t_vals.shape)
+
+
+class GroupGenerators:
+    """One ``torch.Generator`` per group of rays (a frame), for stratified sampling of several
+    frames in one pass: the draws of a group's rays come from that group's generator alone, so
+    a frame gets the same samples whichever frames it is rendered with (one process or several
+    under torchrun). Pass it as ``generator`` together with the rays' ``groups``."""
+
+    def __init__(self, generators: list[torch.Generator]) -> None:
+        self.generators = list(generators)
+
+    def rand(self, shape: tuple[int, ...], groups: torch.Tensor, *, device, dtype) -> torch.Tensor:
+        """Uniform [0, 1) values of ``shape`` (rows = rays), row ``i`` drawn from the generator of
+        ``groups[i]`` (each group's rows in their order)."""
+        if groups is None or groups.shape != shape[:1]:
+            raise ValueError("GroupGenerators needs the rays' groups [R]")
+        out = torch.empty(shape, device=device, dtype=dtype)
+        for group in torch.unique(groups).tolist():
+            rows = (groups == group).nonzero()[:, 0]
+            out[rows] = torch.rand((rows.numel(), *shape[1:]), device=device, dtype=dtype,
+                                   generator=self.generators[group])
+        return out
+
+
+def _rand(shape, generator, groups, *, device, dtype) -> torch.Tensor:
+    """``torch.rand`` from a generator, or per group from :class:`GroupGenerators`."""
+    if isinstance(generator, GroupGenerators):
+        return generator.rand(tuple(shape), groups, device=device, dtype=dtype)
+    return torch.rand(shape, generator=generator, device=device, dtype=dtype)
 
 
 def uniform_samples(
@@ -56,7 +96,8 @@ def uniform_samples(
     far: torch.Tensor,
     num_samples: int,
     stratified: bool = False,
-    generator: torch.Generator | None = None,
+    generator: torch.Generator | GroupGenerators | None = None,
+    groups: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Split ``[near, far]`` into ``num_samples`` equal bins and take one sample per bin.
 
@@ -64,7 +105,8 @@ def uniform_samples(
     ``far`` the composite quadrature is the left Riemann sum over exactly ``[near, far]``.
     Stratified (training): a uniform random position inside each bin.
 
-    near, far: [R] metres. generator: optional torch.Generator on the tensors' device.
+    near, far: [R] metres. generator: optional torch.Generator on the tensors' device, or
+    :class:`GroupGenerators` with ``groups`` [R] long (the group of each ray).
     Returns t_vals [R, num_samples], sorted, in ``[near, far)``.
     """
     _check_near_far(near, far)
@@ -73,9 +115,8 @@ def uniform_samples(
     steps = torch.arange(num_samples, device=near.device, dtype=near.dtype)
     steps = steps.expand(near.shape[0], num_samples)
     if stratified:
-        steps = steps + torch.rand(
-            steps.shape, generator=generator, device=near.device, dtype=near.dtype
-        )
+        steps = steps + _rand(steps.shape, generator, groups, device=near.device,
+                              dtype=near.dtype)
     return near[:, None] + (far - near)[:, None] * (steps / num_samples)
 
 
@@ -457,6 +498,7 @@ def sphere_traced_samples(
     hit_tolerance: float = 0.1,
     stratified: bool = False,
     generator: torch.Generator | None = None,
+    groups: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Samples concentrated where VolSDF's density matters, found by sphere tracing.
 
@@ -481,9 +523,13 @@ def sphere_traced_samples(
     sdf_fn: points [N, 3] metres -> sdf [N] metres.
     origins: [R, 3] metres. directions: [R, 3] unit. near, far: [R] metres.
     beta: the density's current Laplace scale, metres (float or [] tensor).
+    groups: [R] long, the field of each ray; ``sdf_fn`` is then a
+        :class:`~lisa_hand.geometry.fields.GroupedSdfFn` called with the group of every point
+        (several frames traced in one pass: one call a step for all of them).
     Returns t_vals [R, num_samples + num_uniform], sorted, in ``[near, far]``.
     """
     _check_rays(origins, directions, near, far)
+    _check_groups(groups, origins.shape[0])
     if num_samples < 1 or num_uniform < 0 or num_steps < 1:
         raise ValueError(
             f"need num_samples >= 1, num_uniform >= 0, num_steps >= 1, got {num_samples}, "
@@ -495,7 +541,7 @@ def sphere_traced_samples(
     step_min = min_step * beta_value
     tolerance = hit_tolerance * beta_value
     t_enter, t_leave, t_hit = _trace_shell(
-        sdf_fn, origins, directions, near, far, shell, step_min, tolerance, num_steps
+        sdf_fn, origins, directions, near, far, shell, step_min, tolerance, num_steps, groups
     )
 
     entered = torch.isfinite(t_enter)
@@ -507,16 +553,17 @@ def sphere_traced_samples(
     band_end = torch.where(entered, torch.maximum(band_end, band_start), far)
 
     total = num_samples + num_uniform
-    in_band = uniform_samples(band_start, band_end, num_samples, stratified, generator)
+    in_band = uniform_samples(band_start, band_end, num_samples, stratified, generator, groups)
     if num_uniform > 0:
-        coarse = uniform_samples(near, far, num_uniform, stratified, generator)
+        coarse = uniform_samples(near, far, num_uniform, stratified, generator, groups)
         in_band = torch.cat([in_band, coarse], dim=-1)
-    everywhere = uniform_samples(near, far, total, stratified, generator)
+    everywhere = uniform_samples(near, far, total, stratified, generator, groups)
     t_vals = torch.where(entered[:, None], in_band, everywhere)
     return torch.sort(t_vals, dim=-1).values
 
 
-def _trace_shell(sdf_fn, origins, directions, near, far, shell, step_min, tolerance, num_steps):
+def _trace_shell(sdf_fn, origins, directions, near, far, shell, step_min, tolerance, num_steps,
+                 groups=None):
     """The sphere-tracing walk of :func:`sphere_traced_samples`.
 
     Steps ``sdf - shell`` outside the shell ``sdf <= shell``, ``sdf`` inside it (at least
@@ -538,7 +585,7 @@ def _trace_shell(sdf_fn, origins, directions, near, far, shell, step_min, tolera
             break
         t_act = t_cur[active]
         points = origins[active] + t_act[:, None] * directions[active]
-        sdf = call_sdf(sdf_fn, points)
+        sdf = call_sdf(sdf_fn, points, groups=None if groups is None else groups[active])
         in_shell = sdf <= shell
         t_enter[active] = torch.where(
             in_shell, torch.minimum(t_enter[active], t_act), t_enter[active]

@@ -20,6 +20,7 @@ from ..fields.latents import LatentTable
 from ..model.lisa import FrameState, LisaModel, region_bounds
 from ..model.losses import color_loss, eikonal_loss, latent_loss, skinning_loss
 from ..render import LaplaceDensity, RenderConfig, calibrate, ray_sphere_bounds, render_rays
+from ..render.samplers import GroupGenerators
 from ..skeleton import POSE_DIM
 from .prior import PriorModel
 
@@ -200,9 +201,17 @@ class ImageModel(nn.Module):
         refine_pose: bool = False,
         refine_translation: bool = True,
         background: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        batched: bool = True,
     ) -> dict[str, torch.Tensor]:
         """The loss terms of one batch, each averaged over it (see the module docstring).
 
+        batched: render every frame's rays in one pass (grouped field callbacks: one sphere
+            trace and one field evaluation for the batch) and evaluate the skinning points
+            without the gradient pass they do not need; False renders frame after frame (one
+            stratified generator each, seeded by ``batch.seeds``) and runs the skinning points
+            through the Eikonal gradient pass: the step as it was before (the reference of
+            ``python -m lisa_hand.bench train``). Both compute the same losses; the random jitter
+            of the samples differs.
         -> {"col", "eik", "w", "reg", "mask"} scalar tensors.
         """
         rays = batch.rays
@@ -215,6 +224,11 @@ class ImageModel(nn.Module):
         low, high = region_bounds(state, self.field)
         centre, radius = 0.5 * (low + high), 0.5 * (high - low).norm(dim=-1)
         background_rgb = torch.tensor(background, dtype=dtype, device=device)
+        if batched:
+            prediction, opacity, ray_points = self._render_batched(
+                batch, state, centre, radius, render, background_rgb)
+            return self._loss_terms(batch, state, low, high, prediction, opacity, ray_points,
+                                    shape, color, skin_with_gradient=False)
         black = torch.zeros(3, dtype=dtype, device=device)
         seeds = batch.seeds.tolist()
         predictions, opacities, ray_points = [], [], []
@@ -236,18 +250,71 @@ class ImageModel(nn.Module):
                                                 batch.eikonal_pick[frame], centre[frame]))
         prediction = torch.stack(predictions)  # [B, R, 3]
         opacity = torch.stack(opacities)  # [B, R]
+        return self._loss_terms(batch, state, low, high, prediction, opacity,
+                                torch.stack(ray_points), shape, color, skin_with_gradient=True)
 
+    def _render_batched(self, batch: ImageBatch, state: FrameState, centre: torch.Tensor,
+                        radius: torch.Tensor, render: RenderConfig,
+                        background_rgb: torch.Tensor):
+        """Every frame's rays in one :func:`render_rays` pass with grouped callbacks.
+
+        centre: [B, 3], radius: [B] metres (the frames' bounding spheres).
+        -> (calibrated colours [B, R, 3], opacity [B, R], ray Eikonal points [B, Ne, 3]).
+        """
+        rays = batch.rays
+        num_frames, num_rays = rays.origins.shape[:2]
+        device, dtype = rays.origins.device, rays.origins.dtype
+        groups = torch.arange(num_frames, device=device).repeat_interleave(num_rays)
+        origins, directions = rays.origins.reshape(-1, 3), rays.directions.reshape(-1, 3)
+        near, far, hit = ray_sphere_bounds(origins, directions, centre[groups], radius[groups])
+        generator = None
+        if render.stratified:  # one generator a frame: the same samples in any process
+            generator = GroupGenerators([torch.Generator(device=device).manual_seed(seed)
+                                         for seed in batch.seeds.tolist()])
+        out = render_rays(self.field.grouped_field_fn(state), self.field.grouped_sdf_fn(state),
+                          origins, directions, near, far, render, self.density, hit=hit,
+                          background=torch.zeros(3, dtype=dtype, device=device),
+                          generator=generator, groups=groups)
+        camera = rays.camera_index.reshape(-1)  # [B R]
+        prediction = calibrate(out.rgb, out.opacity, self.gain[camera], self.bias[camera],
+                               background_rgb)
+        t_vals, hit = out.t_vals.reshape(num_frames, num_rays, -1), hit.reshape(num_frames, -1)
+        ray_points = torch.stack([
+            _pick_ray_samples(rays.origins[frame], rays.directions[frame], t_vals[frame],
+                              hit[frame], batch.eikonal_pick[frame], centre[frame])
+            for frame in range(num_frames)])
+        return (prediction.reshape(num_frames, num_rays, 3),
+                out.opacity.reshape(num_frames, num_rays), ray_points)
+
+    def _loss_terms(self, batch: ImageBatch, state: FrameState, low: torch.Tensor,
+                    high: torch.Tensor, prediction: torch.Tensor, opacity: torch.Tensor,
+                    ray_points: torch.Tensor, shape: torch.Tensor, color: torch.Tensor, *,
+                    skin_with_gradient: bool) -> dict[str, torch.Tensor]:
+        """The losses of a rendered batch: prediction [B, R, 3], opacity [B, R], ray Eikonal
+        points [B, Ne, 3]; low, high [B, 3] the region boxes (uniform Eikonal points)."""
+        rays = batch.rays
+        dtype = prediction.dtype
         uniform = low[:, None] + batch.uniform_unit * (high - low)[:, None]
         num_skin = batch.skin_points.shape[1]
-        points = torch.cat([batch.skin_points, torch.stack(ray_points), uniform], dim=1)
         zero = prediction.new_zeros(())
         eik = weights = zero
-        if points.shape[1]:
-            geometry = self.field.field(state, points, with_color=False, with_gradient=True)
-            if points.shape[1] > num_skin:
-                eik = eikonal_loss(geometry.sdf_grad[:, num_skin:])
-            if num_skin and geometry.weights is not None:
-                weights = skinning_loss(geometry.weights[:, :num_skin], batch.skin_weights)
+        if skin_with_gradient:
+            points = torch.cat([batch.skin_points, ray_points, uniform], dim=1)
+            if points.shape[1]:
+                geometry = self.field.field(state, points, with_color=False, with_gradient=True)
+                if points.shape[1] > num_skin:
+                    eik = eikonal_loss(geometry.sdf_grad[:, num_skin:])
+                if num_skin and geometry.weights is not None:
+                    weights = skinning_loss(geometry.weights[:, :num_skin], batch.skin_weights)
+        else:
+            points = torch.cat([ray_points, uniform], dim=1)
+            if points.shape[1]:
+                geometry = self.field.field(state, points, with_color=False, with_gradient=True)
+                eik = eikonal_loss(geometry.sdf_grad)
+            if num_skin:
+                skin = self.field.field(state, batch.skin_points, with_color=False)
+                if skin.weights is not None:
+                    weights = skinning_loss(skin.weights, batch.skin_weights)
         mask = F.binary_cross_entropy(opacity.clamp(1e-5, 1.0 - 1e-5), rays.in_mask.to(dtype))
         return {
             "col": color_loss(prediction.reshape(-1, 3), rays.rgb.reshape(-1, 3)),

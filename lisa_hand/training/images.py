@@ -79,8 +79,12 @@ def _default_image_trainer() -> TrainerConfig:
 
 
 def _default_image_render() -> RenderConfig:
-    return RenderConfig(sampler="sphere_traced", num_samples=48, num_samples_extra=16,
-                        stratified=True)
+    # 16 samples in the band [-4 beta, +8 beta] around the traced surface (0.75 beta apart) and
+    # 4 uniform ones; 16 marching steps. The first release used 48 + 16 samples in
+    # [-8 beta, +16 beta] and 64 steps: ``python -m lisa_hand.bench train`` compares the two.
+    return RenderConfig(sampler="sphere_traced", num_samples=16, num_samples_extra=4,
+                        stratified=True, sphere_num_steps=16, sphere_band_outside=4.0,
+                        sphere_band_inside=8.0)
 
 
 @dataclass(frozen=True)
@@ -95,8 +99,8 @@ class ImageTrainConfig:
     needs find_unused_parameters: steps leave some parameters without a gradient (the pose
     offsets before refinement starts, rarely a bone); 'allreduce' also works."""
     render: RenderConfig = dataclasses.field(default_factory=_default_image_render)
-    """Ray sampling and compositing (VolSDF). Default: the sphere-traced sampler, 48 samples in
-    the band around the surface + 16 uniform ones, stratified (jittered) for training."""
+    """Ray sampling and compositing (VolSDF). Default: the sphere-traced sampler, 16 samples in
+    the band around the surface + 4 uniform ones, stratified (jittered) for training."""
     split: str = "train"
     """Dataset split whose subjects get codes and whose images are fitted."""
     field_from_prior: bool = True
@@ -115,6 +119,11 @@ class ImageTrainConfig:
     """The widest band kept in memory (``band_px`` must not exceed it)."""
     background_per_view: int = 4096
     """Background pixels kept per view (chosen once at load) for the background rays."""
+    batched_step: bool = True
+    """Render every frame of a step in one pass (one sphere trace and one field evaluation for
+    all of them, grouped by frame) and skip the gradient pass for the skinning points. False:
+    frame after frame, the step of the first release (``python -m lisa_hand.bench train``'s
+    reference). The same losses either way."""
     stream: bool = False
     """Read frames while training runs (:mod:`lisa_hand.training.streaming`: a DataLoader with
     ``stream_workers`` processes decodes the images and masks, cropped to the hand, into a
@@ -126,12 +135,14 @@ class ImageTrainConfig:
     stream_cache: int = 64
     """With ``stream``: frames held in memory (the buffer a step draws its frames from); at
     least ``num_frames``."""
-    eikonal_ray_points: int = 256
-    """Per frame: samples of the rendered rays where L_Eik is evaluated."""
-    eikonal_uniform_points: int = 256
-    """Per frame: uniform points (in the box around the bones' regions) for L_Eik."""
-    skinning_points: int = 512
-    """Per frame: scan points where L_w is evaluated (0 with lambda_w = 0)."""
+    eikonal_ray_points: int = 128
+    """Per frame: samples of the rendered rays where L_Eik is evaluated (the first release:
+    256; halved with the faster step, ``python -m lisa_hand.bench train``)."""
+    eikonal_uniform_points: int = 128
+    """Per frame: uniform points (in the box around the bones' regions) for L_Eik (first
+    release: 256)."""
+    skinning_points: int = 256
+    """Per frame: scan points where L_w is evaluated (0 with lambda_w = 0; first release: 512)."""
     lambda_col: float = 1.0
     """Weight of L_col (L1 over RGB in [0, 1], per ray)."""
     lambda_eik: float = 0.1
@@ -352,7 +363,7 @@ def _image_step_fn(rays: RayFrames, scans: ScanFrames | None, config: ImageTrain
         local = batch.select(shard_slice(num_global, ctx.dist)).to(ctx.device, bare.field.dtype)
         terms = ctx.model(local, render=config.render, refine_pose=ctx.step >= refine_from,
                           refine_translation=config.refine_translation,
-                          background=config.background)
+                          background=config.background, batched=config.batched_step)
         out = weighted_total(terms, weights, local.num_frames, num_global, ctx.dist)
         out["beta"] = bare.density.beta.detach()
         return out

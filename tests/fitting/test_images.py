@@ -92,8 +92,11 @@ def test_color_stage_lowers_the_color_loss(scene):
     early, late = np.mean(history["col"][:5]), np.mean(history["col"][-5:])
     # Measured over seeds 0-3 (512 rays): late / early 0.72-0.77 with the shape code in the
     # training codes' space, 0.65-0.83 with the paper's free code (means 0.747 and 0.745; the
-    # former bound 0.7 at 128 rays held for seed 0 of the free code only).
-    assert late < 0.8 * early
+    # former bound 0.7 at 128 rays held for seed 0 of the free code only). With the views'
+    # responses fitted too (view_calibration, issue 15): 0.74-0.81 over seeds 0-2 (0.72-0.77
+    # without), the colour code as close to the truth (0.556-0.561 of the mean code's distance,
+    # 0.535-0.561 without).
+    assert late < 0.85 * early
     mean_code = model.mean_color_code()
     assert (fitted.color_code - truth.color_code).norm() < 0.8 * (
         mean_code - truth.color_code).norm()

@@ -1,3 +1,4 @@
+import dataclasses
 import math
 
 import pytest
@@ -250,3 +251,55 @@ def test_render_on_cuda_matches_cpu():
         )
         torch.testing.assert_close(gpu.rgb.cpu(), cpu.rgb, atol=1e-3, rtol=0)
         density = density.cpu()
+
+
+def test_grouped_rays_render_as_each_group_alone():
+    # Two spheres of different radii (one per group) in one pass: the same images as rendering
+    # each alone, stratified too (one generator per group).
+    from lisa_hand.render.samplers import GroupGenerators
+
+    K, R, t, _ = make_camera(24, 40.0, torch.float64)
+    origins, directions = pinhole_rays(K, R, t, 24, 24)
+    radii = torch.tensor([RADIUS, 0.7 * RADIUS], dtype=torch.float64)
+    colours = torch.tensor([[0.9, 0.2, 0.1], [0.1, 0.3, 0.8]], dtype=torch.float64)
+
+    def grouped_sdf(points, groups):
+        return points.norm(dim=-1) - radii[groups]
+
+    def grouped_field(points, dirs, groups):
+        return grouped_sdf(points, groups), colours[groups]
+
+    num = origins.shape[0]
+    all_o, all_d = torch.cat([origins, origins]), torch.cat([directions, directions])
+    groups = torch.arange(2).repeat_interleave(num)
+    near, far, hit = ray_sphere_bounds(all_o, all_d, torch.zeros(3, dtype=torch.float64), 0.15)
+    density = LaplaceDensity(beta_init=0.004, beta_min=0.0).double()
+    for stratified in (False, True):
+        # Chunks change the order of the stratified draws (as for any render): deterministic
+        # samples are checked across chunks, stratified ones in one chunk.
+        config = RenderConfig(sampler="sphere_traced", num_samples=16, num_samples_extra=4,
+                              stratified=stratified, chunk_size=10_000 if stratified else 300)
+        generator = GroupGenerators([torch.Generator().manual_seed(s) for s in (3, 4)])
+        both = render_rays(grouped_field, grouped_sdf, all_o, all_d, near, far, config, density,
+                           hit=hit, generator=generator if stratified else None, groups=groups)
+        for group, seed in ((0, 3), (1, 4)):
+            rows = slice(group * num, (group + 1) * num)
+
+            def sdf(points, group=group):
+                return points.norm(dim=-1) - radii[group]
+
+            def field(points, dirs, group=group):
+                return sdf(points), colours[group].expand(points.shape[0], 3)
+
+            alone_config = dataclasses.replace(config, chunk_size=10_000)
+            alone = render_rays(field, sdf, origins, directions, near[rows], far[rows],
+                                alone_config, density, hit=hit[rows],
+                                generator=torch.Generator().manual_seed(seed) if stratified
+                                else None)
+            torch.testing.assert_close(both.t_vals[rows], alone.t_vals, rtol=0, atol=0)
+            torch.testing.assert_close(both.rgb[rows], alone.rgb, rtol=0, atol=1e-12)
+            torch.testing.assert_close(both.opacity[rows], alone.opacity, rtol=0, atol=1e-12)
+        assert both.opacity[:num].sum() > 1.5 * both.opacity[num:].sum()  # the smaller sphere
+    with pytest.raises(ValueError, match="does not take groups"):
+        render_rays(grouped_field, grouped_sdf, all_o, all_d, near, far,
+                    RenderConfig(sampler="error_bounded"), density, hit=hit, groups=groups)

@@ -8,7 +8,8 @@ returns :class:`~lisa_hand.skeleton.params.HandParams` and a
    global-pose search of :mod:`.pose_search` (triangulated keypoints, candidate rotations,
    per-finger restarts);
 2. :mod:`.color_stage`: pose, shape and colour codes on the LISA field, rendered with VolSDF,
-   the shape code kept in the training subjects' shape space (:mod:`.shape_prior`);
+   the shape code kept in the training subjects' shape space (:mod:`.shape_prior`), each
+   input view's colour response fitted beside the colour code (:mod:`.calibration`);
 3. :mod:`.guard`: the surface guard (connected pieces, area against the colour stage's start)
    and its fallbacks.
 

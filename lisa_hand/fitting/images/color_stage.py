@@ -7,11 +7,13 @@ Each iteration draws ``num_rays`` camera rays (:class:`RayPool`), ``mask_fractio
 through the mask and a band of ``band_px`` pixels around it (a view without a mask: the box
 around the projected template), renders them with VolSDF
 (:func:`lisa_hand.render.render_rays`, the model's ``field_fn`` with bone culling and
-``LaplaceDensity(model.beta)``), applies the model's mean colour calibration
-(:func:`lisa_hand.render.renderer.calibrate`) and minimises
+``LaplaceDensity(model.beta)``), applies the colour calibration of each ray's view
+(:func:`lisa_hand.render.renderer.calibrate`: the model's mean gain and bias, times the view's
+fitted response, :class:`lisa_hand.fitting.images.calibration.ViewCalibration`, with
+``view_calibration``) and minimises
 
     L = rgb_weight L_col + latent_weight L_reg + joints_weight L_joints' + mask_weight L_mask
-        + shape_prior_weight L_shape
+        + shape_prior_weight L_shape + view_calibration_weight L_calibration
 
 * ``L_col``: L1 colour loss of the rays (Eq. 13) against
   :func:`lisa_hand.fitting.images.views.fit_target` (black outside a mask).
@@ -25,6 +27,9 @@ around the projected template), renders them with VolSDF
   ``shape_fit="space"``, the default), in standard deviations, clamped to the training codes'
   range along each direction. The paper's free code (``shape_fit="free"``) left the training codes'
   span on real photos and broke the surface; ``shape_fit="fixed"`` keeps the start's code.
+* ``L_calibration`` (NOT in the paper): the Gaussian prior of the views' responses, in standard
+  deviations of the cameras' spread (:meth:`ViewCalibration.prior`; 0 without
+  ``view_calibration``).
 
 The network's weights stay fixed; the codes start from the ``start`` hand's (usually the mean
 of the training subjects' codes, :func:`with_mean_codes`).
@@ -49,6 +54,7 @@ from ...render.renderer import calibrate
 from ...skeleton.params import HandParams
 from ..priors import prior_mean_fingers
 from ..stages import HistoryRecord, StageReport, decay_schedule, progress_bar, template_on
+from .calibration import ViewCalibration
 from .config import FitImagesConfig
 from .shape_prior import HandSizePrior, ShapeSpace
 from .terms import ViewData, hand_priors, keypoint_l1, keypoint_px
@@ -95,7 +101,7 @@ class RayPool:
     def sample(self, num_rays: int, mask_fraction: float, generator: torch.Generator
                ) -> dict[str, torch.Tensor]:
         """-> origins, directions [R, 3] (world, metres / unit); target, background [R, 3];
-        in_mask, has_mask [R] bool."""
+        in_mask, has_mask [R] bool; view [R] the index of each ray's view."""
         num_near_pool, num_far_pool = self.near[0].numel(), self.far[0].numel()
         num_near = int(round(mask_fraction * num_rays)) if num_far_pool else num_rays
         if num_near_pool == 0:
@@ -115,7 +121,7 @@ class RayPool:
         directions = directions / directions.norm(dim=-1, keepdim=True)
         return {"origins": self.centre[view], "directions": directions, "target": target,
                 "background": self.background[view], "in_mask": in_mask,
-                "has_mask": has_mask}
+                "has_mask": has_mask, "view": view}
 
 
 def _view_pixels(view: ImageView, band_px: int, box: Box | None
@@ -253,8 +259,8 @@ def _unknowns(start: HandParams, device: torch.device, config: FitImagesConfig
             "color_code": free(start.color_code)}
 
 
-def _optimizer(unknowns: dict[str, torch.Tensor], shape: ShapeCode, config: FitImagesConfig
-               ) -> torch.optim.Optimizer:
+def _optimizer(unknowns: dict[str, torch.Tensor], shape: ShapeCode,
+               calibration: ViewCalibration, config: FitImagesConfig) -> torch.optim.Optimizer:
     groups = [{"params": [unknowns["pose"]], "lr": config.color_pose_lr},
               {"params": [unknowns["translation"]], "lr": config.color_translation_lr},
               {"params": [unknowns["color_code"]], "lr": config.latent_lr}]
@@ -263,6 +269,8 @@ def _optimizer(unknowns: dict[str, torch.Tensor], shape: ShapeCode, config: FitI
         groups.append({"params": shape.parameters(), "lr": rate})
     if config.color_betas_lr > 0:
         groups.append({"params": [unknowns["betas"]], "lr": config.color_betas_lr})
+    if calibration.parameters():
+        groups.append({"params": calibration.parameters(), "lr": config.view_calibration_lr})
     return torch.optim.Adam(groups)
 
 
@@ -286,11 +294,16 @@ class _Renderer:
         self.density.requires_grad_(False)
         self.gain = model.gain.to(device).float()
         self.bias = model.bias.to(device).float()
+        calibrate_views = (config.view_calibration
+                           and len(views) >= config.view_calibration_min_views)
+        self.calibration = ViewCalibration(len(views), config.view_gain_std,
+                                           config.view_bias_std, calibrate_views, device)
 
     def terms(self, unknowns: dict[str, torch.Tensor]
               ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
         """unknowns: pose, translation, betas, shape_code, color_code -> ({"col", "reg",
-        "joints", "mask"} scalars, keypoint pixels [1, C, 21, 2])."""
+        "joints", "mask", "calibration"} scalars, keypoint pixels [1, C, 21, 2]); the rays are
+        calibrated with their view's response (``self.calibration``)."""
         config, field_model = self.config, self.model.field
         pose, translation, betas = (unknowns[k] for k in ("pose", "translation", "betas"))
         shape_code, color_code = unknowns["shape_code"], unknowns["color_code"]
@@ -305,7 +318,8 @@ class _Renderer:
                           rays["origins"], rays["directions"], near, far, config.render,
                           self.density, hit=hit, background=self.gain.new_zeros(3),
                           generator=self.render_generator)
-        prediction = calibrate(out.rgb, out.opacity, self.gain, self.bias, rays["background"])
+        gain, bias = self.calibration.for_rays(self.gain, self.bias, rays["view"])
+        prediction = calibrate(out.rgb, out.opacity, gain, bias, rays["background"])
         terms = {"col": color_loss(prediction, rays["target"]),
                  "reg": latent_loss(shape_code[None], color_code[None])}
         posed = self.template.forward(pose[None], betas[None], translation[None])
@@ -319,6 +333,7 @@ class _Renderer:
             terms["mask"] = F.binary_cross_entropy(opacity, rays["in_mask"][has_mask].float())
         else:
             terms["mask"] = prediction.new_zeros(())
+        terms["calibration"] = self.calibration.prior()
         return terms, pixels
 
 
@@ -340,9 +355,11 @@ def fit_color(
     -> (hand, report): the fitted right hand (rest_joints ``template.rest_joints(betas)``,
     ``model=str(model.source)``) and the :class:`StageReport` ("color"): history records with
     "energy" (the weighted total ``L``), its unweighted terms "col", "reg", "joints", "mask",
-    "shape_prior" and "kp_px" (mean keypoint error, pixels) per iteration, the final keypoint
-    error and the last iteration's total loss (``loss``, ``energies == [loss]``; NaN without
-    iterations).
+    "shape_prior", "calibration" and "kp_px" (mean keypoint error, pixels) per iteration, the
+    final keypoint error and the last iteration's total loss (``loss``, ``energies == [loss]``;
+    NaN without iterations). With ``view_calibration``, ``hand.extra["view_calibration"]`` holds
+    each view's fitted response ({name: {"gain": [3], "bias": [3]}}); the hand itself is
+    rendered with the model's mean calibration, as LISA at inference.
     """
     began = time.perf_counter()
     config = FitImagesConfig() if config is None else config
@@ -356,12 +373,13 @@ def fit_color(
     renderer = _Renderer(model, views, template, config, start)
     unknowns = _unknowns(start, device, config)
     shape = ShapeCode(model, start.shape_code, config, device)
-    optimizer = _optimizer(unknowns, shape, config)
+    optimizer = _optimizer(unknowns, shape, renderer.calibration, config)
     schedule = decay_schedule(optimizer, config.color_iters, config.final_lr_fraction)
     history: list[HistoryRecord] = []
     weights = {"col": config.rgb_weight, "reg": config.latent_weight,
                "joints": config.joints_weight, "mask": config.mask_weight,
-               "shape_prior": config.shape_prior_weight}
+               "shape_prior": config.shape_prior_weight,
+               "calibration": config.view_calibration_weight}
     bar = progress_bar(progress, config.color_iters, "colour")
     with _frozen(model.field):
         for iteration in range(config.color_iters):
@@ -386,7 +404,11 @@ def fit_color(
     if bar is not None:
         bar.close()
     unknowns["shape_code"] = shape.code()
-    return _finish(model, template, renderer.data, unknowns, history, began)
+    hand, report = _finish(model, template, renderer.data, unknowns, history, began)
+    if renderer.calibration.enabled:
+        hand.extra["view_calibration"] = renderer.calibration.to_dict(
+            [view.name for view in views], renderer.gain, renderer.bias)
+    return hand, report
 
 
 def _finish(model: Any, template: Any, data: ViewData, unknowns: dict[str, torch.Tensor],

@@ -238,7 +238,8 @@ def _guard(model: Any, views: list[ImageView], start: HandParams, fitted: HandPa
             result.notes.append(f"{failed}: fitted again with the shape code and skeleton "
                                 "fixed (pose and colour only), which passed")
         else:
-            result.hand = replace(start, color_code=fallback.color_code, extra={})
+            result.hand = replace(start, color_code=fallback.color_code,
+                                  extra=_calibration_extra(fallback))
             result.guard = surface_guard(reference, reference, change)
             result.fallback = "start_geometry"
             result.notes.append(f"{failed}, and so did a fit of pose and colour only: the "
@@ -268,7 +269,15 @@ def _shrunk(template: Any, start: HandParams, fitted: HandParams, fraction: floa
     return replace(fitted, pose=between(start.pose, fitted.pose),
                    translation=between(start.translation, fitted.translation),
                    shape_code=between(start.shape_code, fitted.shape_code), betas=betas,
-                   rest_joints=rest_joints, extra={})
+                   rest_joints=rest_joints, extra=_calibration_extra(fitted))
+
+
+def _calibration_extra(hand: HandParams) -> dict[str, Any]:
+    """The part of a colour-stage hand's ``extra`` its colour code goes with: the input views'
+    fitted responses (``"view_calibration"``, when the stage fitted them)."""
+    if "view_calibration" not in hand.extra:
+        return {}
+    return {"view_calibration": hand.extra["view_calibration"]}
 
 
 def _fixed_shape_fit(model: Any, views: list[ImageView], start: HandParams,
@@ -291,6 +300,7 @@ def _result(guarded: _Guarded, reports: dict[str, StageReport], views: list[Imag
     """The result of :func:`fit_images`: errors, timings, the guard and the hand mirrored
     back."""
     hand = guarded.hand
+    calibration = _calibration_extra(hand)
     history = [record for report in reports.values() for record in report.history]
     per_view = keypoint_errors(template, views, hand)
     errors = {"keypoints": reports["keypoints"].keypoint_error_px,
@@ -308,6 +318,7 @@ def _result(guarded: _Guarded, reports: dict[str, StageReport], views: list[Imag
         "keypoint_error_px_per_view": per_view,
         "restart": reports["keypoints"].candidate,
         "notes": list(guarded.notes),
+        **calibration,
     }
     if guarded.guard is not None:
         hand.extra["guard"] = {**guarded.guard.to_dict(), "fallback": guarded.fallback,

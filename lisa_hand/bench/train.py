@@ -1,0 +1,308 @@
+"""Image-training benchmark: steps per second and novel-view PSNR, against today's step.
+
+``python -m lisa_hand.bench train [--data DIR] [--work DIR] [--budget-s S] [--json FILE]``
+
+Two configurations of ``lisa train`` (:class:`~lisa_hand.training.images.ImageTrainConfig`):
+
+* **reference**: the step of the first release: frame after frame (``batched_step=false``), the
+  sphere-traced sampler with 48 samples in the band ``[-8 beta, +16 beta]`` around the surface
+  plus 16 uniform ones a ray, 64 marching steps; per frame 256 + 256 Eikonal points (ray
+  samples, uniform) and 512 skinning points;
+* **fast** (today's default): every frame of the step rendered in one pass (one sphere trace
+  and one field evaluation for the batch, no gradient pass for the skinning points), 16 band
+  samples in ``[-4 beta, +8 beta]`` plus 4 uniform ones, 16 marching steps; 128 + 128 Eikonal
+  and 256 skinning points a frame.
+
+Both start from the same geometry (the shipped model's SDF and skinning networks as the prior,
+its mean shape code for every subject; the colour networks start fresh) and train on the same
+frames: the training subjects of a small dataset (``--data``, default a dataset synthesised into
+``--work``: 6 subjects x 2 poses x 7 views at 384x250, seed 11) with one camera of each frame
+held out (``--held-out``, default the last one), constant learning rate.
+
+1. **Steps per second**, measured in one process, the two steps interleaved (``--rate-steps``
+   each, best of the rounds' medians), so that load from other processes hits both alike.
+2. **Equal wall-clock**: the budget ``--budget-s`` converted into steps with each rate
+   (``budget x steps_per_s``); each configuration trains that many steps. **Equal steps**: the
+   fast configuration is also evaluated after the reference's number of steps (the same run,
+   checkpointed there).
+3. **PSNR** of the held-out camera of every training frame (rendered as ``lisa render`` does,
+   with the model's mean colour calibration: the camera is unseen), inside the mask (the
+   demo's figure) and over the whole image, at ``--eval-scale`` of the resolution.
+
+The JSON (``--json``) holds ``steps_per_s``, ``reference_steps_per_s``, ``speedup``, ``psnr``
+(fast, equal time), ``reference_psnr``, ``psnr_equal_steps`` and the details.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import shutil
+import statistics
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ..data.datasets import RayFrames
+from ..data.layout import read_image, read_mask
+from ..geometry.cameras import load_cameras, save_cameras
+from ..inference.render import render_hand, scale_camera
+from ..metrics.image import psnr
+from ..model.trained import load_trained, trained_from_checkpoint
+from ..render import RenderConfig
+from ..skeleton.params import HandParams
+from ..training.config import TrainerConfig
+from ..training.images import (
+    ImageTrainConfig,
+    build_image_model,
+    load_image_data,
+    resolve_prior,
+    sample_image_batch,
+    train_images,
+)
+from ..training.prior import PriorModel
+from ..utils.io import write_json
+from ..utils.threads import cpu_threads
+
+__all__ = ["reference_config", "fast_config", "prior_from_trained", "held_out_copy", "main"]
+
+
+def reference_config(steps: int, seed: int = 0) -> ImageTrainConfig:
+    """The image step of the first release (see the module docstring), ``steps`` steps."""
+    render = RenderConfig(sampler="sphere_traced", num_samples=48, num_samples_extra=16,
+                          stratified=True, sphere_num_steps=64, sphere_band_outside=8.0,
+                          sphere_band_inside=16.0)
+    return ImageTrainConfig(render=render, batched_step=False, eikonal_ray_points=256,
+                            eikonal_uniform_points=256, skinning_points=512,
+                            trainer=_trainer(steps, seed))
+
+
+def fast_config(steps: int, seed: int = 0) -> ImageTrainConfig:
+    """Today's default image step (``ImageTrainConfig()``'s render and step), ``steps`` steps."""
+    return ImageTrainConfig(trainer=_trainer(steps, seed))
+
+
+def _trainer(steps: int, seed: int) -> TrainerConfig:
+    base = ImageTrainConfig().trainer
+    return dataclasses.replace(base, steps=steps, lr_schedule="constant", seed=seed,
+                               checkpoint_every=0, print_every=0, progress=False)
+
+
+def prior_from_trained(model_path: str | Path | None = None) -> PriorModel:
+    """A prior (geometry networks, one mean shape code) from a trained model file: the shipped
+    model by default. Its subjects are unknown to any dataset, so image runs start every
+    subject from its mean code."""
+    trained = load_trained(model_path)
+    config = dataclasses.replace(trained.config, use_color=False)
+    prior = PriorModel(config, ["mean"])
+    state = {k: v for k, v in trained.field.state_dict().items()
+             if not k.startswith("color_mlp.")}
+    prior.field.load_state_dict(state)
+    with torch.no_grad():
+        prior.shape_codes.weight[0] = trained.shape_codes.float().mean(dim=0)
+    return prior.float()
+
+
+def held_out_copy(data: Path, out: Path, held_out: str) -> Path:
+    """A copy of the dataset ``data`` without camera ``held_out`` in any frame (links to the
+    files; each frame's ``cameras.json`` rewritten). -> ``out``."""
+    if out.exists():
+        shutil.rmtree(out)
+    out.mkdir(parents=True)
+    for item in data.iterdir():
+        if item.is_file():
+            (out / item.name).symlink_to(item.resolve())
+    for cameras_file in sorted(data.glob("s*/f*/cameras.json")):
+        frame = cameras_file.parent
+        target = out / frame.relative_to(data)
+        target.mkdir(parents=True)
+        for item in frame.iterdir():
+            if item.name != "cameras.json":
+                (target / item.name).symlink_to(item.resolve())
+        cameras = [c for c in load_cameras(cameras_file) if c.name != held_out]
+        if not cameras:
+            raise ValueError(f"{cameras_file}: no camera left without {held_out!r}")
+        save_cameras(target / "cameras.json", cameras)
+        subject = frame.parent / "subject.json"
+        if subject.is_file() and not (target.parent / "subject.json").exists():
+            (target.parent / "subject.json").symlink_to(subject.resolve())
+    return out
+
+
+def _synthesize(work: Path) -> Path:
+    from ..data.synth.config import SynthConfig
+    from ..data.synth.dataset import synthesize
+
+    data = work / "data"
+    if (data / "dataset.json").is_file():
+        return data
+    config = SynthConfig(num_subjects=6, num_poses=2, num_views=7, resolution=(384, 250),
+                         seed=11)
+    print(f"synthesising the benchmark's dataset into {data} (about a minute)", flush=True)
+    synthesize(data, config, progress=False, overwrite=data.exists())
+    return data
+
+
+def measure_rates(data: Path, prior: PriorModel, rounds: int, steps: int) -> dict[str, float]:
+    """Seconds per step of both configurations, interleaved: ``rounds`` rounds of ``steps``
+    steps each; -> {"reference": s, "fast": s} (best of the rounds' medians)."""
+    configs = {"reference": reference_config(1), "fast": fast_config(1)}
+    runs = {}
+    for name, config in configs.items():
+        config, prior_model, _ = resolve_prior(config, prior)
+        rays, scans = load_image_data(data, config)
+        torch.manual_seed(0)
+        model, _ = build_image_model(rays, config, prior_model)
+        optimizer = torch.optim.Adam(model.parameters(), lr=config.trainer.lr)
+        runs[name] = (config, rays, scans, model.train(), optimizer,
+                      torch.Generator().manual_seed(0))
+
+    def one_step(name: str) -> float:
+        config, rays, scans, model, optimizer, generator = runs[name]
+        start = time.perf_counter()
+        batch = sample_image_batch(rays, scans, config, generator)
+        terms = model(batch, render=config.render, batched=config.batched_step,
+                      background=config.background)
+        total = sum(weight * terms[key] for key, weight in config.loss_weights().items())
+        optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        optimizer.step()
+        return time.perf_counter() - start
+
+    for name in runs:  # warm-up
+        one_step(name)
+    best = dict.fromkeys(runs, float("inf"))
+    for _ in range(rounds):
+        for name in runs:
+            best[name] = min(best[name],
+                             statistics.median(one_step(name) for _ in range(steps)))
+    return best
+
+
+def evaluate(run: Path, data: Path, held_out: str, scale: float,
+             checkpoint: Path | None = None) -> dict[str, float]:
+    """PSNR of the held-out camera of every training frame of ``data`` (the full dataset),
+    rendered by the run's model (its subject codes, mean calibration). -> {"psnr_mask",
+    "psnr_image", "frames", "seconds"}"""
+    from ..model.checkpoint import load_checkpoint
+
+    start = time.perf_counter()
+    trained = (trained_from_checkpoint(load_checkpoint(checkpoint)) if checkpoint is not None
+               else load_trained(run))
+    table = RayFrames(data, "train", max_band_px=0, background_per_view=0).table
+    inside, whole = [], []
+    for frame, paths in enumerate(table.frames):
+        camera = next(c for c in load_cameras(paths.cameras) if c.name == held_out)
+        width, height = round(camera.width * scale), round(camera.height * scale)
+        small = scale_camera(camera, width, height)
+        subject = table.subject_ids[int(table.frame_subject[frame])]
+        row = trained.subject_ids.index(subject)
+        params = HandParams(pose=table.pose[frame], translation=table.translation[frame],
+                            rest_joints=table.rest_joints[int(table.frame_subject[frame])],
+                            shape_code=trained.shape_codes[row].float(),
+                            color_code=trained.color_codes[row].float())
+        image = render_hand(trained, params, [small])[0]
+        target = _resized(read_image(paths.image(held_out)), width, height)
+        mask = _resized(read_mask(paths.mask(held_out)).astype(np.float32), width, height) > 0.5
+        predicted = image.rgb.numpy()
+        inside.append(psnr(predicted, target, mask))
+        whole.append(psnr(predicted, target))
+    return {"psnr_mask": float(np.mean(inside)), "psnr_image": float(np.mean(whole)),
+            "frames": len(inside), "seconds": round(time.perf_counter() - start, 1)}
+
+
+def _resized(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Area-average ``image`` [H, W(, C)] to ``width x height`` (integer factors, else nearest)."""
+    h, w = image.shape[:2]
+    if (w, h) == (width, height):
+        return image
+    if h % height == 0 and w % width == 0:
+        fy, fx = h // height, w // width
+        shape = (height, fy, width, fx) + image.shape[2:]
+        return image.reshape(shape).mean(axis=(1, 3))
+    rows = (np.arange(height) * h / height).astype(int)
+    cols = (np.arange(width) * w / width).astype(int)
+    return image[rows][:, cols]
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m lisa_hand.bench train",
+                                     description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=None,
+                        help="a dataset (lisa synth layout); default: synthesised into --work")
+    parser.add_argument("--work", type=Path, default=Path("runs/bench_train"),
+                        help="folder for the dataset, the held-out copy and the runs")
+    parser.add_argument("--held-out", default=None,
+                        help="camera held out of training (default: the last of the rig)")
+    parser.add_argument("--budget-s", type=float, default=180.0,
+                        help="the equal wall-clock budget, seconds (converted into steps with "
+                             "each measured rate)")
+    parser.add_argument("--rate-rounds", type=int, default=3)
+    parser.add_argument("--rate-steps", type=int, default=5)
+    parser.add_argument("--eval-scale", type=float, default=0.5,
+                        help="resolution of the held-out renders, as a fraction of the images'")
+    parser.add_argument("--model", type=Path, default=None,
+                        help="trained model whose geometry is the prior (default: shipped)")
+    parser.add_argument("--threads", type=int, default=None)
+    parser.add_argument("--json", type=Path, default=None)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = _parser().parse_args(argv)
+    cpu_threads(args.threads)
+    args.work.mkdir(parents=True, exist_ok=True)
+    data = args.data if args.data is not None else _synthesize(args.work)
+    first = sorted(data.glob("s*/f*/cameras.json"))
+    if not first:
+        raise ValueError(f"{data}: no frame with cameras.json (not a dataset)")
+    held_out = args.held_out or load_cameras(first[0])[-1].name
+    train_data = held_out_copy(data, args.work / "train_views", held_out)
+    prior = prior_from_trained(args.model)
+
+    rates = measure_rates(train_data, prior, args.rate_rounds, args.rate_steps)
+    ref_rate, fast_rate = 1.0 / rates["reference"], 1.0 / rates["fast"]
+    print(f"steps per second (interleaved, {torch.get_num_threads()} threads): reference "
+          f"{ref_rate:.2f}, fast {fast_rate:.2f} (x{fast_rate / ref_rate:.2f})", flush=True)
+    ref_steps = max(1, round(args.budget_s * ref_rate))
+    fast_steps = max(ref_steps, round(args.budget_s * fast_rate))
+
+    results: dict = {}
+    run_ref, run_fast = args.work / "run_reference", args.work / "run_fast"
+    timings = {}
+    for name, run, config in (("reference", run_ref, reference_config(ref_steps)),
+                              ("fast_equal_steps", run_fast, fast_config(ref_steps)),
+                              ("fast", run_fast, fast_config(fast_steps))):
+        start = time.perf_counter()
+        resume = name == "fast"  # continues the equal-steps run up to its own budget
+        train_images(train_data, run, config, prior=prior, resume=resume)
+        timings[name] = round(time.perf_counter() - start, 1)
+        results[name] = evaluate(run, data, held_out, args.eval_scale)
+        results[name]["steps"] = config.trainer.steps
+        print(f"{name:17s}: {config.trainer.steps:5d} steps, PSNR held-out views "
+              f"{results[name]['psnr_mask']:.2f} dB in the mask, "
+              f"{results[name]['psnr_image']:.2f} dB whole image (train {timings[name]} s)",
+              flush=True)
+    summary = {
+        "steps_per_s": fast_rate, "reference_steps_per_s": ref_rate,
+        "speedup": fast_rate / ref_rate,
+        "psnr": results["fast"]["psnr_mask"], "reference_psnr": results["reference"]["psnr_mask"],
+        "psnr_equal_steps": results["fast_equal_steps"]["psnr_mask"],
+        "budget_s": args.budget_s, "held_out_camera": held_out, "threads": torch.get_num_threads(),
+        "train_seconds": timings, "results": results,
+        "reference_config": dataclasses.asdict(reference_config(ref_steps).render),
+        "fast_config": dataclasses.asdict(fast_config(fast_steps).render),
+    }
+    print(f"headline: x{summary['speedup']:.2f} steps/s; PSNR at equal time "
+          f"{summary['psnr']:.2f} dB vs reference {summary['reference_psnr']:.2f} dB; at equal "
+          f"steps {summary['psnr_equal_steps']:.2f} dB")
+    if args.json is not None:
+        write_json(args.json, summary)
+        print(f"wrote {args.json}")
+    return summary
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,66 @@
+"""The image-training benchmark's parts: the held-out copy of a dataset, the prior taken from a
+trained model, the two configurations, and PSNR of a run's held-out views."""
+
+from __future__ import annotations
+
+import torch
+
+from lisa_hand.bench.field import BENCH_REST_JOINTS
+from lisa_hand.bench.train import (
+    evaluate,
+    fast_config,
+    held_out_copy,
+    prior_from_trained,
+    reference_config,
+)
+from lisa_hand.data.datasets import RayFrames
+from lisa_hand.geometry.cameras import load_cameras
+from lisa_hand.model.trained import load_trained
+from lisa_hand.training.images import train_images
+from tests.training.conftest import tiny_image_config, tiny_trainer
+from tests.training.tiny_dataset import write_tiny_dataset
+
+
+def test_held_out_copy_drops_one_camera_and_trains(tmp_path):
+    data = write_tiny_dataset(tmp_path / "data")
+    names = [c.name for c in load_cameras(next(data.glob("s*/f*/cameras.json")))]
+    copy = held_out_copy(data, tmp_path / "copy", names[-1])
+    frames = sorted(copy.glob("s*/f*/cameras.json"))
+    assert len(frames) == len(list(data.glob("s*/f*/cameras.json")))
+    for cameras_file in frames:
+        assert [c.name for c in load_cameras(cameras_file)] == names[:-1]
+    rays = RayFrames(copy, "train", max_band_px=2, background_per_view=16)
+    assert rays.camera_names == sorted(names[:-1])
+    # A run on the copy, scored on the camera it never saw.
+    run = tmp_path / "run"
+    train_images(copy, run, tiny_image_config(trainer=tiny_trainer(steps=2)))
+    scores = evaluate(run, data, names[-1], scale=1.0)
+    assert scores["frames"] == RayFrames(data, "train", max_band_px=0,
+                                         background_per_view=0).num_frames
+    assert 3.0 < scores["psnr_image"] < 60.0 and 0.0 < scores["psnr_mask"] < 60.0
+
+
+def test_prior_from_the_shipped_model_has_its_geometry():
+    trained = load_trained()
+    prior = prior_from_trained()
+    assert prior.field.color_mlp is None and prior.subject_ids == ["mean"]
+    code = trained.shape_codes.float().mean(dim=0)
+    torch.testing.assert_close(prior.shape_codes.weight[0], code)
+    points = 0.03 * torch.randn(1, 64, 3, generator=torch.Generator().manual_seed(0))
+    pose = torch.zeros(1, 48)
+    rest = torch.tensor(BENCH_REST_JOINTS)[None]
+    with torch.no_grad():
+        ours = prior.field(points, pose, None, rest, code[None]).sdf
+        colour = trained.color_codes.float().mean(dim=0)[None]
+        theirs = trained.field.float()(points, pose, None, rest, code[None], colour).sdf
+    torch.testing.assert_close(ours, theirs, rtol=0, atol=1e-6)
+
+
+def test_reference_and_fast_configurations_differ_only_in_the_step():
+    ref, fast = reference_config(10), fast_config(10)
+    assert not ref.batched_step and fast.batched_step
+    assert ref.render.samples_per_ray == 64 and fast.render.samples_per_ray == 20
+    assert (ref.eikonal_ray_points, ref.skinning_points) == (256, 512)
+    for name in ("num_rays", "num_frames", "lambda_col", "lambda_eik", "lambda_w", "field"):
+        assert getattr(ref, name) == getattr(fast, name), name
+    assert ref.trainer == fast.trainer
