@@ -17,6 +17,7 @@ from .options import (
     Side,
     ThreadsOpt,
     Units,
+    ViewCalibrationOpt,
     image_fit_overrides,
 )
 
@@ -54,6 +55,7 @@ def fit_images(
     threads: ThreadsOpt = 1,
     shape_fit: ShapeFitOpt = ShapeFit.space,
     guard: GuardOpt = True,
+    view_calibration: ViewCalibrationOpt = True,
     seed: Annotated[int, typer.Option(help="Seed of the restarts and of the rays.")] = 0,
     psnr: Annotated[bool, typer.Option(
         "--psnr/--no-psnr", help="Re-render the input views for the PSNR in metrics.json.")
@@ -73,7 +75,8 @@ def fit_images(
             raise ValueError(f"--views {views!r}: no camera name given")
     overrides = image_fit_overrides(seed=seed, threads=threads, shape_fit=shape_fit,
                                     guard=guard, keypoint_iters=keypoint_iters,
-                                    color_iters=color_iters, rays=rays)
+                                    color_iters=color_iters, rays=rays,
+                                    view_calibration=view_calibration)
     config = FitImagesConfig(**overrides)
     report = fit_image_folder(frame, out, views=names, model_path=model, gt_path=gt,
                               units=units.value, resolution=res, config=config,

@@ -15,6 +15,7 @@ from .options import (
     ShapeFit,
     ShapeFitOpt,
     ThreadsOpt,
+    ViewCalibrationOpt,
     image_fit_overrides,
 )
 
@@ -80,6 +81,7 @@ def fit_photo(
     threads: ThreadsOpt = 1,
     shape_fit: ShapeFitOpt = ShapeFit.space,
     guard: GuardOpt = True,
+    view_calibration: ViewCalibrationOpt = True,
     seed: Annotated[int, typer.Option(help="Seed of the restarts and of the rays.")] = 0,
     progress: Annotated[bool, typer.Option(help="Show progress bars.")] = True,
 ) -> None:
@@ -92,7 +94,8 @@ def fit_photo(
 
     overrides = image_fit_overrides(seed=seed, threads=threads, shape_fit=shape_fit,
                                     guard=guard, keypoint_iters=keypoint_iters,
-                                    color_iters=color_iters, rays=rays)
+                                    color_iters=color_iters, rays=rays,
+                                    view_calibration=view_calibration)
     config = FitPhotoConfig(fit=photo_fit_defaults(**overrides), mesh_resolution=res)
     reports = fit_photo_folder(
         photos, out, side=side.value, camera_json=camera or None, focal_px=focal_px,

@@ -46,6 +46,12 @@ GuardOpt = Annotated[bool, typer.Option(
     "--guard/--no-guard", help="Check the surface after the colour stage (one piece, area "
                                "within 10% of its start) and undo what breaks it.")]
 
+ViewCalibrationOpt = Annotated[bool, typer.Option(
+    "--view-calibration/--no-view-calibration",
+    help="With 2+ views: fit each view's colour response (gain and bias, a Gaussian prior) "
+         "beside the colour code, so that the cameras' colour casts do not go into the hand's "
+         "colour.")]
+
 ThreadsOpt = Annotated[int, typer.Option(
     "--threads", min=0, help="CPU threads of torch during the fit (0: torch's default; 1 is "
                              "fastest on a busy machine).")]
@@ -53,12 +59,13 @@ ThreadsOpt = Annotated[int, typer.Option(
 
 def image_fit_overrides(*, seed: int, threads: int, shape_fit: ShapeFit, guard: bool,
                         keypoint_iters: int | None, color_iters: int | None,
-                        rays: int | None) -> dict:
+                        rays: int | None, view_calibration: bool = True) -> dict:
     """The :class:`lisa_hand.fitting.images.config.FitImagesConfig` fields that the image-fit
     verbs' options set (``lisa fit-images``, ``lisa fit-photo``); options left out (None) keep
     the verb's defaults."""
     overrides: dict = {"seed": seed, "num_threads": threads if threads > 0 else None,
-                       "shape_fit": shape_fit.value, "guard": guard}
+                       "shape_fit": shape_fit.value, "guard": guard,
+                       "view_calibration": view_calibration}
     for key, value in (("keypoint_iters", keypoint_iters), ("color_iters", color_iters),
                        ("num_rays", rays)):
         if value is not None:
