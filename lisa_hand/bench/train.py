@@ -9,7 +9,7 @@ Two configurations of ``lisa train`` (:class:`~lisa_hand.training.images.ImageTr
   plus 16 uniform ones a ray, 64 marching steps; per frame 256 + 256 Eikonal points (ray
   samples, uniform) and 512 skinning points;
 * **fast** (today's default): every frame of the step rendered in one pass (one sphere trace
-  and one field evaluation for the batch, no gradient pass for the skinning points), 16 band
+  and one field evaluation for the batch, no gradient pass for the skinning points), 12 band
   samples in ``[-4 beta, +8 beta]`` plus 4 uniform ones, 16 marching steps; 128 + 128 Eikonal
   and 256 skinning points a frame.
 
@@ -239,14 +239,17 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--budget-s", type=float, default=180.0,
                         help="the equal wall-clock budget, seconds (converted into steps with "
                              "each measured rate)")
-    parser.add_argument("--rate-rounds", type=int, default=3)
-    parser.add_argument("--rate-steps", type=int, default=5)
+    parser.add_argument("--rate-rounds", type=int, default=3,
+                        help="rounds of the interleaved step timing (best round's median)")
+    parser.add_argument("--rate-steps", type=int, default=5,
+                        help="steps of each configuration per round of the timing")
     parser.add_argument("--eval-scale", type=float, default=0.5,
                         help="resolution of the held-out renders, as a fraction of the images'")
     parser.add_argument("--model", type=Path, default=None,
                         help="trained model whose geometry is the prior (default: shipped)")
-    parser.add_argument("--threads", type=int, default=None)
-    parser.add_argument("--json", type=Path, default=None)
+    parser.add_argument("--threads", type=int, default=None,
+                        help="torch CPU threads (default: torch's; 1 on a shared machine)")
+    parser.add_argument("--json", type=Path, default=None, help="write the numbers here")
     return parser
 
 

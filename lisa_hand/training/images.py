@@ -79,10 +79,10 @@ def _default_image_trainer() -> TrainerConfig:
 
 
 def _default_image_render() -> RenderConfig:
-    # 16 samples in the band [-4 beta, +8 beta] around the traced surface (0.75 beta apart) and
+    # 12 samples in the band [-4 beta, +8 beta] around the traced surface (one per beta) and
     # 4 uniform ones; 16 marching steps. The first release used 48 + 16 samples in
     # [-8 beta, +16 beta] and 64 steps: ``python -m lisa_hand.bench train`` compares the two.
-    return RenderConfig(sampler="sphere_traced", num_samples=16, num_samples_extra=4,
+    return RenderConfig(sampler="sphere_traced", num_samples=12, num_samples_extra=4,
                         stratified=True, sphere_num_steps=16, sphere_band_outside=4.0,
                         sphere_band_inside=8.0)
 
@@ -99,7 +99,7 @@ class ImageTrainConfig:
     needs find_unused_parameters: steps leave some parameters without a gradient (the pose
     offsets before refinement starts, rarely a bone); 'allreduce' also works."""
     render: RenderConfig = dataclasses.field(default_factory=_default_image_render)
-    """Ray sampling and compositing (VolSDF). Default: the sphere-traced sampler, 16 samples in
+    """Ray sampling and compositing (VolSDF). Default: the sphere-traced sampler, 12 samples in
     the band around the surface + 4 uniform ones, stratified (jittered) for training."""
     split: str = "train"
     """Dataset split whose subjects get codes and whose images are fitted."""

@@ -59,7 +59,7 @@ def test_prior_from_the_shipped_model_has_its_geometry():
 def test_reference_and_fast_configurations_differ_only_in_the_step():
     ref, fast = reference_config(10), fast_config(10)
     assert not ref.batched_step and fast.batched_step
-    assert ref.render.samples_per_ray == 64 and fast.render.samples_per_ray == 20
+    assert ref.render.samples_per_ray == 64 and fast.render.samples_per_ray == 16
     assert (ref.eikonal_ray_points, ref.skinning_points) == (256, 512)
     for name in ("num_rays", "num_frames", "lambda_col", "lambda_eik", "lambda_w", "field"):
         assert getattr(ref, name) == getattr(fast, name), name
