@@ -61,6 +61,13 @@ class RenderConfig:
     """Sphere-traced: the band starts where sdf <= this many beta (density below e^-8 / 2beta)."""
     sphere_band_inside: float = 16.0
     """Sphere-traced: the band ends this many beta (metres along the ray) past the surface hit."""
+    sphere_hit_tolerance: float = 0.1
+    """Sphere-traced: a ray has reached the surface where ``sdf <= this many beta`` (the band
+    ends ``sphere_band_inside`` beta past that point)."""
+    sphere_full_steps: bool = False
+    """Sphere-traced: once a ray has entered the band's shell, step the full SDF towards the
+    surface instead of back to the shell's boundary (fewer steps for grazing rays; a
+    non-hitting ray's band may end up to one step late)."""
     stratified: bool = False
     """Jitter the samples randomly inside their bins (training); False is deterministic."""
     chunk_size: int = 8192
@@ -84,7 +91,7 @@ class RenderConfig:
             raise ValueError(f"num_samples_eval must be >= 2, got {self.num_samples_eval}")
         if self.max_iters < 1:
             raise ValueError(f"max_iters must be >= 1, got {self.max_iters}")
-        for name in ("eps", "sphere_band_outside", "sphere_band_inside"):
+        for name in ("eps", "sphere_band_outside", "sphere_band_inside", "sphere_hit_tolerance"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
         if len(self.background) < 1:
@@ -157,6 +164,8 @@ def place_samples(
         stratified=config.stratified,
         generator=generator,
         groups=groups,
+        full_steps=config.sphere_full_steps,
+        hit_tolerance=config.sphere_hit_tolerance,
     )
 
 

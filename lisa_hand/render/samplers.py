@@ -499,6 +499,7 @@ def sphere_traced_samples(
     stratified: bool = False,
     generator: torch.Generator | None = None,
     groups: torch.Tensor | None = None,
+    full_steps: bool = False,
 ) -> torch.Tensor:
     """Samples concentrated where VolSDF's density matters, found by sphere tracing.
 
@@ -523,6 +524,9 @@ def sphere_traced_samples(
     sdf_fn: points [N, 3] metres -> sdf [N] metres.
     origins: [R, 3] metres. directions: [R, 3] unit. near, far: [R] metres.
     beta: the density's current Laplace scale, metres (float or [] tensor).
+    full_steps: once a ray has entered the shell, step the full ``sdf`` (towards the surface)
+        instead of ``sdf - shell``: fewer steps for rays that graze the shell (between fingers),
+        and the end of a non-hitting ray's band found up to one step late.
     groups: [R] long, the field of each ray; ``sdf_fn`` is then a
         :class:`~lisa_hand.geometry.fields.GroupedSdfFn` called with the group of every point
         (several frames traced in one pass: one call a step for all of them).
@@ -541,7 +545,8 @@ def sphere_traced_samples(
     step_min = min_step * beta_value
     tolerance = hit_tolerance * beta_value
     t_enter, t_leave, t_hit = _trace_shell(
-        sdf_fn, origins, directions, near, far, shell, step_min, tolerance, num_steps, groups
+        sdf_fn, origins, directions, near, far, shell, step_min, tolerance, num_steps, groups,
+        full_steps,
     )
 
     entered = torch.isfinite(t_enter)
@@ -563,11 +568,12 @@ def sphere_traced_samples(
 
 
 def _trace_shell(sdf_fn, origins, directions, near, far, shell, step_min, tolerance, num_steps,
-                 groups=None):
+                 groups=None, full_steps=False):
     """The sphere-tracing walk of :func:`sphere_traced_samples`.
 
     Steps ``sdf - shell`` outside the shell ``sdf <= shell``, ``sdf`` inside it (at least
-    ``step_min``), on the still-active rays, until the surface (``sdf <= tolerance``), ``far``
+    ``step_min``; with ``full_steps``, ``sdf`` everywhere after the first entry), on the
+    still-active rays, until the surface (``sdf <= tolerance``), ``far``
     or ``num_steps``. shell, step_min, tolerance: [] metres.
     Returns ``(t_enter [R], t_leave [R], t_hit [R])`` metres: the first entry into the shell
     (inf: never), the band end of a ray that does not hit (its last exit from the shell, or
@@ -597,7 +603,11 @@ def _trace_shell(sdf_fn, origins, directions, near, far, shell, step_min, tolera
         inside[active] = in_shell
         hit_now = sdf <= tolerance
         t_hit[active] = torch.where(hit_now, t_act, t_hit[active])
-        step = torch.where(in_shell, sdf, sdf - shell)
+        # Full sphere-tracing steps inside the shell (and, with full_steps, once it was entered:
+        # only the surface is looked for then, not the shell's boundary, which a ray grazing
+        # between the fingers would otherwise approach at the minimum step).
+        full = torch.isfinite(t_enter[active]) if full_steps else in_shell
+        step = torch.where(full, sdf, sdf - shell)
         t_next = t_act + torch.clamp(step, min=step_min)
         t_cur[active] = t_next
         keep = ~hit_now & (t_next <= far[active])
