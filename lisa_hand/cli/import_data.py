@@ -23,6 +23,8 @@ SkinningOpt = Annotated[int, typer.Option(
     "--skinning-points", help="Points of the posed MANO (with --mano) or template per frame in "
                               "scan.npz with their skinning weights: lisa train's L_w pseudo "
                               "ground truth (0: none).")]
+MaxFramesOpt = Annotated[int, typer.Option("--max-frames", help="At most this many frames "
+                                           "(0: all).")]
 ManoOpt = Annotated[Path | None, typer.Option(
     "--mano", help="Folder with your MANO_RIGHT.pkl / MANO_LEFT.pkl (mano.is.tue.mpg.de): poses "
                    "and skeletons from the dataset's MANO parameters instead of inverse "
@@ -58,8 +60,7 @@ def interhand(
     ] = "both",
     every: Annotated[int, typer.Option("--every", help="Keep every Nth frame of a sequence.")
                      ] = 1,
-    max_frames: Annotated[int, typer.Option("--max-frames", help="At most this many frames "
-                                            "(0: all).")] = 0,
+    max_frames: MaxFramesOpt = 0,
     masks: Annotated[Path | None, typer.Option(
         "--masks", help="Folder of hand masks laid out as images/SPLIT (same relative paths, "
                         ".png or .jpg).")] = None,
@@ -89,8 +90,7 @@ def freihand(
     versions: Annotated[str, typer.Option(
         "--versions", help="Training-image versions: 0 green screen, 1-3 backgrounds.")] = "0",
     every: Annotated[int, typer.Option("--every", help="Keep every Nth sample.")] = 1,
-    max_frames: Annotated[int, typer.Option("--max-frames", help="At most this many frames "
-                                            "(0: all).")] = 0,
+    max_frames: MaxFramesOpt = 0,
     vertices: Annotated[bool, typer.Option(
         "--vertices", help="Also keep the MANO vertices ({set}_verts.json) per frame.")] = False,
     split: Annotated[str, typer.Option("--as-split", help="The split the subjects go into.")

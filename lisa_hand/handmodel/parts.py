@@ -269,11 +269,21 @@ def _palm_group_cones(p: _Proportions) -> list[_Cone]:
             (web_start, web_target, radius * scale * thick, 0.0058 * scale * thick, 13, True)
         )
     # Finger webs between the bases of neighbouring fingers.
+    cones += _finger_webs(p, (0.0, -0.002 * scale * thick), (-0.014 * scale, -0.0015 * scale),
+                          (0.0085 * scale, 0.007 * scale))
+    return cones
+
+
+def _finger_webs(p: _Proportions, lift: tuple[float, float], reach: tuple[float, float],
+                 radii: tuple[float, float]) -> list[_Cone]:
+    """A web cone between the bases of each pair of neighbouring fingers: from their midpoint
+    moved by ``lift`` (x, y metres), along ``reach`` (x, y metres), radii ``radii`` metres."""
     bases = [p.joints[FINGER_JOINTS[f][0]] for f in _PALM_FINGERS]
+    cones: list[_Cone] = []
     for left, right in zip(bases[:-1], bases[1:], strict=True):
-        start = 0.5 * (left + right) + np.array([0.0, -0.002 * scale * thick, 0.0])
-        end = start + np.array([-0.014 * scale, -0.0015 * scale, 0.0])
-        cones.append((start, end, 0.0085 * scale, 0.007 * scale, 0, True))
+        start = 0.5 * (left + right) + np.array([lift[0], lift[1], 0.0])
+        end = start + np.array([reach[0], reach[1], 0.0])
+        cones.append((start, end, radii[0], radii[1], 0, True))
     return cones
 
 

@@ -56,6 +56,7 @@ from .parts import (
     _Cone,
     _cone_fields,
     _convex_hull_ccw,
+    _finger_webs,
     _metacarpal_heads,
     _Proportions,
     _tensor,
@@ -172,11 +173,8 @@ def _palmar_pads(p: _Proportions) -> list[_Cone]:
         cones.append((start, web_target, radius * scale * thick, 0.0052 * scale * thick, 13,
                       True))
     # Webs between the fingers, palmar, reaching about a third of the proximal phalanx.
-    bases = [p.joints[FINGER_JOINTS[f][0]] for f in _PALM_FINGERS]
-    for left, right in zip(bases[:-1], bases[1:], strict=True):
-        start = 0.5 * (left + right) + np.array([0.003 * scale, -0.0035 * scale * thick, 0.0])
-        end = start + np.array([-0.017 * scale, -0.0005 * scale, 0.0])
-        cones.append((start, end, 0.0078 * scale, 0.0055 * scale, 0, True))
+    cones += _finger_webs(p, (0.003 * scale, -0.0035 * scale * thick),
+                          (-0.017 * scale, -0.0005 * scale), (0.0078 * scale, 0.0055 * scale))
     return cones
 
 
