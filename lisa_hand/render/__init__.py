@@ -31,10 +31,10 @@ from .samplers import (
     error_bounded_samples,
     error_bounded_sampling,
     opacity_error_bound,
-    sphere_traced_samples,
     uniform_samples,
 )
 from .saving import image_to_uint8, normals_to_rgb, save_image_outputs
+from .sphere_tracing import sphere_traced_samples
 from .turntable import orbit_cameras, render_turntable, save_gif, save_video, shared_grid
 
 __all__ = [

@@ -15,7 +15,7 @@ surface is:
    must cross the shell to reach the inside). ``'box'`` only clips rays to the occupied cells'
    bounding box; ``'sphere'`` keeps the sphere bounds.
 3. ``mode='volume'`` (the default, what LISA renders): VolSDF compositing with the samples of the
-   sphere-traced sampler (:func:`~lisa_hand.render.samplers.sphere_traced_samples`), which
+   sphere-traced sampler (:func:`~lisa_hand.render.sphere_tracing.sphere_traced_samples`), which
    gathers them in a band around the surface. With ``color_weight_threshold > 0`` the densities
    come from ``sdf_fn`` at every sample, and ``field_fn`` (colour) runs only at the samples
    whose compositing weight exceeds the threshold (most samples of a band carry almost no

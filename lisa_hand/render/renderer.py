@@ -16,11 +16,8 @@ import torch
 from ..geometry.fields import FieldFn, SdfFn, call_field
 from .composite import RenderOutput, composite
 from .density import LaplaceDensity
-from .samplers import (
-    error_bounded_samples,
-    sphere_traced_samples,
-    uniform_samples,
-)
+from .samplers import error_bounded_samples, uniform_samples
+from .sphere_tracing import sphere_traced_samples
 
 __all__ = [
     "SAMPLERS",

@@ -502,7 +502,7 @@ def test_input_validation():
 
 
 def test_benchmark_reference_computes_the_same_field():
-    from lisa_hand.bench.field import ReferenceField
+    from lisa_hand.bench._reference import ReferenceField
 
     model = make_model("lisa", seed=49)
     inputs = frame_inputs(model.config, batch=1, seed=50)

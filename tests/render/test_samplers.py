@@ -272,7 +272,7 @@ def test_sphere_traced_full_steps_find_the_surface_in_fewer_calls():
     # Rays past a sphere at offsets from its centre, many grazing: with full steps after the
     # shell entry (and a hit within 1 beta) every hitting ray's band still holds its exact
     # entry point, in fewer SDF evaluations.
-    from lisa_hand.render.samplers import sphere_traced_samples
+    from lisa_hand.render.sphere_tracing import sphere_traced_samples
 
     offsets = torch.linspace(0.0, 0.11, 200, dtype=torch.float64)
     origins = torch.stack([offsets, torch.zeros_like(offsets), torch.full_like(offsets, -0.5)], 1)
