@@ -8,6 +8,7 @@ Nothing here is differentiable (normals use autograd through the SDF inside the 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import re
@@ -18,11 +19,12 @@ from pathlib import Path
 
 import torch
 
-from ..geometry.cameras import Camera
+from ..geometry.cameras import Camera, pixel_rays
 from ..model.trained import TrainedModel
 from ..render.density import LaplaceDensity
 from ..render.image import ImageOutput, ImageRenderConfig, render_image
 from ..render.occupancy import OccupancyGrid
+from ..render.shading import shade_foreground
 from ..render.turntable import orbit_cameras, shared_grid
 from ..skeleton import forward_kinematics
 from ..skeleton.params import HandParams
@@ -69,12 +71,17 @@ class HandScene:
 
     def render(self, camera: Camera, progress: bool = False) -> ImageOutput:
         """Render one camera (its width x height pixels) -> :class:`ImageOutput`."""
-        field = self.hand.model.field
-        camera = camera.to(device=field.device, dtype=field.dtype)
-        return render_image(
+        model, config = self.hand.model, self.config
+        camera = camera.to(device=model.field.device, dtype=model.field.dtype)
+        if model.shading is not None and config.normals == "none":
+            config = dataclasses.replace(config, normals="autograd")  # the shading needs them
+        output = render_image(
             self.hand.field_fn(), self.hand.sdf_fn(), camera, self.center, self.radius,
-            self.config, self.density, progress=progress, grid=self.grid,
+            config, self.density, progress=progress, grid=self.grid,
         )  # fmt: skip
+        if model.shading is None:
+            return output
+        return _shaded(output, model, camera, config)
 
     def framing_sphere(self) -> tuple[torch.Tensor, float]:
         """A tight sphere around the surface (the occupied grid cells' box): where to aim and
@@ -96,6 +103,23 @@ class HandScene:
         fingers = root @ (rest[4] - rest[0])
         palm = root @ torch.tensor([0.0, -1.0, 0.0], dtype=torch.float64)
         return fingers / fingers.norm(), palm
+
+
+def _shaded(output: ImageOutput, model: TrainedModel, camera: Camera,
+            config: ImageRenderConfig) -> ImageOutput:
+    """``output`` lit by the model's headlight shading (:mod:`lisa_hand.render.shading`): the
+    hand's calibrated colour ``g * albedo`` times the Lambert factor at each pixel's normal
+    (pixels without a normal, where the opacity is at most 0.5, get the ambient part)."""
+    height, width = camera.height, camera.width
+    _, directions = pixel_rays(camera, device=output.rgb.device, dtype=output.rgb.dtype)
+    with torch.no_grad():
+        factor = model.shading.factor(output.normals.reshape(-1, 3), directions)
+        background = torch.tensor(config.background, dtype=output.rgb.dtype,
+                                  device=output.rgb.device)
+        rgb = shade_foreground(output.rgb.reshape(-1, 3), output.opacity.reshape(-1),
+                               background, factor.to(output.rgb.dtype),
+                               model.bias.to(output.rgb))
+    return dataclasses.replace(output, rgb=rgb.clamp(0.0, 1.0).reshape(height, width, 3))
 
 
 def prepare_render(

@@ -24,6 +24,7 @@ import torch
 
 from ..fields.config import FieldConfig
 from ..render.density import laplace_beta
+from ..render.shading import HeadlightShading
 from ..utils.config import config_from_dict
 from ..utils.io import atomic_path
 from .checkpoint import IMAGE_KIND, LAST_CHECKPOINT, PRIOR_KIND, Checkpoint, load_checkpoint
@@ -58,6 +59,9 @@ class TrainedModel:
     gain, bias: [3] the per-camera colour calibration averaged over the training cameras (LISA's
         inference-time calibration); identity for a geometry-only model.
     source: where it was loaded from (for messages and reports).
+    shading: the learned headlight shading of a model trained with ``shading="headlight"``
+        (:class:`~lisa_hand.render.shading.HeadlightShading`), else None (the field's colour as
+        it is).
     """
 
     field: LisaModel
@@ -68,6 +72,7 @@ class TrainedModel:
     gain: torch.Tensor
     bias: torch.Tensor
     source: str
+    shading: HeadlightShading | None = None
 
     @property
     def config(self) -> FieldConfig:
@@ -100,6 +105,7 @@ class TrainedModel:
             gain=self.gain.to(device),
             bias=self.bias.to(device),
             source=self.source,
+            shading=None if self.shading is None else self.shading.to(device),
         )
 
 
@@ -175,6 +181,11 @@ def trained_from_checkpoint(ckpt: Checkpoint) -> TrainedModel:
     if isinstance(beta_min, bool) or not isinstance(beta_min, (int, float)):
         raise ValueError(f"{source}: the run config has no beta_min")
     beta_raw = _tensor(ckpt.model, "density.beta_raw", source, ())
+    shading = None
+    if "shading.ambient_raw" in ckpt.model:
+        shading = HeadlightShading().eval()
+        shading.load_state_dict({name: _tensor(ckpt.model, f"shading.{name}", source, (3,))
+                                 for name in ("ambient_raw", "diffuse_raw")})
     return TrainedModel(
         field=field,
         shape_codes=_tensor(ckpt.model, "shape_codes.weight", source, (num, dims[0])).clone(),
@@ -184,6 +195,7 @@ def trained_from_checkpoint(ckpt: Checkpoint) -> TrainedModel:
         gain=_tensor(ckpt.model, "gain", source, (cameras, 3)).mean(dim=0),
         bias=_tensor(ckpt.model, "bias", source, (cameras, 3)).mean(dim=0),
         source=str(source),
+        shading=shading,
     )
 
 
@@ -221,6 +233,13 @@ def _from_export(path: Path, data: dict) -> TrainedModel:
     beta = data.get("beta")
     if not isinstance(beta, float) or not beta > 0:
         raise ValueError(f"{path}: 'beta' must be a positive float, got {beta!r}")
+    shading = None
+    if data.get("shading") is not None:
+        try:
+            shading = HeadlightShading.from_values(**data["shading"]).eval()
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{path}: 'shading' must hold ambient and diffuse [3] > 0 "
+                             f"({exc})") from None
     return TrainedModel(
         field=field.eval(),
         shape_codes=shape_codes,
@@ -230,6 +249,7 @@ def _from_export(path: Path, data: dict) -> TrainedModel:
         gain=_tensor(data, "gain", path, (3,)),
         bias=_tensor(data, "bias", path, (3,)),
         source=str(path),
+        shading=shading,
     )
 
 
@@ -296,6 +316,7 @@ def export_trained(
         "beta": float(model.beta),
         "gain": model.gain.detach().cpu().float(),
         "bias": model.bias.detach().cpu().float(),
+        "shading": None if model.shading is None else model.shading.values(),
     }
     path = Path(path)
     with atomic_path(path) as tmp:

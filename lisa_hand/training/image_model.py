@@ -21,6 +21,7 @@ from ..model.lisa import FrameState, LisaModel, region_bounds
 from ..model.losses import color_loss, eikonal_loss, latent_loss, skinning_loss
 from ..render import LaplaceDensity, RenderConfig, calibrate, ray_sphere_bounds, render_rays
 from ..render.samplers import GroupGenerators
+from ..render.shading import HeadlightShading, surface_normals
 from ..skeleton import POSE_DIM
 from .prior import PriorModel
 
@@ -121,6 +122,8 @@ class ImageModel(nn.Module):
 
     field: :class:`LisaModel` with colour. shape_codes, color_codes: :class:`LatentTable`
     [S, D]. density: :class:`LaplaceDensity`. gain, bias: [C, 3] per camera and channel.
+    shading: :class:`~lisa_hand.render.shading.HeadlightShading` (``shading="headlight"``) or
+    None (colours as the field gives them).
     pose_offsets: [F, 48] radians; translation_offsets: [F, 3] metres (per training frame).
     subject_ids [S], camera_names [C], frame_keys [F] name the rows.
     """
@@ -136,8 +139,12 @@ class ImageModel(nn.Module):
         beta_init: float = 0.003,
         beta_min: float = 1e-4,
         init_rest_joints: torch.Tensor | None = None,
+        shading: str = "none",
     ) -> None:
         super().__init__()
+        if shading not in ("none", "headlight"):
+            raise ValueError(f"shading must be 'none' or 'headlight', got {shading!r}")
+        self.shading = HeadlightShading() if shading == "headlight" else None
         if not subject_ids or not camera_names or not frame_keys:
             raise ValueError("subject_ids, camera_names and frame_keys must not be empty")
         self.field = LisaModel(field_config, init_rest_joints=init_rest_joints)
@@ -239,11 +246,13 @@ class ImageModel(nn.Module):
             frame_state = select_frame(state, frame)
             origins, directions = rays.origins[frame], rays.directions[frame]
             near, far, hit = ray_sphere_bounds(origins, directions, centre[frame], radius[frame])
-            out = render_rays(self.field.field_fn(frame_state), self.field.sdf_fn(frame_state),
-                              origins, directions, near, far, render, self.density, hit=hit,
-                              background=black, generator=generator)
+            sdf_fn = self.field.sdf_fn(frame_state)
+            out = render_rays(self.field.field_fn(frame_state), sdf_fn, origins, directions,
+                              near, far, render, self.density, hit=hit, background=black,
+                              generator=generator)
             camera = rays.camera_index[frame]
-            predictions.append(calibrate(out.rgb, out.opacity, self.gain[camera],
+            rgb = self._shaded(out, sdf_fn, origins, directions)
+            predictions.append(calibrate(rgb, out.opacity, self.gain[camera],
                                          self.bias[camera], background_rgb))
             opacities.append(out.opacity)
             ray_points.append(_pick_ray_samples(origins, directions, out.t_vals, hit,
@@ -271,12 +280,14 @@ class ImageModel(nn.Module):
         if render.stratified:  # one generator a frame: the same samples in any process
             generator = GroupGenerators([torch.Generator(device=device).manual_seed(seed)
                                          for seed in batch.seeds.tolist()])
-        out = render_rays(self.field.grouped_field_fn(state), self.field.grouped_sdf_fn(state),
-                          origins, directions, near, far, render, self.density, hit=hit,
+        sdf_fn = self.field.grouped_sdf_fn(state)
+        out = render_rays(self.field.grouped_field_fn(state), sdf_fn, origins, directions, near,
+                          far, render, self.density, hit=hit,
                           background=torch.zeros(3, dtype=dtype, device=device),
                           generator=generator, groups=groups)
         camera = rays.camera_index.reshape(-1)  # [B R]
-        prediction = calibrate(out.rgb, out.opacity, self.gain[camera], self.bias[camera],
+        rgb = self._shaded(out, sdf_fn, origins, directions, groups)
+        prediction = calibrate(rgb, out.opacity, self.gain[camera], self.bias[camera],
                                background_rgb)
         t_vals, hit = out.t_vals.reshape(num_frames, num_rays, -1), hit.reshape(num_frames, -1)
         ray_points = torch.stack([
@@ -285,6 +296,14 @@ class ImageModel(nn.Module):
             for frame in range(num_frames)])
         return (prediction.reshape(num_frames, num_rays, 3),
                 out.opacity.reshape(num_frames, num_rays), ray_points)
+
+    def _shaded(self, out: Any, sdf_fn: Any, origins: torch.Tensor, directions: torch.Tensor,
+                groups: torch.Tensor | None = None) -> torch.Tensor:
+        """The rays' composited colours over black [R, 3], lit by :attr:`shading` if any."""
+        if self.shading is None:
+            return out.rgb
+        normals = surface_normals(sdf_fn, origins, directions, out.depth, out.opacity, groups)
+        return self.shading(out.rgb, normals, directions)
 
     def _loss_terms(self, batch: ImageBatch, state: FrameState, low: torch.Tensor,
                     high: torch.Tensor, prediction: torch.Tensor, opacity: torch.Tensor,

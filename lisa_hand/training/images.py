@@ -47,6 +47,7 @@ from ..data.datasets import SPLITS, RayFrames, ScanFrames
 from ..fields.config import FieldConfig
 from ..model.checkpoint import IMAGE_KIND, load_run_checkpoint
 from ..render import RenderConfig
+from ..render.shading import SHADING_MODES
 from ..skeleton import NUM_JOINTS
 from ..utils.config import config_from_dict
 from .config import TrainerConfig, build_optimizer, check_non_negative, check_positive_int
@@ -177,6 +178,12 @@ class ImageTrainConfig:
     trainer's lr). Small: the offsets correct annotation errors of a few degrees and
     millimetres. Measured on exact synthetic poses, refining at the trainer's 5e-4 raised the
     colour loss by about 18% and the skinning loss by about 40% within 250 steps."""
+    shading: str = "none"
+    """How the rendered colour is lit (:mod:`lisa_hand.render.shading`): "none", the field's
+    colour as it is (the paper, the shipped model); "headlight", the composited colour times a
+    learned Lambert term lit from the camera (``ambient + diffuse * max(0, n . -d)`` per
+    channel, ``n`` the SDF's normal at the ray's surface point): for images lit from the camera
+    (``lisa synth``'s), so that the colour field learns an albedo rather than the shading."""
 
     def __post_init__(self) -> None:
         self.validate()
@@ -197,6 +204,8 @@ class ImageTrainConfig:
             raise ValueError(f"render must be a RenderConfig, got {type(self.render).__name__}")
         if self.split not in SPLITS:
             raise ValueError(f"split must be one of {SPLITS}, got {self.split!r}")
+        if self.shading not in SHADING_MODES:
+            raise ValueError(f"shading must be one of {SHADING_MODES}, got {self.shading!r}")
         for name in ("num_rays", "num_frames"):
             check_positive_int(self, name)
         if self.num_rays % self.num_frames:
@@ -290,7 +299,7 @@ def build_image_model(
     """
     model = ImageModel(config.field, rays.subject_ids, rays.camera_names, rays.table.frame_keys,
                        latent_init_std=config.latent_init_std, beta_init=config.beta_init,
-                       beta_min=config.beta_min,
+                       beta_min=config.beta_min, shading=config.shading,
                        init_rest_joints=rays.table.rest_joints.mean(dim=0))
     unseen: list[str] = []
     if prior_model is not None:
@@ -429,7 +438,8 @@ def load_image_model(run: str | os.PathLike, map_location: Any = "cpu") -> Image
         names[key] = value
     model = ImageModel(config.field, names["subject_ids"], names["camera_names"],
                        names["frame_keys"], latent_init_std=config.latent_init_std,
-                       beta_init=config.beta_init, beta_min=config.beta_min)
+                       beta_init=config.beta_init, beta_min=config.beta_min,
+                       shading=config.shading)
     try:
         model.load_state_dict(ckpt.model)
     except RuntimeError as exc:

@@ -29,6 +29,7 @@ from tests.fitting.image_scene import (
     FAST_RENDER,
     load_float_template,
     make_scene,
+    render_frame,
     rotation_error_deg,
     tiny_model,
 )
@@ -197,3 +198,21 @@ def test_fit_images_runs_on_cuda(scene):
         rotation_pool=64, device="cuda"))
     assert on_device.keypoint_error_px["color"] < 5.0
 
+
+
+def test_color_stage_shades_the_rays_like_the_renderer(scene):
+    # A model trained with headlight shading: the colour stage lights its rays as the image
+    # renderer lit the views (at the true hand the colour loss is small), and an unshaded copy
+    # of the same model does not explain those views.
+    from lisa_hand.render.shading import HeadlightShading
+
+    shading = HeadlightShading.from_values(torch.full((3,), 0.3), torch.full((3,), 0.7)).eval()
+    shaded = dataclasses.replace(scene["model"], shading=shading)
+    views = render_frame(shaded, scene["truth"])
+    config = FitImagesConfig(color_iters=1, num_rays=512, render=FAST_RENDER,
+                             view_calibration=False, guard=False)
+    first = {}
+    for name, model in (("shaded", shaded), ("plain", scene["model"])):
+        _, report = fit_color(model, views, scene["truth"], config, load_float_template())
+        first[name] = history_columns(report.history, "color")["col"][0]
+    assert first["shaded"] < 0.3 * first["plain"], first

@@ -225,14 +225,16 @@ def test_missing_dataset(tmp_path):
         train_images(tmp_path, tmp_path / "run", tiny_image_config(), prior=tmp_path)
 
 
-def test_batched_step_computes_the_per_frame_losses(tiny_data):
+@pytest.mark.parametrize("shading", ["none", "headlight"])
+def test_batched_step_computes_the_per_frame_losses(tiny_data, shading):
     # One pass for every frame (grouped callbacks, skinning points without the gradient pass)
-    # against frame after frame: the same loss terms and gradients (deterministic samples).
+    # against frame after frame: the same loss terms and gradients (deterministic samples);
+    # with headlight shading, the normals from the grouped SDF too.
     from lisa_hand.render import RenderConfig
     from lisa_hand.training.images import sample_image_batch
 
     render = RenderConfig(sampler="sphere_traced", num_samples=12, num_samples_extra=4)
-    config = tiny_image_config(render=render, num_frames=2)
+    config = tiny_image_config(render=render, num_frames=2, shading=shading)
     rays, scans = load_image_data(tiny_data, config)
     model, _ = build_image_model(rays, config)
     model = model.double()
@@ -248,6 +250,8 @@ def test_batched_step_computes_the_per_frame_losses(tiny_data):
                              if p.grad is not None})
     (terms_a, grads_a), (terms_b, grads_b) = results[False], results[True]
     assert float(terms_a["col"]) > 0 and float(terms_a["w"]) > 0
+    if shading == "headlight":  # the colour loss reaches the shading's parameters
+        assert float(grads_a["shading.diffuse_raw"].abs().sum()) > 0
     for name in terms_a:
         torch.testing.assert_close(terms_b[name], terms_a[name], rtol=1e-9, atol=1e-12, msg=name)
     assert grads_a.keys() == grads_b.keys()

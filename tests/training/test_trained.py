@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 
@@ -83,3 +85,44 @@ def test_bad_model_files_get_clear_errors(tmp_path):
         load_trained(other)
     with pytest.raises(FileNotFoundError, match="no checkpoint"):
         load_trained(tmp_path)
+
+
+def test_headlight_shading_is_trained_exported_and_rendered(tiny_data, tmp_path):
+    from lisa_hand.geometry.cameras import pixel_rays
+    from lisa_hand.inference.render import orbit_views, prepare_render
+    from lisa_hand.render.shading import HeadlightShading
+    from lisa_hand.skeleton.params import HandParams
+
+    from .tiny_dataset import base_rest_joints
+
+    config = tiny_image_config(trainer=tiny_trainer(steps=3), shading="headlight")
+    train_images(tiny_data, tmp_path / "run", config)
+    model = load_trained(tmp_path / "run")
+    assert isinstance(model.shading, HeadlightShading)
+    start = HeadlightShading()
+    assert not torch.equal(model.shading.diffuse_raw, start.diffuse_raw)  # it was trained
+    trained = load_image_model(tmp_path / "run")
+    assert torch.equal(model.shading.ambient, trained.shading.ambient)
+
+    path, _ = export_trained(model, tmp_path / "model.pt")
+    again = load_trained(path)
+    torch.testing.assert_close(again.shading.ambient, model.shading.ambient)
+    torch.testing.assert_close(again.shading.diffuse, model.shading.diffuse)
+
+    # Rendered: the unshaded model's hand colour times the Lambert factor at each normal.
+    params = HandParams(pose=torch.zeros(48), translation=torch.zeros(3),
+                        rest_joints=base_rest_joints().float(), shape_code=again.shape_codes[0],
+                        color_code=again.color_codes[0])
+    plain_model = dataclasses.replace(again, shading=None)
+    plain_scene = prepare_render(plain_model, params)
+    camera = orbit_views(plain_scene, 1, 24, 20)[0]
+    plain = plain_scene.render(camera)
+    shaded = prepare_render(again, params).render(camera)
+    assert int(plain.mask.sum()) > 20
+    assert torch.equal(shaded.opacity, plain.opacity)
+    _, directions = pixel_rays(camera)
+    factor = again.shading.factor(plain.normals.reshape(-1, 3), directions).reshape(20, 24, 3)
+    bias = again.bias * plain.opacity[..., None]
+    expected = ((plain.rgb - bias) * factor + bias).clamp(0, 1)  # black background
+    torch.testing.assert_close(shaded.rgb, expected, rtol=0, atol=1e-5)
+    assert float((shaded.rgb - plain.rgb).abs().max()) > 0.01  # the shading shows

@@ -51,6 +51,7 @@ from ...model.lisa import region_bounds
 from ...model.losses import color_loss, latent_loss
 from ...render import LaplaceDensity, render_rays
 from ...render.renderer import calibrate
+from ...render.shading import surface_normals
 from ...skeleton.params import HandParams
 from ..priors import prior_mean_fingers
 from ..stages import HistoryRecord, StageReport, decay_schedule, progress_bar, template_on
@@ -314,12 +315,17 @@ class _Renderer:
         rays = self.pool.sample(config.num_rays, config.mask_fraction, self.generator)
         near, far, hit = ray_box_bounds(rays["origins"], rays["directions"], low[0], high[0])
         hit = hit & (far > near)
-        out = render_rays(field_model.field_fn(state), field_model.sdf_fn(state),
-                          rays["origins"], rays["directions"], near, far, config.render,
-                          self.density, hit=hit, background=self.gain.new_zeros(3),
-                          generator=self.render_generator)
+        sdf_fn = field_model.sdf_fn(state)
+        out = render_rays(field_model.field_fn(state), sdf_fn, rays["origins"],
+                          rays["directions"], near, far, config.render, self.density, hit=hit,
+                          background=self.gain.new_zeros(3), generator=self.render_generator)
+        rgb = out.rgb
+        if self.model.shading is not None:  # a model trained with headlight shading
+            normals = surface_normals(sdf_fn, rays["origins"], rays["directions"], out.depth,
+                                      out.opacity)
+            rgb = self.model.shading(rgb, normals, rays["directions"])
         gain, bias = self.calibration.for_rays(self.gain, self.bias, rays["view"])
-        prediction = calibrate(out.rgb, out.opacity, gain, bias, rays["background"])
+        prediction = calibrate(rgb, out.opacity, gain, bias, rays["background"])
         terms = {"col": color_loss(prediction, rays["target"]),
                  "reg": latent_loss(shape_code[None], color_code[None])}
         posed = self.template.forward(pose[None], betas[None], translation[None])

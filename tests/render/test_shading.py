@@ -1,0 +1,109 @@
+"""Headlight shading (:mod:`lisa_hand.render.shading`): normals at the rays' surface points of an
+analytic sphere against the closed form, the Lambert factor and its gradients, the shading of
+composited and calibrated colours, and the parameters' round trip."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+
+from lisa_hand.render.shading import HeadlightShading, shade_foreground, surface_normals
+
+CENTRE = torch.tensor([0.01, -0.02, 0.5], dtype=torch.float64)
+RADIUS = 0.05
+
+
+def _sphere_sdf(points: torch.Tensor) -> torch.Tensor:
+    return (points - CENTRE).norm(dim=-1) - RADIUS
+
+
+def _rays(num: int, seed: int = 0) -> tuple[torch.Tensor, torch.Tensor]:
+    generator = torch.Generator().manual_seed(seed)
+    origins = torch.zeros(num, 3, dtype=torch.float64)
+    aim = CENTRE + 0.08 * (torch.rand(num, 3, generator=generator, dtype=torch.float64) - 0.5)
+    return origins, torch.nn.functional.normalize(aim - origins, dim=-1)
+
+
+def _sphere_hits(origins, directions):
+    """Closed-form first hit distance of each ray with the sphere and whether it hits."""
+    offset = origins - CENTRE
+    half_b = (offset * directions).sum(-1)
+    disc = half_b**2 - ((offset * offset).sum(-1) - RADIUS**2)
+    return -half_b - disc.clamp_min(0).sqrt(), disc > 0
+
+
+def test_surface_normals_of_a_sphere_are_the_radial_directions():
+    origins, directions = _rays(300)
+    depth, hit = _sphere_hits(origins, directions)
+    opacity = hit.double()
+    normals = surface_normals(_sphere_sdf, origins, directions, depth, opacity)
+    points = origins + depth[:, None] * directions
+    expected = (points - CENTRE) / RADIUS
+    assert 50 < int(hit.sum()) < 300
+    torch.testing.assert_close(normals[hit], expected[hit], rtol=0, atol=1e-9)
+    assert torch.equal(normals[~hit], torch.zeros_like(normals[~hit]))  # no surface: skipped
+
+
+def test_grouped_surface_normals_use_each_rays_group():
+    origins, directions = _rays(64, seed=1)
+    depth, hit = _sphere_hits(origins, directions)
+    groups = torch.arange(64) % 2
+    shifts = torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.0, 0.003]], dtype=torch.float64)
+
+    def grouped(points, point_groups):  # group 1: the sphere moved 3 mm along z
+        return _sphere_sdf(points - shifts[point_groups])
+
+    normals = surface_normals(grouped, origins, directions, depth, hit.double(), groups)
+    points = origins + depth[:, None] * directions
+    expected = torch.nn.functional.normalize(points - CENTRE - shifts[groups], dim=-1)
+    torch.testing.assert_close(normals[hit], expected[hit], rtol=0, atol=1e-9)
+
+
+def test_lambert_factor_closed_form_and_gradients():
+    shading = HeadlightShading.from_values(torch.tensor([0.3, 0.4, 0.5]),
+                                           torch.tensor([0.7, 0.6, 0.2])).double()
+    torch.testing.assert_close(shading.ambient.detach(),
+                               torch.tensor([0.3, 0.4, 0.5], dtype=torch.float64))
+    angle = torch.tensor([0.0, math.pi / 3, math.pi / 2, 2.0], dtype=torch.float64)
+    directions = torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64).expand(4, 3)
+    normals = torch.stack([torch.sin(angle), torch.zeros(4, dtype=torch.float64),
+                           -torch.cos(angle)], dim=-1)  # angle from the ray's reverse
+    albedo = torch.full((4, 3), 0.8, dtype=torch.float64)
+    shaded = shading(albedo, normals, directions)
+    cosine = torch.cos(angle).clamp_min(0)[:, None]
+    ambient, diffuse = torch.tensor([0.3, 0.4, 0.5]), torch.tensor([0.7, 0.6, 0.2])
+    torch.testing.assert_close(shaded, 0.8 * (ambient + diffuse * cosine).double())
+    # Facing away (angle 2 rad > pi/2) and edge-on: ambient only.
+    torch.testing.assert_close(shaded[2:], 0.8 * ambient.double().expand(2, 3))
+    shaded.sum().backward()
+    softplus_slope = torch.sigmoid(shading.diffuse_raw.detach())
+    torch.testing.assert_close(shading.diffuse_raw.grad,
+                               softplus_slope * 0.8 * cosine.sum())
+
+
+def test_shade_foreground_leaves_the_background_and_the_bias():
+    generator = torch.Generator().manual_seed(3)
+    albedo = torch.rand(50, 3, generator=generator)
+    opacity = torch.rand(50, generator=generator)
+    gain, bias = torch.tensor([1.1, 0.9, 1.0]), torch.tensor([0.05, -0.02, 0.01])
+    background = torch.tensor([0.2, 0.3, 0.4])
+    factor = torch.rand(50, 3, generator=generator) + 0.2
+    alpha = opacity[:, None]
+    composited = gain * albedo * alpha + bias * alpha + (1 - alpha) * background
+    expected = gain * albedo * alpha * factor + bias * alpha + (1 - alpha) * background
+    shaded = shade_foreground(composited, opacity, background, factor, bias)
+    torch.testing.assert_close(shaded, expected)
+
+
+def test_values_round_trip_and_bad_values():
+    shading = HeadlightShading()
+    torch.testing.assert_close(shading.ambient.detach(), torch.full((3,), 0.5))
+    again = HeadlightShading.from_values(**shading.values())
+    torch.testing.assert_close(again.ambient_raw, shading.ambient_raw)
+    torch.testing.assert_close(again.diffuse_raw, shading.diffuse_raw)
+    with pytest.raises(ValueError, match="shape"):
+        HeadlightShading.from_values(torch.ones(2), torch.ones(3))
+    with pytest.raises(ValueError, match="> 0"):
+        HeadlightShading.from_values(torch.ones(3), torch.zeros(3))
