@@ -58,8 +58,14 @@ def _mesh_sdf_fn(caster):
     def sdf_fn(points: torch.Tensor) -> torch.Tensor:
         query = points.detach().cpu().numpy().astype(np.float64)
         _, face_ids, barycentric = pcu.closest_points_on_mesh(query, vertices, faces)
-        closest = (np.asarray(barycentric)[:, :, None]
-                   * vertices[faces[np.asarray(face_ids)]]).sum(axis=1)
+        corners = vertices[faces[np.asarray(face_ids)]]  # [N, 3, 3]
+        closest = (np.asarray(barycentric)[:, :, None] * corners).sum(axis=1)
+        # A degenerate (zero-area) face can give NaN barycentric coordinates: its nearest
+        # corner is then the closest point (the face is a point or a segment).
+        broken = ~np.isfinite(closest).all(axis=1)
+        if broken.any():
+            gaps = np.linalg.norm(corners[broken] - query[broken, None], axis=-1)
+            closest[broken] = corners[broken, gaps.argmin(axis=1)]
         magnitude = np.linalg.norm(query - closest, axis=1)
         votes = np.zeros(query.shape[0], dtype=np.int64)
         for direction in _SIGN_DIRECTIONS:
@@ -147,7 +153,14 @@ def _near_surface_samples(config: SynthConfig, mesh, caster: MeshRayCaster, scan
     near = sdf_samples(_mesh_sdf_fn(caster), surface_points, surface_normals,
                        num_samples=config.num_sdf_samples, sigma=config.sdf_sigmas,
                        generator=rng)
-    return near.points, near.sdf
+    points, sdf = near.points, near.sdf
+    broken = ~(np.isfinite(sdf) & np.isfinite(points).all(axis=1))
+    if broken.any():  # seen once in 580 frames (one sample): replaced by copies of good ones
+        good = np.flatnonzero(~broken)
+        pick = good[rng.integers(0, good.size, int(broken.sum()))]
+        points, sdf = points.copy(), sdf.copy()
+        points[broken], sdf[broken] = points[pick], sdf[pick]
+    return points, sdf
 
 
 def _keypoint_views(posed, cameras: list[Camera], views: list) -> dict[str, dict[str, Any]]:
