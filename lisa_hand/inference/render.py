@@ -109,7 +109,7 @@ def _shaded(output: ImageOutput, model: TrainedModel, camera: Camera,
             config: ImageRenderConfig) -> ImageOutput:
     """``output`` lit by the model's headlight shading (:mod:`lisa_hand.render.shading`): the
     hand's calibrated colour ``g * albedo`` times the Lambert factor at each pixel's normal
-    (pixels without a normal, where the opacity is at most 0.5, get the ambient part)."""
+    (pixels without a normal, where the opacity is at most 0.5, get the ambient part 1 - k)."""
     height, width = camera.height, camera.width
     _, directions = pixel_rays(camera, device=output.rgb.device, dtype=output.rgb.dtype)
     with torch.no_grad():

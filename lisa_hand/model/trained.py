@@ -182,10 +182,10 @@ def trained_from_checkpoint(ckpt: Checkpoint) -> TrainedModel:
         raise ValueError(f"{source}: the run config has no beta_min")
     beta_raw = _tensor(ckpt.model, "density.beta_raw", source, ())
     shading = None
-    if "shading.ambient_raw" in ckpt.model:
+    if "shading.diffuse_raw" in ckpt.model:
         shading = HeadlightShading().eval()
-        shading.load_state_dict({name: _tensor(ckpt.model, f"shading.{name}", source, (3,))
-                                 for name in ("ambient_raw", "diffuse_raw")})
+        shading.load_state_dict(
+            {"diffuse_raw": _tensor(ckpt.model, "shading.diffuse_raw", source, ())})
     return TrainedModel(
         field=field,
         shape_codes=_tensor(ckpt.model, "shape_codes.weight", source, (num, dims[0])).clone(),
@@ -238,7 +238,7 @@ def _from_export(path: Path, data: dict) -> TrainedModel:
         try:
             shading = HeadlightShading.from_values(**data["shading"]).eval()
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"{path}: 'shading' must hold ambient and diffuse [3] > 0 "
+            raise ValueError(f"{path}: 'shading' must hold a diffuse fraction in (0, 1) "
                              f"({exc})") from None
     return TrainedModel(
         field=field.eval(),

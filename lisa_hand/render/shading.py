@@ -7,20 +7,22 @@ and a colour field trained on them can only average it into its albedo (issue 15
 hand the shading was 60% of the colour variance inside the mask). :class:`HeadlightShading`
 models it per ray, after volume rendering::
 
-    c = albedo * (ambient + diffuse * max(0, n . -d))
+    c = albedo * ((1 - k) + k * max(0, n . -d))
 
 with ``albedo = sum_i w_i c_i`` the composited field colour (over black), ``d`` the ray's unit
 direction (the light sits at the camera: it shines along the ray) and ``n`` the unit outward
 normal of the SDF at the ray's expected surface point ``o + depth d``
 (:func:`surface_normals`: one gradient evaluation a ray, not one a sample; detached, so the
-colour loss does not bend the geometry through the normals). ``ambient`` and ``diffuse`` are
-learned per channel, non-negative, and start at 0.5 each (a surface facing the camera keeps its
-albedo, one seen edge-on half of it).
+colour loss does not bend the geometry through the normals). ``k``, the light's diffuse
+fraction, is learned (one number) and starts at 0.5: a surface facing the camera keeps its
+albedo, one seen edge-on half of it.
 A ray's weights sit within a few ``beta`` of its surface, so one normal a ray is what the samples
 would have given (the Lambert term is linear in the colour).
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 import torch.nn.functional as F
@@ -35,41 +37,34 @@ SHADING_MODES = ("none", "headlight")
 :class:`HeadlightShading`."""
 
 
-def _inverse_softplus(value: float) -> float:
-    """x with softplus(x) = value (> 0)."""
-    return float(value + torch.log(-torch.expm1(torch.tensor(-float(value)))))
-
-
 class HeadlightShading(nn.Module):
-    """A Lambert term lit from the camera, per channel (see the module docstring).
+    """A white Lambert term lit from the camera (see the module docstring), one number:
 
-    ``ambient = softplus(ambient_raw)``, ``diffuse = softplus(diffuse_raw)`` ([3] each,
-    unitless): non-negative and smooth in the raw parameters (whose gradients stay of order one
-    from the start values).
+    ``factor = (1 - k) + k max(0, n . -d)`` with ``k = sigmoid(diffuse_raw)`` in (0, 1), the
+    diffuse fraction of the light (``ambient = 1 - k``, ``diffuse = k``): a surface facing the
+    camera keeps its albedo. One grey number, not one per channel and not a free scale: a per-
+    channel or unnormalised term is a colour gain, which the colour field and the cameras'
+    calibration already have (trained per channel, it went to ambient 0.98 / 0.80 / 0.71, a red
+    cast, with the diffuse part shrinking).
     """
 
-    def __init__(self, ambient: float = 0.5, diffuse: float = 0.5) -> None:
+    def __init__(self, diffuse: float = 0.5) -> None:
         super().__init__()
-        if not (ambient > 0 and diffuse > 0):
-            raise ValueError(f"ambient and diffuse must be > 0, got {ambient}, {diffuse}")
-        self.ambient_raw = nn.Parameter(torch.full((3,), _inverse_softplus(ambient)))
-        self.diffuse_raw = nn.Parameter(torch.full((3,), _inverse_softplus(diffuse)))
-
-    @property
-    def ambient(self) -> torch.Tensor:
-        """[3] unitless (differentiable)."""
-        return F.softplus(self.ambient_raw)
+        if not 0.0 < diffuse < 1.0:
+            raise ValueError(f"diffuse must be in (0, 1), got {diffuse}")
+        self.diffuse_raw = nn.Parameter(torch.tensor(math.log(diffuse / (1.0 - diffuse))))
 
     @property
     def diffuse(self) -> torch.Tensor:
-        """[3] unitless (differentiable)."""
-        return F.softplus(self.diffuse_raw)
+        """[] the diffuse fraction ``k`` in (0, 1), unitless (differentiable)."""
+        return torch.sigmoid(self.diffuse_raw)
 
     def factor(self, normals: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
         """normals: [R, 3] unit (zero: no surface, ambient only); directions: [R, 3] unit ray
-        directions -> [R, 3] the shading factor ``ambient + diffuse * max(0, n . -d)``."""
+        directions -> [R, 1] the shading factor ``1 - k + k max(0, n . -d)``."""
         cosine = (-(normals * directions).sum(-1, keepdim=True)).clamp_min(0.0)
-        return self.ambient.to(cosine.dtype) + self.diffuse.to(cosine.dtype) * cosine
+        diffuse = self.diffuse.to(cosine.dtype)
+        return 1.0 - diffuse + diffuse * cosine
 
     def forward(self, albedo: torch.Tensor, normals: torch.Tensor,
                 directions: torch.Tensor) -> torch.Tensor:
@@ -77,25 +72,16 @@ class HeadlightShading(nn.Module):
         return albedo * self.factor(normals, directions)
 
     def values(self) -> dict[str, torch.Tensor]:
-        """{"ambient": [3], "diffuse": [3]} float32 CPU tensors, detached (for files)."""
-        return {"ambient": self.ambient.detach().cpu().float(),
-                "diffuse": self.diffuse.detach().cpu().float()}
+        """{"diffuse": []} float32 CPU tensor, detached (for files)."""
+        return {"diffuse": self.diffuse.detach().cpu().float()}
 
     @classmethod
-    def from_values(cls, ambient: torch.Tensor, diffuse: torch.Tensor) -> HeadlightShading:
-        """The shading with these ``ambient`` and ``diffuse`` [3] (> 0; :meth:`values`)."""
-        ambient, diffuse = torch.as_tensor(ambient).float(), torch.as_tensor(diffuse).float()
-        if ambient.shape != (3,) or diffuse.shape != (3,):
-            raise ValueError(f"ambient and diffuse must have shape [3], got "
-                             f"{list(ambient.shape)} and {list(diffuse.shape)}")
-        if not (torch.isfinite(ambient).all() and torch.isfinite(diffuse).all()
-                and (ambient > 0).all() and (diffuse > 0).all()):
-            raise ValueError("ambient and diffuse must be finite and > 0")
-        shading = cls()
-        with torch.no_grad():
-            shading.ambient_raw.copy_(ambient + torch.log(-torch.expm1(-ambient)))
-            shading.diffuse_raw.copy_(diffuse + torch.log(-torch.expm1(-diffuse)))
-        return shading
+    def from_values(cls, diffuse: torch.Tensor | float) -> HeadlightShading:
+        """The shading with this diffuse fraction (in (0, 1); :meth:`values`)."""
+        value = torch.as_tensor(diffuse, dtype=torch.float64)
+        if value.numel() != 1 or not bool(torch.isfinite(value).all()):
+            raise ValueError(f"diffuse must be one finite number, got {value.tolist()}")
+        return cls(float(value))
 
 
 def surface_normals(
@@ -142,7 +128,7 @@ def shade_foreground(
 
     ``rgb = g * albedo + b * opacity + (1 - opacity) * background`` becomes
     ``g * albedo * factor + b * opacity + (1 - opacity) * background``.
-    rgb: [..., 3]; opacity: [...]; background: [3] or [..., 3]; factor: [..., 3];
+    rgb: [..., 3]; opacity: [...]; background: [3] or [..., 3]; factor: [..., 3] or [..., 1];
     bias: [3] the calibration's bias (None: 0). -> [..., 3].
     """
     alpha = opacity[..., None]

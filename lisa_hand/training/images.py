@@ -181,13 +181,13 @@ class ImageTrainConfig:
     shading: str = "none"
     """How the rendered colour is lit (:mod:`lisa_hand.render.shading`): "none", the field's
     colour as it is (the paper, the shipped model); "headlight", the composited colour times a
-    learned Lambert term lit from the camera (``ambient + diffuse * max(0, n . -d)`` per
-    channel, ``n`` the SDF's normal at the ray's surface point): for images lit from the camera
+    learned Lambert term lit from the camera (``1 - k + k max(0, n . -d)``, ``k`` one learned
+    number, ``n`` the SDF's normal at the ray's surface point): for images lit from the camera
     (``lisa synth``'s), so that the colour field learns an albedo rather than the shading."""
     shading_lr: float | None = 0.01
-    """Learning rate of the shading's ambient and diffuse terms (``shading="headlight"``; None:
-    the trainer's lr). At the trainer's 5e-4 they moved by 0.03 in 400 steps: too slow for
-    six numbers that set the look of every pixel."""
+    """Learning rate of the shading's diffuse fraction (``shading="headlight"``; None: the
+    trainer's lr). At the trainer's 5e-4 its terms moved by 0.03 in 400 steps: too slow for a
+    number that sets the look of every pixel."""
 
     def __post_init__(self) -> None:
         self.validate()

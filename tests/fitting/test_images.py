@@ -206,7 +206,7 @@ def test_color_stage_shades_the_rays_like_the_renderer(scene):
     # of the same model does not explain those views.
     from lisa_hand.render.shading import HeadlightShading
 
-    shading = HeadlightShading.from_values(torch.full((3,), 0.3), torch.full((3,), 0.7)).eval()
+    shading = HeadlightShading.from_values(0.7).eval()
     shaded = dataclasses.replace(scene["model"], shading=shading)
     views = render_frame(shaded, scene["truth"])
     config = FitImagesConfig(color_iters=1, num_rays=512, render=FAST_RENDER,
