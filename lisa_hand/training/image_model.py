@@ -21,7 +21,7 @@ from ..model.lisa import FrameState, LisaModel, region_bounds
 from ..model.losses import color_loss, eikonal_loss, latent_loss, skinning_loss
 from ..render import LaplaceDensity, RenderConfig, calibrate, ray_sphere_bounds, render_rays
 from ..render.samplers import GroupGenerators
-from ..render.shading import HeadlightShading, surface_normals
+from ..render.shading import SHADING_MODES, HeadlightShading, surface_normals
 from ..skeleton import POSE_DIM
 from .prior import PriorModel
 
@@ -142,9 +142,8 @@ class ImageModel(nn.Module):
         shading: str = "none",
     ) -> None:
         super().__init__()
-        if shading not in ("none", "headlight"):
-            raise ValueError(f"shading must be 'none' or 'headlight', got {shading!r}")
-        self.shading = HeadlightShading() if shading == "headlight" else None
+        if shading not in SHADING_MODES:
+            raise ValueError(f"shading must be one of {SHADING_MODES}, got {shading!r}")
         if not subject_ids or not camera_names or not frame_keys:
             raise ValueError("subject_ids, camera_names and frame_keys must not be empty")
         self.field = LisaModel(field_config, init_rest_joints=init_rest_joints)
@@ -155,6 +154,7 @@ class ImageModel(nn.Module):
         self.bias = nn.Parameter(torch.zeros(len(camera_names), 3))
         self.pose_offsets = nn.Parameter(torch.zeros(len(frame_keys), POSE_DIM))
         self.translation_offsets = nn.Parameter(torch.zeros(len(frame_keys), 3))
+        self.shading = HeadlightShading() if shading == "headlight" else None
         self.subject_ids = list(subject_ids)
         self.camera_names = list(camera_names)
         self.frame_keys = list(frame_keys)
