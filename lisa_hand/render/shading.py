@@ -25,10 +25,10 @@ from __future__ import annotations
 import math
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
 from ..geometry.fields import SdfFn
+from ..geometry.tracing import sdf_normals
 
 __all__ = ["SHADING_MODES", "HeadlightShading", "surface_normals", "shade_foreground"]
 
@@ -108,12 +108,11 @@ def surface_normals(
     rows = torch.nonzero(opacity.detach() >= min_opacity).squeeze(-1)
     if rows.numel() == 0:
         return normals
-    with torch.enable_grad():
-        points = (origins[rows] + depth[rows, None] * directions[rows]).detach()
-        points.requires_grad_(True)
-        sdf = sdf_fn(points) if groups is None else sdf_fn(points, groups[rows])
-        (gradient,) = torch.autograd.grad(sdf.sum(), points)
-    normals[rows] = F.normalize(gradient.detach(), dim=-1).to(normals.dtype)
+    points = (origins[rows] + depth[rows, None] * directions[rows]).detach()
+    row_sdf = sdf_fn if groups is None else (lambda p: sdf_fn(p, groups[rows]))
+    # One chunk: a grouped callback needs the rows' groups in step with the points.
+    normals[rows] = sdf_normals(row_sdf, points, "autograd",
+                                chunk_size=points.shape[0]).to(normals.dtype)
     return normals
 
 
