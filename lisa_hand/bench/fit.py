@@ -6,7 +6,8 @@ The target is the model itself (self-consistency, so 1 mm is reachable): the han
 training subject's shape code, random template betas, the 'relaxed' finger pose, a random global
 rotation and translation, meshed at 128^3 (:func:`lisa_hand.inference.mesh_hand`) and scanned
 (:func:`lisa_hand.data.scans.simulate_scan`, ``--points`` points, ``--noise-mm`` normal noise).
-Without a trained model (``--model`` or the shipped one) the model is a geometric
+The model is ``--model`` (a file, run or shipped name), else what ``lisa fit-points`` uses
+without one (the shipped geometric prior). Without a trained model the model is a geometric
 initialisation on the template's skeleton (a blob hand; its shape code does nothing).
 
 Accuracy along the way is the mean ``|G(x)|`` of the current fit over 4000 scan points, the
@@ -89,12 +90,16 @@ class FitBenchmark:
 
 def _bench_model(path, device):
     from ..fields.config import FieldConfig
+    from ..fitting.points.io import default_point_model
     from ..handmodel.template import load_template
     from ..model.lisa import LisaModel
-    from ..model.trained import TrainedModel, default_model_path, load_trained
+    from ..model.trained import TrainedModel, load_trained, shipped_model_path
 
-    if path is not None or default_model_path().is_file():
-        return load_trained(path, device), str(path or default_model_path())
+    if path is None and shipped_model_path("default").is_file():
+        path = default_point_model()  # what 'lisa fit-points' uses without --model
+    if path is not None:
+        model = load_trained(path, device)
+        return model, model.source
     template = load_template().to(dtype=torch.float32)
     rest = template.rest_joints(torch.zeros(1, template.num_betas))[0]
     field = LisaModel(FieldConfig(use_color=False), init_rest_joints=rest).eval()

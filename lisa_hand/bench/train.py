@@ -10,8 +10,8 @@ Two configurations of ``lisa train`` (:class:`~lisa_hand.training.images.ImageTr
   samples, uniform) and 512 skinning points;
 * **fast** (today's default): every frame of the step rendered in one pass (one sphere trace
   and one field evaluation for the batch, no gradient pass for the skinning points), 12 band
-  samples in ``[-4 beta, +8 beta]`` plus 4 uniform ones, 16 marching steps; 128 + 128 Eikonal
-  and 256 skinning points a frame.
+  samples in ``[-4 beta, +8 beta]`` plus 4 uniform ones, 16 marching steps; 64 + 64 Eikonal
+  and 128 skinning points a frame.
 
 Both start from the same geometry (the shipped model's SDF and skinning networks as the prior,
 its mean shape code for every subject; the colour networks start fresh) and train on the same
@@ -27,14 +27,17 @@ held out (``--held-out``, default the last one), constant learning rate.
    checkpointed there).
 3. **PSNR** of the held-out camera of every training frame (rendered as ``lisa render`` does,
    with the model's mean colour calibration: the camera is unseen), inside the mask (the
-   demo's figure) and over the whole image, at ``--eval-scale`` of the resolution.
+   demo's figure) and over the whole image, at ``--eval-scale`` of the resolution; and the
+   **geometry**: the mean |SDF| of the trained field at each frame's true surface points
+   (``scan.npz``), mm, so that a cheaper step cannot buy speed with a worse surface.
 4. ``--shaded``: the fast step is also trained with headlight shading
    (:mod:`lisa_hand.render.shading`, ``shading="headlight"``) for the fast run's steps, and its
    held-out PSNR reported (``psnr_shaded``): what modelling the camera-side light buys.
 
 The JSON (``--json``) holds ``steps_per_s``, ``reference_steps_per_s``, ``speedup``, ``psnr``
 (fast, equal time), ``reference_psnr``, ``psnr_equal_steps``, ``psnr_shaded`` (None without
-``--shaded``) and the details.
+``--shaded``), ``surface_error_mm``, ``reference_surface_error_mm``,
+``surface_error_mm_equal_steps`` and the details.
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ import torch
 from ..data.datasets import RayFrames
 from ..data.layout import read_image, read_mask
 from ..geometry.cameras import load_cameras, save_cameras
+from ..inference.hand_field import hand_field
 from ..inference.render import render_hand, scale_camera
 from ..metrics.image import psnr
 from ..model.trained import load_trained, trained_from_checkpoint
@@ -186,17 +190,19 @@ def measure_rates(data: Path, prior: PriorModel, rounds: int, steps: int) -> dic
 
 
 def evaluate(run: Path, data: Path, held_out: str, scale: float,
-             checkpoint: Path | None = None) -> dict[str, float]:
+             checkpoint: Path | None = None, surface_points: int = 4000) -> dict[str, float]:
     """PSNR of the held-out camera of every training frame of ``data`` (the full dataset),
-    rendered by the run's model (its subject codes, mean calibration). -> {"psnr_mask",
-    "psnr_image", "frames", "seconds"}"""
+    rendered by the run's model (its subject codes, mean calibration), and the geometry: the
+    mean |SDF| of the model at the frame's true surface points (``scan.npz`` points, the first
+    ``surface_points``), mm. -> {"psnr_mask", "psnr_image", "surface_error_mm", "frames",
+    "seconds"}"""
     from ..model.checkpoint import load_checkpoint
 
     start = time.perf_counter()
     trained = (trained_from_checkpoint(load_checkpoint(checkpoint)) if checkpoint is not None
                else load_trained(run))
     table = RayFrames(data, "train", max_band_px=0, background_per_view=0).table
-    inside, whole = [], []
+    inside, whole, surface = [], [], []
     for frame, paths in enumerate(table.frames):
         camera = next(c for c in load_cameras(paths.cameras) if c.name == held_out)
         width, height = round(camera.width * scale), round(camera.height * scale)
@@ -208,13 +214,19 @@ def evaluate(run: Path, data: Path, held_out: str, scale: float,
                             shape_code=trained.shape_codes[row].float(),
                             color_code=trained.color_codes[row].float())
         image = render_hand(trained, params, [small])[0]
+        with np.load(paths.scan) as scan:
+            points = torch.as_tensor(scan["points"][:surface_points], dtype=torch.float32)
+        with torch.no_grad():
+            sdf = hand_field(trained, params).sdf_fn()(points)
+        surface.append(1000.0 * float(sdf.abs().mean()))
         target = _resized(read_image(paths.image(held_out)), width, height)
         mask = _resized(read_mask(paths.mask(held_out)).astype(np.float32), width, height) > 0.5
         predicted = image.rgb.numpy()
         inside.append(psnr(predicted, target, mask))
         whole.append(psnr(predicted, target))
     return {"psnr_mask": float(np.mean(inside)), "psnr_image": float(np.mean(whole)),
-            "frames": len(inside), "seconds": round(time.perf_counter() - start, 1)}
+            "surface_error_mm": float(np.mean(surface)), "frames": len(inside),
+            "seconds": round(time.perf_counter() - start, 1)}
 
 
 def _resized(image: np.ndarray, width: int, height: int) -> np.ndarray:
@@ -299,13 +311,17 @@ def main(argv: list[str] | None = None) -> dict:
         results[name]["steps"] = config.trainer.steps
         print(f"{name:17s}: {config.trainer.steps:5d} steps, PSNR held-out views "
               f"{results[name]['psnr_mask']:.2f} dB in the mask, "
-              f"{results[name]['psnr_image']:.2f} dB whole image (train {timings[name]} s)",
+              f"{results[name]['psnr_image']:.2f} dB whole image, surface |SDF| "
+              f"{results[name]['surface_error_mm']:.3f} mm (train {timings[name]} s)",
               flush=True)
     summary = {
         "steps_per_s": fast_rate, "reference_steps_per_s": ref_rate,
         "speedup": fast_rate / ref_rate,
         "psnr": results["fast"]["psnr_mask"], "reference_psnr": results["reference"]["psnr_mask"],
         "psnr_equal_steps": results["fast_equal_steps"]["psnr_mask"],
+        "surface_error_mm": results["fast"]["surface_error_mm"],
+        "reference_surface_error_mm": results["reference"]["surface_error_mm"],
+        "surface_error_mm_equal_steps": results["fast_equal_steps"]["surface_error_mm"],
         "psnr_shaded": results["fast_shaded"]["psnr_mask"] if args.shaded else None,
         "budget_s": args.budget_s, "held_out_camera": held_out, "threads": torch.get_num_threads(),
         "train_seconds": timings, "results": results,
@@ -317,7 +333,10 @@ def main(argv: list[str] | None = None) -> dict:
               f"the mask vs {summary['psnr']:.2f} dB without")
     print(f"headline: x{summary['speedup']:.2f} steps/s; PSNR at equal time "
           f"{summary['psnr']:.2f} dB vs reference {summary['reference_psnr']:.2f} dB; at equal "
-          f"steps {summary['psnr_equal_steps']:.2f} dB")
+          f"steps {summary['psnr_equal_steps']:.2f} dB; surface |SDF| "
+          f"{summary['surface_error_mm']:.3f} mm vs reference "
+          f"{summary['reference_surface_error_mm']:.3f} mm (equal steps "
+          f"{summary['surface_error_mm_equal_steps']:.3f} mm)")
     if args.json is not None:
         write_json(args.json, summary)
         print(f"wrote {args.json}")

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from .options import DeviceOpt, FitModelOpt, Side, Units
+from .options import DeviceOpt, PointModelOpt, Side, Units
 
 
 def fit_points(
@@ -16,7 +16,7 @@ def fit_points(
         help="Point cloud: PLY, OBJ, XYZ, NPY or NPZ (normals optional; a mesh's vertices).")],
     out: Annotated[Path, typer.Option(
         "--out", help="Output folder: params.json, mesh.ply and, with --gt, metrics.json.")],
-    model: FitModelOpt = None,
+    model: PointModelOpt = None,
     gt: Annotated[Path | None, typer.Option(
         "--gt", help="Ground-truth mesh (or points): also write V2V and V2S distances (mm), "
                      "both ways.")] = None,

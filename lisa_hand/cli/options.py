@@ -74,8 +74,14 @@ def image_fit_overrides(*, seed: int, threads: int, shape_fit: ShapeFit, guard: 
 
 
 FitModelOpt = Annotated[Path | None, typer.Option(
-    "--model", help="Trained model: exported file, run folder or checkpoint "
-                    "(default: the shipped model).")]
+    "--model", help="Trained model: exported file, run folder or checkpoint, or a shipped "
+                    "model's name: 'default' (LISA-full) or 'geometry' (the geometric prior) "
+                    "(default: 'default').")]
+
+PointModelOpt = Annotated[Path | None, typer.Option(
+    "--model", help="Trained model: exported file, run folder or checkpoint, or a shipped "
+                    "model's name (default: 'geometry', the shipped geometric prior, no colour; "
+                    "'default' is LISA-full, whose mean colour the mesh then gets).")]
 
 # The verbs over a fitted hand (lisa mesh, render, animate).
 ParamsArg = Annotated[Path, typer.Argument(
@@ -84,7 +90,7 @@ ParamsArg = Annotated[Path, typer.Argument(
          "'lisa blend'.")]
 ModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model (exported file, or a 'lisa train' / 'lisa train-prior' run); "
-                    "default: the one PARAMS names (the shipped model for 'default').")]
+                    "default: the one PARAMS names ('default' and 'geometry': the shipped ones).")]
 DeviceOpt = Annotated[str, typer.Option(
     "--device", help="auto (CUDA when available), cpu, cuda or cuda:N.")]
 

@@ -186,7 +186,10 @@ def _run_fits(model, frame, fitted: list[str], novel: list[str], out_dir: Path,
         log(f"{index}/5 fitting to the {label}")
         began = time.perf_counter()
         if views is None:
-            report = fit_point_file(frame.scan, out_dir / folder, model_path=config.model,
+            # The demo fits one model to all three inputs (the point fit's own default is the
+            # geometric prior, which has no colour for the novel views' PSNR).
+            report = fit_point_file(frame.scan, out_dir / folder,
+                                    model_path=config.model or "default",
                                     gt_path=frame.mesh, units="m",
                                     resolution=config.mesh_resolution, config=points_config,
                                     device=config.device, progress=True, log=log)

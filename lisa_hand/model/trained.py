@@ -2,7 +2,10 @@
 
 What fitting, meshing, rendering and animation load. It comes from one of
 
-* the model shipped with the package (``lisa_hand/assets/lisa_pretrained.pt``, the default);
+* a model shipped with the package, by name (:data:`SHIPPED_MODELS`): ``"default"``
+  (``lisa_hand/assets/lisa_pretrained.pt``, LISA-full: geometry and colour from images, what
+  ``load_trained(None)`` gives) or ``"geometry"`` (``lisa_hand/assets/lisa_geometry.pt``, a
+  geometric prior on 203 subjects: no colour; the default of ``lisa fit-points``);
 * a file written by :func:`export_trained` (``python -m lisa_hand.model.trained RUN --out FILE``);
 * a training run: a ``lisa train`` run (geometry and colour) or a ``lisa train-prior`` run
   (geometry only), as its folder or its checkpoint file.
@@ -34,7 +37,10 @@ __all__ = [
     "TRAINED_FORMAT",
     "DEFAULT_BETA",
     "TrainedModel",
+    "SHIPPED_MODELS",
     "default_model_path",
+    "shipped_model_path",
+    "model_label",
     "load_trained",
     "trained_from_checkpoint",
     "export_trained",
@@ -109,9 +115,34 @@ class TrainedModel:
         )
 
 
+SHIPPED_MODELS = {"default": "lisa_pretrained.pt", "geometry": "lisa_geometry.pt"}
+"""The models in ``lisa_hand/assets`` by the name ``--model`` and ``params.json`` give them:
+"default" is LISA-full (images: geometry and colour), "geometry" a geometric prior (``lisa
+train-prior`` on 203 subjects: the SDF and skinning networks only, no colour)."""
+
+
+def shipped_model_path(name: str = "default") -> Path:
+    """Path of the shipped model ``name`` (a key of :data:`SHIPPED_MODELS`; the file may be
+    missing in a source checkout)."""
+    if name not in SHIPPED_MODELS:
+        raise ValueError(f"no shipped model named {name!r} (shipped: "
+                         f"{', '.join(SHIPPED_MODELS)})")
+    return Path(str(resources.files("lisa_hand") / "assets" / SHIPPED_MODELS[name]))
+
+
+def model_label(path: str | os.PathLike | None) -> str:
+    """What ``params.json`` records as the model of a fit made with ``path``: a shipped model's
+    name ("default" for None), else the absolute path."""
+    if path is None:
+        return "default"
+    if str(path) in SHIPPED_MODELS and not Path(path).exists():
+        return str(path)
+    return str(Path(path).resolve())
+
+
 def default_model_path() -> Path:
     """Path of the model shipped with the package (it may be missing in a source checkout)."""
-    return Path(str(resources.files("lisa_hand") / "assets" / "lisa_pretrained.pt"))
+    return shipped_model_path("default")
 
 
 def _from_run(path: Path) -> TrainedModel:
@@ -259,14 +290,17 @@ def load_trained(
     """Load a model for inference.
 
     path: an exported model file, a training run folder or checkpoint (``lisa train`` or ``lisa
-        train-prior``), or None for the model shipped with the package.
+        train-prior``), the name of a shipped model (:data:`SHIPPED_MODELS`, when no file or
+        folder of that name exists), or None for the model shipped with the package.
     device: where to put it.
     """
     if path is None:
-        path = default_model_path()
+        path = "default"
+    if str(path) in SHIPPED_MODELS and not Path(path).exists():
+        name, path = str(path), shipped_model_path(str(path))
         if not path.is_file():
             raise FileNotFoundError(
-                f"{path}: the shipped pretrained model is missing from this installation; pass "
+                f"{path}: the shipped model {name!r} is missing from this installation; pass "
                 "--model with a trained run or an exported model (see README, 'Pretrained model')"
             )
     path = Path(path)

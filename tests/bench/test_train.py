@@ -3,6 +3,7 @@ trained model, the two configurations, and PSNR of a run's held-out views."""
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
 from lisa_hand.bench.field import BENCH_REST_JOINTS
@@ -38,6 +39,24 @@ def test_held_out_copy_drops_one_camera_and_trains(tmp_path):
     assert scores["frames"] == RayFrames(data, "train", max_band_px=0,
                                          background_per_view=0).num_frames
     assert 3.0 < scores["psnr_image"] < 60.0 and 0.0 < scores["psnr_mask"] < 60.0
+    # The geometry figure: mean |SDF| at the true surface points, against the field evaluated
+    # directly (LisaModel.forward, not the inference HandField the bench uses).
+    trained = load_trained(run)
+    table = RayFrames(data, "train", max_band_px=0, background_per_view=0).table
+    errors = []
+    for frame, paths in enumerate(table.frames):
+        subject = int(table.frame_subject[frame])
+        row = trained.subject_ids.index(table.subject_ids[subject])
+        points = torch.as_tensor(np.load(paths.scan)["points"][:4000], dtype=torch.float32)
+        with torch.no_grad():
+            sdf = trained.field.float()(
+                points[None], table.pose[frame][None].float(),
+                table.translation[frame][None].float(),
+                table.rest_joints[subject][None].float(), trained.shape_codes[row][None].float(),
+                trained.color_codes[row][None].float()).sdf
+        errors.append(1000.0 * float(sdf.abs().mean()))
+    assert 0.0 < scores["surface_error_mm"] < 100.0
+    assert abs(scores["surface_error_mm"] - float(np.mean(errors))) < 1e-3
 
 
 def test_prior_from_the_shipped_model_has_its_geometry():

@@ -125,3 +125,27 @@ def test_headlight_shading_is_trained_exported_and_rendered(tiny_data, tmp_path)
     expected = ((plain.rgb - bias) * factor + bias).clamp(0, 1)  # black background
     torch.testing.assert_close(shaded.rgb, expected, rtol=0, atol=1e-5)
     assert float((shaded.rgb - plain.rgb).abs().max()) > 0.01  # the shading shows
+
+
+def test_shipped_models_by_name(tmp_path, monkeypatch):
+    """'default' and 'geometry' name the two shipped files (LISA-full with colour, the
+    geometric prior without); a file or folder of that name in the working directory wins;
+    params.json records the name, else the absolute path."""
+    from lisa_hand.model.trained import SHIPPED_MODELS, model_label, shipped_model_path
+
+    assert set(SHIPPED_MODELS) == {"default", "geometry"}
+    full, geometry = load_trained("default"), load_trained("geometry")
+    assert full.has_color and full.source == str(shipped_model_path("default"))
+    assert not geometry.has_color and geometry.color_codes is None
+    assert geometry.source == str(shipped_model_path("geometry"))
+    assert len(geometry.subject_ids) >= 200  # the issue's "at least 200 training subjects"
+    assert geometry.config.shape_dim == full.config.shape_dim == 128
+    torch.testing.assert_close(load_trained(None).shape_codes, full.shape_codes)
+    assert model_label(None) == "default" and model_label("geometry") == "geometry"
+    with pytest.raises(ValueError, match="no shipped model named 'colour'"):
+        shipped_model_path("colour")
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "geometry").mkdir()
+    assert model_label("geometry") == str((tmp_path / "geometry").resolve())
+    with pytest.raises(FileNotFoundError, match="no checkpoint"):
+        load_trained("geometry")  # the local folder, not the shipped file

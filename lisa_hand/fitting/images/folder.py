@@ -147,6 +147,7 @@ def fit_image_folder(
     "auto", "cpu", "cuda" or "cuda:N" (where the model is loaded). psnr: re-render the input
     views for the PSNR. log: called with one line per note (fallbacks, unit guesses).
     """
+    from ...model.trained import model_label
     from ..outputs import prepare_fit
 
     log = log or (lambda line: None)
@@ -165,7 +166,7 @@ def fit_image_folder(
         log(note)
     notes = notes + fit.notes
     params = fit.params
-    params.model = "default" if model_path is None else str(Path(model_path).resolve())
+    params.model = model_label(model_path)
     params.extra["input"] = {"path": str(frame_dir), "notes": notes}
     with cpu_threads(config.num_threads):
         return _finish_folder(model, fit, image_views, out_dir, truth, resolution, psnr, notes,

@@ -296,6 +296,7 @@ def fit_photo_folder(
     -> one :class:`PhotoFitReport` per fitted hand.
     """
     from ...model.trained import load_trained
+    from ...model.trained import model_label as label_of
     from ...utils.device import resolve_device
     from .inputs import check_hand_size
     from .outputs import check_photo_folder, write_photo_outputs
@@ -312,7 +313,7 @@ def fit_photo_folder(
             label = f"{item.photo.path}" + (f" ({folder})" if folder else "")
             check_hand_size(one, item.photo, config.min_hand_px, label)
     model = load_trained(model_path, resolve_device(device))
-    model_label = "default" if model_path is None else str(Path(model_path).resolve())
+    model_label = label_of(model_path)
     outcomes = []
     for folder, hands in targets:
         if folder:

@@ -38,6 +38,7 @@ __all__ = [
     "read_point_cloud",
     "prepare_point_cloud",
     "fit_point_file",
+    "default_point_model",
 ]
 
 POINT_CLOUD_SUFFIXES = (".ply", ".obj", ".xyz", ".npy", ".npz")
@@ -271,6 +272,16 @@ class FitPointsReport:
     """The refinement's :class:`~lisa_hand.fitting.stages.StageReport` (``--refine``), or None."""
 
 
+def default_point_model() -> str:
+    """The model of a point fit without ``--model``: the shipped geometric prior ("geometry":
+    geometry that image training has not blurred, 203 subjects) when it is installed, else the
+    shipped LISA-full ("default"). A point cloud has no colour, so the prior's lack of one costs
+    nothing but the mesh's vertex colours (``--model default`` keeps them)."""
+    from ...model.trained import shipped_model_path
+
+    return "geometry" if shipped_model_path("geometry").is_file() else "default"
+
+
 def fit_point_file(
     points_path: str | os.PathLike,
     out_dir: str | os.PathLike,
@@ -300,7 +311,8 @@ def fit_point_file(
 
     points_path: the cloud (:func:`read_point_cloud`); units: of the cloud and the ground truth
         ("auto", "m", "cm", "mm", see :func:`prepare_point_cloud`). model_path: a trained model
-        (:func:`lisa_hand.model.trained.load_trained`; None: the shipped one). gt_path: a mesh or
+        (:func:`lisa_hand.model.trained.load_trained`; None: :func:`default_point_model`, the
+        shipped geometric prior). gt_path: a mesh or
         points (:func:`lisa_hand.metrics.load_mesh`). resolution: marching-cubes samples a side.
     config: :class:`lisa_hand.fitting.points.fit.FitPointsConfig`. device: "auto", "cpu", "cuda".
     side: "right" or "left", the hand the cloud shows
@@ -308,10 +320,12 @@ def fit_point_file(
     log: called with one line per note (unit conversion, dropped points).
     """
     from ...inference import MeshConfig, mesh_hand
+    from ...model.trained import model_label
     from ..outputs import ground_truth_metrics, prepare_fit, write_fit_outputs
     from .fit import FitPointsConfig, fit_points
 
     log = log or (lambda line: None)
+    model_path = default_point_model() if model_path is None else model_path
     points_path, out_dir = Path(points_path), Path(out_dir)
     config = FitPointsConfig() if config is None else config
     raw_points, raw_normals = read_point_cloud(points_path)
@@ -323,7 +337,7 @@ def fit_point_file(
 
     fit = fit_points(model, cloud.points, cloud.normals, config, side=side, progress=progress)
     params = fit.params
-    params.model = "default" if model_path is None else str(Path(model_path).resolve())
+    params.model = model_label(model_path)
     params.extra["input"] = {"path": str(points_path), "unit": cloud.unit,
                              "num_input_points": cloud.num_input, "notes": cloud.notes}
     if fit.beyond_wrist_points:
