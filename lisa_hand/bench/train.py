@@ -10,7 +10,7 @@ Two configurations of ``lisa train`` (:class:`~lisa_hand.training.images.ImageTr
   samples, uniform) and 512 skinning points;
 * **fast** (today's default): every frame of the step rendered in one pass (one sphere trace
   and one field evaluation for the batch, no gradient pass for the skinning points), 12 band
-  samples in ``[-4 beta, +8 beta]`` plus 4 uniform ones, 16 marching steps; 64 + 64 Eikonal
+  samples in ``[-4 beta, +8 beta]`` plus 4 uniform ones, 12 marching steps; 64 + 64 Eikonal
   and 128 skinning points a frame.
 
 Both start from the same geometry (the shipped model's SDF and skinning networks as the prior,

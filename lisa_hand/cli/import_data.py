@@ -131,8 +131,8 @@ def scans(
              "point-cloud fit of 'lisa fit-points' (about 20 s a scan on a CPU), or skip them."
     )] = True,
     model: Annotated[Path | None, typer.Option(
-        "--model", help="--pose-search: the trained model that fits (default: the shipped "
-                        "one).")] = None,
+        "--model", help="--pose-search: the trained model that fits (default: that of 'lisa "
+                        "fit-points', the shipped geometric prior).")] = None,
     overwrite: OverwriteOpt = False,
     quiet: QuietOpt = False,
 ) -> None:
@@ -156,10 +156,11 @@ def scan_pose_search(model_path: Path | None):
     def search(points, normals, side):
         from ..fitting.outputs import hand_keypoints_3d
         from ..fitting.points.fit import fit_points
+        from ..fitting.points.io import default_point_model
         from ..model.trained import load_trained
 
         if "model" not in state:
-            state["model"] = load_trained(model_path, "cpu")
+            state["model"] = load_trained(model_path or default_point_model(), "cpu")
         fit = fit_points(state["model"], points, normals, side=side)
         return hand_keypoints_3d(fit.params)
 

@@ -145,3 +145,35 @@ def test_a_scan_running_on_into_a_forearm_is_cut_at_the_wrist():
     # Without the cut the forearm counts: the scan -> recon distance is several times larger.
     whole = mesh_distances(mesh.vertices, mesh.faces, vertices, arm_faces)
     assert whole.v2s_scan_to_recon_mm > 2.0 * cut.v2s_scan_to_recon_mm
+
+
+def test_the_shipped_geometric_prior_fits_the_webxr_hand():
+    """The point fit's default model (the shipped geometric prior, 203 subjects) on the
+    artist's hand in its rest pose, a full 5000-point scan with 0.3 mm noise in a random
+    placement (the first row of ``python -m lisa_hand.bench fit --only-webxr``): V2S at the
+    fit's wrist cut, measured BOUND_MEASURED."""
+    from lisa_hand.bench._webxr import run_webxr_fits  # noqa: F401  (the bench's own rows)
+    from lisa_hand.data.scans import ScanConfig, simulate_scan
+    from lisa_hand.fitting.points.fit import fit_points
+    from lisa_hand.fitting.points.io import default_point_model
+    from lisa_hand.geometry import axis_angle_to_matrix
+    from lisa_hand.inference import MeshConfig, mesh_hand
+    from lisa_hand.metrics import mesh_distances
+    from lisa_hand.model.trained import load_trained
+
+    import torch
+
+    assert default_point_model() == "geometry"
+    model = load_trained("geometry", "cpu")
+    posed, faces = pose_webxr_hand(WEBXR / "right_hand.npz", "rest")
+    turn = 3.0 * torch.rand(3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
+    rotation = axis_angle_to_matrix(turn).numpy()
+    placed = (posed - posed.mean(0)) @ rotation.T + np.array([0.0, 0.0, 0.3])
+    scan = simulate_scan(placed, faces, ScanConfig(num_points=5000, noise_normal_std=3e-4),
+                         seed=0)
+    fit = fit_points(model, scan.points, None, FitPointsConfig(num_threads=1, seed=0))
+    mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False, skin_weights=False),
+                     clip=fit.wrist_plane)
+    distances = mesh_distances(mesh.vertices, mesh.faces, placed, faces, clip=fit.wrist_plane)
+    print(distances.to_dict())
+    assert distances.v2s_scan_to_recon_mm < 99 and distances.v2s_recon_to_scan_mm < 99
