@@ -150,9 +150,10 @@ def test_a_scan_running_on_into_a_forearm_is_cut_at_the_wrist():
 def test_the_shipped_geometric_prior_fits_the_webxr_hand():
     """The point fit's default model (the shipped geometric prior, 203 subjects) on the
     artist's hand in its rest pose, a full 5000-point scan with 0.3 mm noise in a random
-    placement (the first row of ``python -m lisa_hand.bench fit --only-webxr``): V2S at the
-    fit's wrist cut, measured BOUND_MEASURED."""
-    from lisa_hand.bench._webxr import run_webxr_fits  # noqa: F401  (the bench's own rows)
+    placement: the first row of ``python -m lisa_hand.bench fit --only-webxr`` (measured there
+    V2S 1.30 mm scan->recon, 1.43 mm recon->scan; the shipped LISA-full: 2.10 / 2.62)."""
+    import torch
+
     from lisa_hand.data.scans import ScanConfig, simulate_scan
     from lisa_hand.fitting.points.fit import fit_points
     from lisa_hand.fitting.points.io import default_point_model
@@ -160,8 +161,6 @@ def test_the_shipped_geometric_prior_fits_the_webxr_hand():
     from lisa_hand.inference import MeshConfig, mesh_hand
     from lisa_hand.metrics import mesh_distances
     from lisa_hand.model.trained import load_trained
-
-    import torch
 
     assert default_point_model() == "geometry"
     model = load_trained("geometry", "cpu")
@@ -175,5 +174,4 @@ def test_the_shipped_geometric_prior_fits_the_webxr_hand():
     mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False, skin_weights=False),
                      clip=fit.wrist_plane)
     distances = mesh_distances(mesh.vertices, mesh.faces, placed, faces, clip=fit.wrist_plane)
-    print(distances.to_dict())
-    assert distances.v2s_scan_to_recon_mm < 99 and distances.v2s_recon_to_scan_mm < 99
+    assert distances.v2s_scan_to_recon_mm < 1.6 and distances.v2s_recon_to_scan_mm < 1.8
