@@ -62,7 +62,7 @@ def view(
         typer.echo(f"lisa: error: {missing}", err=True)
         raise typer.Exit(2)
     from ..inference.hand_field import check_params, resolve_model_path
-    from ..model.trained import load_trained
+    from ..model.trained import load_trained, model_label
     from ..skeleton.params import read_params
     from ..utils.device import resolve_device
     from ..viewer.meshing import RemeshConfig
@@ -77,7 +77,7 @@ def view(
     loaded = [read_params(path) for path in files]
     model_path = resolve_model_path(loaded[0], files[0], model) if loaded else model
     trained = load_trained(model_path, resolve_device(device))
-    label = "default" if model_path is None else str(Path(model_path).resolve())
+    label = model_label(model_path)
     hands = []
     for path, hand in zip(files, loaded, strict=True):
         check_params(trained, hand, source=str(path))

@@ -256,14 +256,14 @@ def main(argv: Sequence[str] | None = None) -> None:
 
     from dataclasses import replace
 
-    from ..model.trained import load_trained
+    from ..model.trained import load_trained, model_label
     from ..skeleton.params import read_params
     from .config import ViewerConfig
     from .server import HandViewer
     from .state import NamedHand, model_hands
 
     model = load_trained(args.model)
-    label = "default" if args.model is None else str(Path(args.model).resolve())
+    label = model_label(args.model)
     hands = [NamedHand(Path(p).stem, replace(read_params(p), model=label)) for p in args.params]
     width, height = (int(v) for v in args.size.lower().split("x"))
 
