@@ -95,7 +95,7 @@ def _bench_model(path, device):
     from ..model.lisa import LisaModel
     from ..model.trained import TrainedModel, load_trained, shipped_model_path
 
-    if path is None and shipped_model_path("default").is_file():
+    if path is None and shipped_model_path(default_point_model()).is_file():
         path = default_point_model()  # what 'lisa fit-points' uses without --model
     if path is not None:
         model = load_trained(path, device)

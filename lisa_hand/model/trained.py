@@ -130,14 +130,18 @@ def shipped_model_path(name: str = "default") -> Path:
     return Path(str(resources.files("lisa_hand") / "assets" / SHIPPED_MODELS[name]))
 
 
+def _shipped_name(path: str | os.PathLike) -> str | None:
+    """``path`` as the name of a shipped model (a key of :data:`SHIPPED_MODELS` with no file or
+    folder of that name here), else None."""
+    return str(path) if str(path) in SHIPPED_MODELS and not Path(path).exists() else None
+
+
 def model_label(path: str | os.PathLike | None) -> str:
     """What ``params.json`` records as the model of a fit made with ``path``: a shipped model's
     name ("default" for None), else the absolute path."""
     if path is None:
         return "default"
-    if str(path) in SHIPPED_MODELS and not Path(path).exists():
-        return str(path)
-    return str(Path(path).resolve())
+    return _shipped_name(path) or str(Path(path).resolve())
 
 
 def default_model_path() -> Path:
@@ -294,10 +298,9 @@ def load_trained(
         folder of that name exists), or None for the model shipped with the package.
     device: where to put it.
     """
-    if path is None:
-        path = "default"
-    if str(path) in SHIPPED_MODELS and not Path(path).exists():
-        name, path = str(path), shipped_model_path(str(path))
+    name = "default" if path is None else _shipped_name(path)
+    if name is not None:
+        path = shipped_model_path(name)
         if not path.is_file():
             raise FileNotFoundError(
                 f"{path}: the shipped model {name!r} is missing from this installation; pass "
