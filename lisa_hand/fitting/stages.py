@@ -34,7 +34,7 @@ under :class:`StageReport`'s ``history``)."""
 class StageReport:
     """Diagnostics of one fitting stage (every stage of every fitter returns one).
 
-    stage: its name: 'align', 'pose', 'fingers', 'field' (point fit), 'keypoints', 'color'
+    stage: its name: 'align', 'pose', 'fingers', 'field', 'second' (point fit), 'keypoints', 'color'
         (image fit).
     seconds: its wall time, seconds.
     loss: the final objective of the best hand it returns (NaN when the stage did not run,

@@ -108,8 +108,8 @@ def test_a_left_hand_fits_as_well_as_the_right_one_it_mirrors():
     points, normals, _ = scan_of(model, truth, ScanConfig(num_points=1000), seed=0)
     config = FitPointsConfig(**FAST)
     right = fit_points(model, points, normals, config, rest_joints=truth.rest_joints)
-    assert list(right.reports) == ["align", "pose", "fingers", "field"]
-    assert right.energy == right.reports["field"].loss
+    assert list(right.reports) == ["align", "pose", "fingers", "field", "second"]
+    assert right.energy == right.reports["second"].loss
     assert right.candidate_energies == right.reports["align"].screened_energies
     assert right.history == [record for report in right.reports.values()
                              for record in report.history]
@@ -177,3 +177,80 @@ def test_refine_config_refuses_bad_values():
     for bad in ({"iters": 0}, {"lr": 0.0}, {"anchor_weight": -1.0}, {"eikonal_offset_mm": 0}):
         with pytest.raises(ValueError):
             RefineConfig(**bad)
+
+
+def test_nearest_distance_counts_the_tangent_offset_by_its_weight():
+    """A cloud point ``a`` along its nearest proxy point's normal and ``b`` across it is
+    ``sqrt(a^2 + w b^2)`` away (closed form): w = 1 the Euclidean distance, 0 point-to-plane."""
+    from lisa_hand.fitting.points.cloud import nearest_distance
+
+    proxy = torch.tensor([[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]], dtype=torch.float64)
+    normals = torch.tensor([[[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]], dtype=torch.float64)
+    cloud = torch.tensor([[[0.003, 0.004, 0.012]]], dtype=torch.float64)  # nearest: the first
+    for weight in (1.0, 0.1, 0.0):
+        got = float(nearest_distance(cloud, proxy, normals, weight)[0, 0])
+        assert got == pytest.approx(math.sqrt(0.012**2 + weight * 0.005**2), abs=1e-6)
+    assert float(nearest_distance(cloud, proxy)[0, 0]) == pytest.approx(0.013, abs=1e-6)
+
+
+def test_the_proxy_normals_turn_with_the_pose():
+    """Posed by a random hand pose, every proxy normal stays perpendicular to the posed
+    surface: a short step along the rest tangent plane, posed by ``world``, is at right angles
+    to the normal ``world_normals`` gives (points bound to one bone each)."""
+    from lisa_hand.fitting.points.proxy import SurfaceProxy
+    from lisa_hand.skeleton import NUM_JOINTS
+
+    generator = torch.Generator().manual_seed(3)
+    hand = _hand(1)
+    count = 64
+    points = 0.05 * torch.randn(count, 3, generator=generator, dtype=torch.float64)
+    normals = torch.nn.functional.normalize(
+        torch.randn(count, 3, generator=generator, dtype=torch.float64), dim=-1)
+    tangent = torch.nn.functional.normalize(torch.linalg.cross(
+        normals, torch.randn(count, 3, generator=generator, dtype=torch.float64)), dim=-1)
+    bones = torch.randint(0, NUM_JOINTS, (count,), generator=generator)
+    weights = torch.nn.functional.one_hot(bones, NUM_JOINTS).double()
+    rest = hand.rest_joints.double()
+    proxy = SurfaceProxy(torch.cat([points, points + 1e-4 * tangent]),
+                         torch.cat([weights, weights]), rest, points.mean(0),
+                         torch.cat([normals, normals]))
+    batch = CandidateBatch.from_hands([hand.with_pose(hand.pose.double(), hand.translation)],
+                                      proxy.pivot)
+    with torch.no_grad():
+        world = proxy.world(batch)[0]
+        posed_normals = proxy.world_normals(batch)[0][:count]
+    step = world[count:] - world[:count]
+    assert torch.allclose(posed_normals.norm(dim=-1), torch.ones(count, dtype=torch.float64))
+    assert float(((step * posed_normals).sum(-1) / step.norm(dim=-1)).abs().max()) < 1e-6
+
+
+def test_the_second_pass_curls_a_finger_the_field_stage_left_straight():
+    """The shipped geometric prior's own hand with the index curled, fitted except for the
+    index (left straight, as the field stage left the WebXR hand's): the second pass curls
+    it."""
+    from lisa_hand.data.scans import simulate_scan
+    from lisa_hand.fitting.points.fit import second_finger_pass, start_hand
+    from lisa_hand.inference import MeshConfig, mesh_hand
+    from lisa_hand.model.trained import load_trained
+
+    model = load_trained("geometry", "cpu")
+    config = FitPointsConfig(**FAST)
+    cloud = target_cloud(torch.zeros(30, 3), None, seed=0)  # a placeholder for start_hand
+    template, rest_hand, _ = start_hand(model, cloud, None)
+    pose = torch.zeros(16, 3)
+    pose[0] = torch.tensor([0.4, -2.0, 0.9])
+    pose[1:4, 2] = torch.tensor([0.9, 1.2, 0.7])  # the index curled (MANO joints 1-3, about z)
+    truth = rest_hand.with_pose(pose.reshape(48), torch.tensor([0.02, -0.01, 0.35]))
+    mesh = mesh_hand(model, truth, 64, MeshConfig(colors=False, skin_weights=False))
+    scan = simulate_scan(mesh.vertices, mesh.faces, ScanConfig(num_points=4000), seed=0)
+    cloud = target_cloud(scan.points, None, seed=config.seed)
+    straight = pose.clone()
+    straight[1:4] = 0.0
+    start = truth.with_pose(straight.reshape(48), truth.translation)
+    index = slice(3 * 1, 3 * 4)
+    before = float((start.pose[index] - truth.pose[index]).abs().max())
+    hand, report = second_finger_pass(model, cloud, start, config, math.nan, template=template)
+    error = float((hand.pose[index] - truth.pose[index]).abs().max())
+    assert before > 1.0 and error < 0.35, (error, report.notes)
+    assert report.stage == "second" and "index" in report.notes[0]
+    assert math.isfinite(report.loss)

@@ -118,16 +118,26 @@ def dense_points(points: torch.Tensor, neighbours: int = 8, factor: float = 3.0)
     return points[torch.from_numpy(keep).to(points.device)]
 
 
-def nearest_distance(cloud: torch.Tensor, proxy: torch.Tensor) -> torch.Tensor:
+def nearest_distance(cloud: torch.Tensor, proxy: torch.Tensor,
+                     normals: torch.Tensor | None = None, tangent_weight: float = 1.0
+                     ) -> torch.Tensor:
     """Distance from each cloud point to its nearest proxy point.
 
     cloud: [K, N, 3]; proxy: [K, P, 3] -> [K, N] metres (differentiable in both; the nearest
-    point is chosen without gradient).
+    point is chosen without gradient, by the Euclidean distance). normals: [K, P, 3] unit
+    normals of the proxy points, or None: then the offset ``r`` from the nearest point counts
+    ``sqrt((n . r)^2 + tangent_weight |r - (n . r) n|^2)`` (1: point-to-point, 0:
+    point-to-plane).
     """
     with torch.no_grad():
         nearest = torch.cdist(cloud, proxy).argmin(dim=-1)  # [K, N]
-    matched = torch.gather(proxy, 1, nearest[..., None].expand(-1, -1, 3))
-    return ((cloud - matched).square().sum(-1) + _DISTANCE_EPS).sqrt()
+    index = nearest[..., None].expand(-1, -1, 3)
+    offset = cloud - torch.gather(proxy, 1, index)
+    squared = offset.square().sum(-1)
+    if normals is not None and tangent_weight != 1.0:
+        along = (offset * torch.gather(normals, 1, index)).sum(-1)
+        squared = tangent_weight * squared + (1.0 - tangent_weight) * along.square()
+    return (squared + _DISTANCE_EPS).sqrt()
 
 
 class CloudDistance:

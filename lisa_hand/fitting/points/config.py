@@ -33,6 +33,11 @@ class FitPointsConfig:
     also from the opposed pinch and ok thumbs); 0 turns them off."""
     field_iters: int = 200
     """Adam steps of the field stage (all unknowns, the LISA field)."""
+    second_pass_iters: int = 100
+    """The fingers' second chance, after the field stage (:func:`.fit.second_finger_pass`):
+    the per-finger restarts again on a proxy of the fitted hand's own shape and skeleton, and,
+    when a finger changes, this many field steps of the changed hand beside the fitted one (the
+    better one is kept); 0 turns it off."""
     prune_after: tuple[float, ...] = (0.15, 0.35)
     """Fractions of the field iterations at which the worse candidates stop (by their field
     energy on a fixed subset of the cloud): ``K`` candidates become ``K^(1 - i/n)`` at the
@@ -42,6 +47,14 @@ class FitPointsConfig:
     smaller."""
     proxy_points: int = 1000
     """Points of the surface proxy used by the first two stages."""
+    proxy_tangent_weight: float = 0.1
+    """How much of a cloud point's offset from its nearest proxy point counts along the proxy's
+    surface (its tangent plane) in the proxy stages: the distance is
+    ``sqrt((n . r)^2 + w |r - (n . r) n|^2)``, ``r`` the offset, ``n`` the proxy point's normal.
+    1 is the plain point-to-point distance, which the proxy's spacing (about 6 mm between 1000
+    points) fills with a floor of several millimetres that hid a curled finger (issue 14: a
+    WebXR index curled 160 degrees scored no better than a straight one); 0 is point-to-plane
+    (ICP's), which lets points slide past a fingertip."""
     init_poses: tuple[str, ...] = ("flat", "relaxed", "fist")
     """Finger poses the candidates start from (names of
     :func:`lisa_hand.handmodel.poses.named_pose`, or 'zero'); each is tried in 24
@@ -123,7 +136,8 @@ class FitPointsConfig:
     def __post_init__(self) -> None:
         from .global_pose import initial_finger_pose
 
-        check_int_fields(self, ("align_iters", "pose_iters", "finger_iters", "field_iters"), 0)
+        check_int_fields(self, ("align_iters", "pose_iters", "finger_iters", "field_iters",
+                                "second_pass_iters"), 0)
         check_int_fields(self, ("align_keep", "num_restarts", "points_per_iteration",
                                 "proxy_points", "max_points", "min_points"), 1)
         if not self.init_poses:
@@ -145,7 +159,8 @@ class FitPointsConfig:
         if clip is not None and not (isinstance(clip, (int, float)) and math.isfinite(clip)):
             raise ValueError(f"wrist_clip_m must be a number of metres or None, got {clip!r}")
         for name in ("shape_weight", "pose_weight", "limit_weight", "betas_weight",
-                     "normal_weight", "coverage_weight", "wrist_margin_m"):
+                     "normal_weight", "coverage_weight", "wrist_margin_m",
+                     "proxy_tangent_weight"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
                 raise ValueError(f"{name} must be a non-negative number, got {value!r}")

@@ -1,10 +1,12 @@
 """The surface proxy of the point fit's first stages, and the articulated proxy stage.
 
 The proxy is a cheap stand-in for the LISA field: points on the model's zero level set at rest
-(mean shape code) with the field's skinning weights, posed by linear blend skinning. Its energy
-(per candidate): the robust distance from each of 256 random cloud points to the nearest proxy
-point, plus ``coverage_weight`` times a robust distance from each proxy point to the cloud (the
-cloud's distance grid). The first term alone lets extra model surface go unpunished (a flat
+(mean shape code, or a fitted hand's) with their normals and the field's skinning weights, posed
+by linear blend skinning. Its energy (per candidate): the robust distance from each of 256 random
+cloud points to the nearest proxy point (mostly along that point's normal,
+``FitPointsConfig.proxy_tangent_weight``: the proxy's spacing does not set a floor under the
+distance), plus ``coverage_weight`` times a robust distance from each proxy point to the cloud
+(the cloud's distance grid). The first term alone lets extra model surface go unpunished (a flat
 finger beside the curled finger of a fist scan); the second is a bounded Geman-McClure term
 (scale ``coverage_scale_mm``), so the unseen side of a partial scan costs little and pulls
 weakly. ``sigma`` goes down geometrically from ``robust_scale_start_mm`` to
@@ -42,13 +44,15 @@ class SurfaceProxy:
 
     points_rest: [P, 3] metres (rest pose, zero global rotation); weights: [P, 16] (rows sum
     to 1); rest_joints: [16, 3] metres, the skeleton they are posed on; pivot: [3] metres, the
-    points' centroid (the candidates rotate about it, :class:`CandidateBatch`).
+    points' centroid (the candidates rotate about it, :class:`CandidateBatch`); normals_rest:
+    [P, 3] outward unit normals at rest, or None.
     """
 
     points_rest: torch.Tensor
     weights: torch.Tensor
     rest_joints: torch.Tensor
     pivot: torch.Tensor
+    normals_rest: torch.Tensor | None = None
 
     @property
     def num_points(self) -> int:
@@ -78,14 +82,33 @@ class SurfaceProxy:
         (rest pose: a right hand's forearm runs along +x), the same pivot: what a scan cut at
         the wrist does not show (:mod:`lisa_hand.skeleton.wrist`)."""
         keep = self.points_rest[:, 0] <= self.rest_joints[0, 0] + offset
+        normals = None if self.normals_rest is None else self.normals_rest[keep]
         return SurfaceProxy(self.points_rest[keep], self.weights[keep], self.rest_joints,
-                            self.pivot)
+                            self.pivot, normals)
 
     def world(self, batch: CandidateBatch, subset: torch.Tensor | None = None) -> torch.Tensor:
         """[K, P, 3] world metres: the proxy posed by the candidates (on its own skeleton)."""
         local = self.posed(batch.finger_pose, subset)
         rotation = batch.rotation()
         return (local - self.pivot) @ rotation.transpose(-1, -2) + batch.position[:, None]
+
+    def world_normals(self, batch: CandidateBatch, subset: torch.Tensor | None = None
+                      ) -> torch.Tensor | None:
+        """[K, P, 3] the proxy's unit normals posed by the candidates (each point's normal
+        turned by its skinning weights' blend of the bone rotations, then the global rotation),
+        or None for a proxy without normals."""
+        if self.normals_rest is None:
+            return None
+        count = batch.finger_pose.shape[0]
+        pose = torch.cat([batch.finger_pose.new_zeros(count, 3), batch.finger_pose], dim=-1)
+        rotations = forward_kinematics(pose, self.rest_joints).transforms[..., :3, :3]
+        normals, weights = self.normals_rest, self.weights
+        if subset is not None:
+            normals, weights = normals[subset], weights[subset]
+        blended = torch.einsum("pj,kjab->kpab", weights, rotations)
+        local = torch.einsum("kpab,pb->kpa", blended, normals)
+        world = local @ batch.rotation().transpose(-1, -2)
+        return torch.nn.functional.normalize(world, dim=-1)
 
 
 @torch.no_grad()
@@ -95,8 +118,11 @@ def build_surface_proxy(model, rest_joints: torch.Tensor, shape_code: torch.Tens
     """The proxy of a trained model's field (:class:`lisa_hand.model.trained.TrainedModel`):
     its zero level set at rest (64^3 marching cubes) for the rest joints [16, 3] and the codes
     shape_code [D], color_code [D'] or None (on the field's device and dtype), at most
-    ``num_points`` random vertices (``generator``), with the field's skinning weights (the
-    nearest bone region's for a field without them)."""
+    ``num_points`` random vertices (``generator``), with the mesh's vertex normals and the
+    field's skinning weights (the nearest bone region's for a field without them)."""
+    import numpy as np
+    import trimesh
+
     from ...geometry.meshing import extract_mesh
     from ...model.lisa import region_bounds
 
@@ -112,16 +138,18 @@ def build_surface_proxy(model, rest_joints: torch.Tensor, shape_code: torch.Tens
     vertices = torch.from_numpy(mesh.vertices).to(device=device, dtype=dtype)
     if vertices.shape[0] == 0:
         raise ValueError("the model's surface at rest is empty: cannot fit with this model")
+    normals = torch.from_numpy(np.array(trimesh.Trimesh(
+        mesh.vertices, mesh.faces, process=False).vertex_normals)).to(device=device, dtype=dtype)
     if vertices.shape[0] > num_points:
-        pick = torch.randperm(vertices.shape[0], generator=generator)
-        vertices = vertices[pick[:num_points].to(device)]
+        pick = torch.randperm(vertices.shape[0], generator=generator)[:num_points].to(device)
+        vertices, normals = vertices[pick], normals[pick]
     out = field_model.field(state, vertices[None], with_color=False)
     if out.weights is not None:
         weights = out.weights[0]
     else:  # the single-MLP baseline has no skinning weights: the nearest bone region's
         excess = field_model.region_excess(state, vertices[None])[0]
         weights = torch.nn.functional.one_hot(excess.argmin(-1), NUM_JOINTS).to(dtype)
-    return SurfaceProxy(vertices, weights, rest_joints, vertices.mean(dim=0))
+    return SurfaceProxy(vertices, weights, rest_joints, vertices.mean(dim=0), normals)
 
 
 def proxy_energy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, config,
@@ -133,7 +161,10 @@ def proxy_energy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch,
     :class:`~lisa_hand.fitting.points.config.FitPointsConfig`."""
     proxy_points = proxy.world(batch, subset)
     points = cloud.points[cloud.sample(num_points)]
-    distance = nearest_distance(points.expand(batch.count, -1, -1), proxy_points)
+    tangent = config.proxy_tangent_weight
+    normals = proxy.world_normals(batch, subset) if tangent != 1.0 else None
+    distance = nearest_distance(points.expand(batch.count, -1, -1), proxy_points, normals,
+                                tangent)
     energy = robust_loss(distance, config.robust_loss, scale).mean(-1)
     if config.coverage_weight > 0:
         uncovered = cloud.distance_grid(proxy_points)
