@@ -135,30 +135,40 @@ def test_a_left_hand_fits_as_well_as_the_right_one_it_mirrors():
 
 
 
+def _curled_index_scan(model, config: FitPointsConfig, curl: tuple[float, float, float]):
+    """A scan of ``model``'s own mean hand (template skeleton) with the index curled by
+    ``curl`` (radians about z at MANO joints 1-3) -> (the true hand, the same hand with the
+    index straight, the scan's cloud, the template, start_hand's (rest joints, shape code,
+    colour code))."""
+    from lisa_hand.data.scans import simulate_scan
+    from lisa_hand.fitting.points.fit import start_hand
+    from lisa_hand.inference import MeshConfig, mesh_hand
+
+    cloud = target_cloud(torch.zeros(30, 3), None, seed=0)  # a placeholder for start_hand
+    template, rest_hand, codes = start_hand(model, cloud, None)
+    pose = torch.zeros(16, 3)
+    pose[0] = torch.tensor([0.4, -2.0, 0.9])
+    pose[1:4, 2] = torch.tensor(curl)
+    truth = rest_hand.with_pose(pose.reshape(48), torch.tensor([0.02, -0.01, 0.35]))
+    mesh = mesh_hand(model, truth, 64, MeshConfig(colors=False, skin_weights=False))
+    scan = simulate_scan(mesh.vertices, mesh.faces, ScanConfig(num_points=4000), seed=0)
+    straight = pose.clone()
+    straight[1:4] = 0.0
+    start = truth.with_pose(straight.reshape(48), truth.translation)
+    return truth, start, target_cloud(scan.points, None, seed=config.seed), template, codes
+
+
 def test_a_finger_left_straight_is_restarted_bent():
     """The shipped model's own surface with the index curled, the candidate with it straight
     (a local minimum of the articulated stage): the restart finds the curl. (The tiny blob
     model's proxy cannot tell a bent finger from a straight one: 2% of energy.)"""
-    from lisa_hand.data.scans import simulate_scan
     from lisa_hand.fitting.points.finger_search import restart_fingers
-    from lisa_hand.fitting.points.fit import start_hand
-    from lisa_hand.inference import MeshConfig, mesh_hand
     from lisa_hand.model.trained import load_trained
 
     model = load_trained(None, "cpu")
     config = FitPointsConfig(**FAST)
-    cloud = target_cloud(torch.zeros(30, 3), None, seed=0)  # a placeholder for start_hand
-    template, rest_hand, (rest, code, color) = start_hand(model, cloud, None)
-    pose = torch.zeros(16, 3)
-    pose[0] = torch.tensor([0.4, -2.0, 0.9])
-    pose[1:4, 2] = torch.tensor([1.1, 1.2, 0.8])  # the index curled (MANO joints 1-3, about z)
-    truth = rest_hand.with_pose(pose.reshape(48), torch.tensor([0.02, -0.01, 0.35]))
-    mesh = mesh_hand(model, truth, 64, MeshConfig(colors=False, skin_weights=False))
-    scan = simulate_scan(mesh.vertices, mesh.faces, ScanConfig(num_points=4000), seed=0)
-    cloud = target_cloud(scan.points, None, seed=config.seed)
-    straight = pose.clone()
-    straight[1:4] = 0.0
-    start = truth.with_pose(straight.reshape(48), truth.translation)
+    truth, start, cloud, _, (rest, code, color) = _curled_index_scan(model, config,
+                                                                     (1.1, 1.2, 0.8))
     proxy = build_surface_proxy(model, rest, code, color, config.proxy_points, cloud.generator)
     hands, report = restart_fingers(proxy, cloud, [start, start], config)
     index = slice(3 * 1, 3 * 4)
@@ -228,25 +238,12 @@ def test_the_second_pass_curls_a_finger_the_field_stage_left_straight():
     """The shipped geometric prior's own hand with the index curled, fitted except for the
     index (left straight, as the field stage left the WebXR hand's): the second pass curls
     it."""
-    from lisa_hand.data.scans import simulate_scan
-    from lisa_hand.fitting.points.fit import second_finger_pass, start_hand
-    from lisa_hand.inference import MeshConfig, mesh_hand
+    from lisa_hand.fitting.points.fit import second_finger_pass
     from lisa_hand.model.trained import load_trained
 
     model = load_trained("geometry", "cpu")
     config = FitPointsConfig(**FAST)
-    cloud = target_cloud(torch.zeros(30, 3), None, seed=0)  # a placeholder for start_hand
-    template, rest_hand, _ = start_hand(model, cloud, None)
-    pose = torch.zeros(16, 3)
-    pose[0] = torch.tensor([0.4, -2.0, 0.9])
-    pose[1:4, 2] = torch.tensor([0.9, 1.2, 0.7])  # the index curled (MANO joints 1-3, about z)
-    truth = rest_hand.with_pose(pose.reshape(48), torch.tensor([0.02, -0.01, 0.35]))
-    mesh = mesh_hand(model, truth, 64, MeshConfig(colors=False, skin_weights=False))
-    scan = simulate_scan(mesh.vertices, mesh.faces, ScanConfig(num_points=4000), seed=0)
-    cloud = target_cloud(scan.points, None, seed=config.seed)
-    straight = pose.clone()
-    straight[1:4] = 0.0
-    start = truth.with_pose(straight.reshape(48), truth.translation)
+    truth, start, cloud, template, _ = _curled_index_scan(model, config, (0.9, 1.2, 0.7))
     index = slice(3 * 1, 3 * 4)
     before = float((start.pose[index] - truth.pose[index]).abs().max())
     hand, report = second_finger_pass(model, cloud, start, config, math.nan, template=template)
