@@ -181,7 +181,7 @@ def _points_to_mesh_mm(points: np.ndarray, mesh, plane) -> float:
 
 def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int = 0,
                    threads: int = 1, wrists: tuple[str, ...] = ("as-is",),
-                   config=None, refine=None, log=None) -> list[dict]:
+                   config=None, refine=None, viewpoints: bool = True, log=None) -> list[dict]:
     """Fit ``model`` to the WebXR hand in each pose of :data:`WEBXR_POSES` and each wrist
     variant of ``wrists`` (:data:`WEBXR_WRISTS`), from a full scan and from a one-view partial
     scan (noise 0.3 mm), each in a random placement (the same for every variant of a pose).
@@ -190,6 +190,8 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
     ``num_threads=threads`` and ``seed``). refine: a
     :class:`~lisa_hand.fitting.points.refine.RefineConfig`: each fit is also refined
     (``lisa fit-points --refine``) and measured again (``refined_*`` keys, ``refine_seconds``).
+    viewpoints: give each one-view scan's fit its sensor position (``fit_points(viewpoint=)``,
+    the free-space term), as a depth camera's points in its own frame give it.
     log: called with each row as it is measured.
     -> one dict per fit: pose, wrist, scan kind, seconds, points left out beyond the wrist, the
     four distances (mm, fitted 128^3 mesh against the variant's mesh, both cut at the fit's
@@ -236,12 +238,14 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                     points = points[Plane(place(wrist[None])[0],
                                           -(forearm @ rotation.T)).keeps(points)]
                 with cpu_threads(threads):  # the fit and its mesh on ``threads`` threads
-                    fit = fit_points(model, points, None, config)
+                    viewpoint = scan.viewpoint if partial and viewpoints else None
+                    fit = fit_points(model, points, None, config, viewpoint=viewpoint)
                     mesh = mesh_hand(model, fit.params, 128, plain, clip=fit.wrist_plane)
                 distances = mesh_distances(mesh.vertices, mesh.faces, placed, variant_faces,
                                            clip=fit.wrist_plane)
                 rows.append({"pose": pose, "wrist": variant,
-                             "scan": "partial" if partial else "full", "seconds": fit.seconds,
+                             "scan": "partial" if partial else "full",
+                             "viewpoint": viewpoint is not None, "seconds": fit.seconds,
                              "beyond_wrist_points": fit.beyond_wrist_points,
                              **distances.to_dict(),
                              "scan_points_to_recon_mm": _points_to_mesh_mm(points, mesh,

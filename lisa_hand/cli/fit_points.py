@@ -43,6 +43,12 @@ def fit_points(
                          "'lisa mesh', 'render' and 'animate' use it.")] = False,
     refine_iters: Annotated[int | None, typer.Option(
         "--refine-iters", min=1, help="Steps of --refine (default 300).")] = None,
+    viewpoint: Annotated[str | None, typer.Option(
+        "--viewpoint", metavar="X,Y,Z",
+        help="The sensor position of a one-view scan, in the cloud's units (a depth camera's "
+             "points in its own frame: 0,0,0): the fit then keeps the hand out of the space the "
+             "sensor saw to be empty (a finger it cannot see stays hidden). Leave it out for a "
+             "scan merged from several views.")] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
@@ -56,6 +62,14 @@ def fit_points(
     if restarts is not None:
         overrides["num_restarts"] = restarts
     config = FitPointsConfig(**overrides)
+    view = None
+    if viewpoint is not None:
+        try:
+            view = [float(v) for v in viewpoint.split(",")]
+        except ValueError:
+            view = []
+        if len(view) != 3:
+            raise ValueError(f"--viewpoint: expected three numbers X,Y,Z, got {viewpoint!r}")
     refine_config = None
     if refine:
         from ..fitting.points.refine import RefineConfig
@@ -63,7 +77,7 @@ def fit_points(
         refine_config = RefineConfig(seed=seed, **({} if refine_iters is None
                                                    else {"iters": refine_iters}))
     report = fit_point_file(points, out, model_path=model, gt_path=gt, units=units.value,
-                            refine=refine_config,
+                            refine=refine_config, viewpoint=view,
                             resolution=res, config=config, device=device, side=side.value,
                             progress=progress, log=typer.echo)
     fit = report.fit

@@ -101,8 +101,10 @@ def train(
     data: DataArg,
     out: OutOpt,
     prior: Annotated[Path | None, typer.Option(
-        "--prior", help="A 'lisa train-prior' run folder (or checkpoint) to start the geometry "
-                        "from; without it the model trains from images only (LISA-im).")] = None,
+        "--prior", help="A 'lisa train-prior' run folder (or checkpoint), an exported model, or "
+                        "a shipped model's name ('geometry': the 203-subject prior) to start the "
+                        "geometry from; without it the model trains from images only (LISA-im).")
+    ] = None,
     steps: StepsOpt = None,
     overrides: SetOpt = None,
     config: ConfigOpt = None,

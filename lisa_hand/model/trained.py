@@ -40,6 +40,7 @@ __all__ = [
     "SHIPPED_MODELS",
     "default_model_path",
     "shipped_model_path",
+    "shipped_name",
     "model_label",
     "load_trained",
     "trained_from_checkpoint",
@@ -130,7 +131,7 @@ def shipped_model_path(name: str = "default") -> Path:
     return Path(str(resources.files("lisa_hand") / "assets" / SHIPPED_MODELS[name]))
 
 
-def _shipped_name(path: str | os.PathLike) -> str | None:
+def shipped_name(path: str | os.PathLike) -> str | None:
     """``path`` as the name of a shipped model (a key of :data:`SHIPPED_MODELS` with no file or
     folder of that name here), else None."""
     return str(path) if str(path) in SHIPPED_MODELS and not Path(path).exists() else None
@@ -141,7 +142,7 @@ def model_label(path: str | os.PathLike | None) -> str:
     name ("default" for None), else the absolute path."""
     if path is None:
         return "default"
-    return _shipped_name(path) or str(Path(path).resolve())
+    return shipped_name(path) or str(Path(path).resolve())
 
 
 def default_model_path() -> Path:
@@ -298,7 +299,7 @@ def load_trained(
         folder of that name exists), or None for the model shipped with the package.
     device: where to put it.
     """
-    name = "default" if path is None else _shipped_name(path)
+    name = "default" if path is None else shipped_name(path)
     if name is not None:
         path = shipped_model_path(name)
         if not path.is_file():

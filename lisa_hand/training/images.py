@@ -406,8 +406,9 @@ def train_images(
         ``masks/`` and, for L_w, ``scan.npz`` (its ``points`` and ``template_weights``).
     config: the run's settings (default ``ImageTrainConfig()``), resolved (the prior's geometry
         settings) and saved to ``out_dir/config.json``.
-    prior: a prior run folder or checkpoint (``lisa train-prior``), a :class:`PriorModel`, or
-        None (LISA-im: from images only).
+    prior: a prior run folder or checkpoint (``lisa train-prior``), an exported model or a
+        shipped model's name (:func:`~lisa_hand.training.prior.load_prior`), a
+        :class:`PriorModel`, or None (LISA-im: from images only).
     resume: True: continue from ``out_dir/last.pt`` if present; False: start afresh; a path:
         continue from that checkpoint. hooks, dist: see :class:`lisa_hand.training.engine.Trainer`.
     -> :class:`TrainResult`; the model is in ``out_dir/last.pt`` (:func:`load_image_model`).

@@ -41,6 +41,7 @@ from ..fields.latents import LatentTable
 from ..model.checkpoint import PRIOR_KIND, load_run_checkpoint
 from ..model.lisa import LisaModel
 from ..model.losses import eikonal_loss, latent_loss, normal_loss, skinning_loss, surface_loss
+from ..model.trained import TRAINED_FORMAT, TrainedModel, load_trained, shipped_name
 from ..utils.config import config_from_dict
 from .config import TrainerConfig, build_optimizer, check_non_negative, check_positive_int
 from .distributed import DistContext, shard_slice, unwrap
@@ -288,7 +289,12 @@ def train_prior(
 
 
 def load_prior(run: str | os.PathLike, map_location: Any = "cpu") -> PriorModel:
-    """Rebuild a trained :class:`PriorModel` from a prior run folder or checkpoint file."""
+    """Rebuild a trained :class:`PriorModel` from a prior run folder or checkpoint file, or
+    from an exported model (:func:`lisa_hand.model.trained.export_trained`, or a shipped
+    model's name such as ``"geometry"``): its SDF and skinning networks and its shape codes."""
+    exported = _exported_model(run)
+    if exported is not None:
+        return prior_from_trained(exported).to(map_location or "cpu").eval()
     ckpt = load_run_checkpoint(run, PRIOR_KIND)
     config = config_from_dict(PriorConfig, ckpt.config, source=str(ckpt.path))
     subject_ids = ckpt.extra.get("subject_ids")
@@ -305,3 +311,36 @@ def load_prior(run: str | os.PathLike, map_location: Any = "cpu") -> PriorModel:
     if map_location is not None:
         model = model.to(map_location)
     return model.eval()
+
+
+def _exported_model(run: str | os.PathLike) -> TrainedModel | None:
+    """The exported model (or shipped model) ``run`` names, or None for a run or checkpoint."""
+    path = Path(run)
+    if path.is_dir():
+        return None
+    if not path.exists() and shipped_name(run) is None:
+        return None  # load_run_checkpoint says what is missing
+    if path.exists():
+        try:
+            data = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception:  # not a torch file: load_run_checkpoint says so in its own words
+            return None
+        if not (isinstance(data, dict) and data.get("format") == TRAINED_FORMAT):
+            return None
+    return load_trained(run)
+
+
+def prior_from_trained(model: TrainedModel) -> PriorModel:
+    """A :class:`PriorModel` holding ``model``'s field (geometry and skinning; its colour network,
+    if any, is copied too but an image run starts its colour afresh) and its shape codes."""
+    config = dataclasses.replace(model.field.config, use_color=False)
+    prior = PriorModel(config, model.subject_ids)
+    state = {k: v for k, v in model.field.state_dict().items()
+             if not k.startswith("color_mlp.")}
+    missing, unexpected = prior.field.load_state_dict(state, strict=False)
+    if unexpected or any(not k.startswith("color_mlp.") for k in missing):
+        raise ValueError(f"{model.source}: its field does not fit a prior of the same config "
+                         f"(missing {missing}, unexpected {unexpected})")
+    with torch.no_grad():
+        prior.shape_codes.weight.copy_(model.shape_codes.to(prior.shape_codes.weight))
+    return prior

@@ -144,6 +144,30 @@ def test_bad_inputs_give_one_line_errors(lisa, files, capsys):
     assert "looks like millimetres" in capsys.readouterr().err
 
 
+def test_viewpoint_is_read_in_the_clouds_units_and_recorded(lisa, files, capsys):
+    """``--viewpoint X,Y,Z`` (a one-view scan's sensor position, in the cloud's units): the fit
+    runs with the free-space term and params.json records the position in metres; a malformed
+    or impossible one is a one-line error, nothing written."""
+    root, points = files
+    sensor = points.mean(0) + np.array([0.0, 0.0, 0.4])
+    np.save(root / "scan_mm.npy", 1000.0 * points)
+    out = root / "viewed"
+    given = ",".join(f"{1000.0 * v:.6f}" for v in sensor)
+    assert lisa(["fit-points", str(root / "scan_mm.npy"), "--out", str(out), "--model",
+                 str(root / "tiny.pt"), "--viewpoint", given, *FAST_ARGS]) == 0
+    recorded = read_params(out / "params.json").extra["input"]["viewpoint_m"]
+    assert np.allclose(recorded, sensor, atol=1e-6)
+    for bad, message in (("1,2", "--viewpoint: expected three numbers"),
+                         ("a,b,c", "--viewpoint: expected three numbers"),
+                         (",".join(f"{v:.6f}" for v in points.mean(0)), "viewpoint: the scan")):
+        failed = root / "failed_view"
+        assert lisa(["fit-points", str(root / "scan.npz"), "--out", str(failed), "--model",
+                     str(root / "tiny.pt"), "--viewpoint", bad, *FAST_ARGS]) == 2
+        error = capsys.readouterr().err.strip()
+        assert error.startswith("lisa: error: ") and message in error, (bad, error)
+        assert "\n" not in error and not failed.exists()
+
+
 def test_refine_writes_the_refined_model_that_params_json_names(lisa, files, capsys):
     """``--refine``: the per-bone SDF MLPs fine-tuned on the scan (a tiny model: few steps) and
     written as OUT/model.pt; params.json names it, so the verbs over a hand load it; the

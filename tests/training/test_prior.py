@@ -76,6 +76,26 @@ def test_tiny_prior_lowers_its_losses_and_checkpoints_a_rebuildable_model(tiny_d
     assert prior.shape_codes.weight.shape == (2, config.field.shape_dim)
 
 
+def test_an_exported_prior_loads_as_the_same_prior(tiny_data, tmp_path):
+    from lisa_hand.data.datasets import read_frame_table
+    from lisa_hand.model.trained import export_trained, load_trained
+
+    table = read_frame_table(tiny_data, "train")
+    run = tmp_path / "run"
+    train_prior(tiny_data, run, tiny_prior_config(trainer=tiny_trainer(steps=3)))
+    exported, _ = export_trained(load_trained(run), tmp_path / "prior.pt")
+    direct, again = load_prior(run), load_prior(exported)
+    assert again.subject_ids == direct.subject_ids and not again.training
+    assert not again.field.config.use_color
+    assert torch.equal(again.shape_codes.weight, direct.shape_codes.weight)
+    assert torch.allclose(_probe_sdf(again, table), _probe_sdf(direct, table), atol=1e-7)
+    # a file that is neither a checkpoint nor an exported model is refused, naming it
+    bad = tmp_path / "notes.pt"
+    bad.write_bytes(b"not a torch file")
+    with pytest.raises(ValueError, match="notes.pt"):
+        load_prior(bad)
+
+
 def _stop_at(step: int):
     def hook(info):
         if info.step == step:

@@ -21,14 +21,19 @@ class TargetCloud:
     stages draw from it in turn, so a seeded fit is deterministic).
 
     points: [N, 3] world metres; normals: [N, 3] unit outward normals or None (same device and
-    dtype); generator: a CPU ``torch.Generator``.
+    dtype); generator: a CPU ``torch.Generator``. For a one-view scan whose sensor position is
+    known (:mod:`.free_space`): free, [M, 3] world metres, points the sensor saw to be empty,
+    and depth, its :class:`~.free_space.DepthImage`; None otherwise.
     """
 
     def __init__(self, points: torch.Tensor, normals: torch.Tensor | None,
-                 generator: torch.Generator) -> None:
+                 generator: torch.Generator, free: torch.Tensor | None = None,
+                 depth=None) -> None:
         self.points = points
         self.normals = normals
         self.generator = generator
+        self.free = free
+        self.depth = depth
 
     @property
     def num_points(self) -> int:

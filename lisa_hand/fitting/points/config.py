@@ -101,6 +101,13 @@ class FitPointsConfig:
     """Weight of ``|betas|^2`` (the template's shape coefficients)."""
     normal_weight: float = 0.5
     """Weight of the offset-point term when the cloud has normals (0 turns it off)."""
+    free_space_weight: float = 1.0
+    """Weight of the free-space term of the surface stage, for a one-view scan whose sensor
+    position is known (``fit_points(viewpoint=...)``, ``lisa fit-points --viewpoint``): the
+    robust penalty of the field being inside at points the sensor saw to be empty
+    (:mod:`.free_space`); 0: off."""
+    free_space_points: int = 4096
+    """Free-space points drawn once per fit (``points_per_iteration`` of them each iteration)."""
     normal_offset_mm: float = 3.0
     """Offset ``eps`` of the normal term's points along the normals, millimetres."""
     fit_shape: bool = True
@@ -138,8 +145,9 @@ class FitPointsConfig:
 
         check_int_fields(self, ("align_iters", "pose_iters", "finger_iters", "field_iters",
                                 "second_pass_iters"), 0)
-        check_int_fields(self, ("align_keep", "num_restarts", "points_per_iteration",
-                                "proxy_points", "max_points", "min_points"), 1)
+        check_int_fields(self, ("free_space_points", "align_keep", "num_restarts",
+                                "points_per_iteration", "proxy_points", "max_points",
+                                "min_points"), 1)
         if not self.init_poses:
             raise ValueError("init_poses must name at least one pose")
         for name in self.init_poses:
@@ -159,7 +167,7 @@ class FitPointsConfig:
         if clip is not None and not (isinstance(clip, (int, float)) and math.isfinite(clip)):
             raise ValueError(f"wrist_clip_m must be a number of metres or None, got {clip!r}")
         for name in ("shape_weight", "pose_weight", "limit_weight", "betas_weight",
-                     "normal_weight", "coverage_weight", "wrist_margin_m",
+                     "normal_weight", "free_space_weight", "coverage_weight", "wrist_margin_m",
                      "proxy_tangent_weight"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):

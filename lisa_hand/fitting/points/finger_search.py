@@ -73,13 +73,15 @@ def _scores(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, conf
 
 
 def restart_fingers(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequence[HandParams],
-                    config, *, monitor: FitMonitor | None = None
+                    config, *, monitor: FitMonitor | None = None, moved_base: bool = False
                     ) -> tuple[list[HandParams], StageReport]:
     """The per-finger restarts (see the module docstring).
 
     candidates: right hands on the proxy's skeleton, best first (the articulated stage's).
     config: a :class:`~lisa_hand.fitting.points.config.FitPointsConfig` (``finger_iters``; 0
-    returns the candidates unchanged).
+    returns the candidates unchanged). moved_base: when no finger changes, return the best
+    candidate as optimised with the copies (instead of as it came), so that the caller can
+    compare it (the second pass of a one-view scan: the free-space term moves it).
     -> (the candidates, the last replaced by the combined hand when it scores lower; the
     :class:`StageReport` ('fingers'): ``energies`` [the best candidate's score, the combined
     hand's], ``loss`` the lower, and ``changed`` in ``notes``: the fingers that moved).
@@ -106,6 +108,8 @@ def restart_fingers(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequenc
             changed.append(finger)
     hand = replace(moved[0], pose=combined, extra={})
     result = candidates
+    if moved_base and not changed:
+        result = [moved[0]] + candidates[1:]
     energies = [float(scores[0])]
     if changed:
         check = CandidateBatch.from_hands([moved[0], hand], proxy.pivot)

@@ -47,9 +47,11 @@ from ...skeleton.wrist import wrist_plane
 from ...utils.threads import cpu_threads
 from ..sides import mirror_cloud, mirror_hand
 from ..stages import HistoryRecord, StageReport
+from .candidates import CandidateBatch
 from .cloud import TargetCloud, target_cloud
 from .config import FitPointsConfig
 from .finger_search import restart_fingers
+from .free_space import DepthImage, free_points_near, free_space_points
 from .global_pose import search_global_pose
 from .monitor import FitMonitor, FitStep
 from .proxy import build_surface_proxy, fit_proxy_pose
@@ -163,20 +165,56 @@ def start_hand(model, cloud: TargetCloud, rest_joints: torch.Tensor | None):
     return template, hand, (rest_joints, shape_code, color)
 
 
+def with_free_space(cloud: TargetCloud, viewpoint, side: str, config: FitPointsConfig
+                    ) -> TargetCloud:
+    """``cloud`` (of the right hand: a left one already mirrored) with the free space its
+    sensor at ``viewpoint`` ([3] world metres, of the ``side`` hand's world) saw."""
+    like = dict(device=cloud.points.device, dtype=cloud.points.dtype)
+    view = torch.as_tensor(np.asarray(viewpoint, dtype=np.float64)).to(**like)
+    if view.shape != (3,) or not bool(torch.isfinite(view).all()):
+        raise ValueError(f"viewpoint must be 3 finite numbers (metres), got "
+                         f"{list(view.shape)} values")
+    if side == "left":
+        view = mirror_cloud(view[None], side)[0]
+    free = free_space_points(cloud.points, view, config.free_space_points, cloud.generator)
+    return TargetCloud(cloud.points, cloud.normals, cloud.generator, free,
+                       DepthImage(cloud.points, view))
+
+
+def _free_near(cloud: TargetCloud, proxy, hands: list[HandParams], config: FitPointsConfig
+               ) -> TargetCloud:
+    """``cloud`` with free-space points added near the surfaces of ``hands`` (the proxy posed
+    by each, :func:`.free_space.free_points_near`), where the surface stage needs them; the
+    cloud itself when it has no depth image."""
+    if cloud.depth is None or config.free_space_weight <= 0:
+        return cloud
+    batch = CandidateBatch.from_hands(hands, proxy.pivot)
+    with torch.no_grad():
+        surface = proxy.world(batch).reshape(-1, 3)
+    near = free_points_near(cloud.depth, surface, config.free_space_points, cloud.generator)
+    free = near if cloud.free is None else torch.cat([cloud.free, near])
+    return TargetCloud(cloud.points, cloud.normals, cloud.generator, free, cloud.depth)
+
+
 def _clip_cloud(cloud: TargetCloud, hand: HandParams, offset: float | None, min_points: int
                 ) -> TargetCloud:
     """``cloud`` without its points beyond ``hand``'s wrist cut at ``offset`` metres
-    (:func:`lisa_hand.skeleton.wrist.wrist_plane`); unchanged when ``offset`` is None or fewer
-    than ``min_points`` would be left."""
+    (:func:`lisa_hand.skeleton.wrist.wrist_plane`) and without its free-space points beyond
+    the wrist joint (a scan may stop anywhere there); unchanged when ``offset`` is None, and
+    its points all kept when fewer than ``min_points`` would be left."""
     if offset is None:
         return cloud
-    plane = wrist_plane(hand, offset)
-    keep = torch.from_numpy(plane.keeps(cloud.points.detach().cpu().double().numpy()))
+    free = cloud.free
+    if free is not None:
+        inside = wrist_plane(hand, 0.0).keeps(free.detach().cpu().double().numpy())
+        free = free[torch.from_numpy(inside).to(free.device)]
+    keep = torch.from_numpy(wrist_plane(hand, offset).keeps(
+        cloud.points.detach().cpu().double().numpy()))
     if int(keep.sum()) < min_points or bool(keep.all()):
-        return cloud
+        return TargetCloud(cloud.points, cloud.normals, cloud.generator, free, cloud.depth)
     keep = keep.to(cloud.points.device)
     return TargetCloud(cloud.points[keep], None if cloud.normals is None else
-                       cloud.normals[keep], cloud.generator)
+                       cloud.normals[keep], cloud.generator, free, cloud.depth)
 
 
 def _cut_offset(hand: HandParams, cloud: TargetCloud, clip: float | None) -> float | None:
@@ -214,7 +252,8 @@ def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints,
                                                      monitor=monitor)
     since = monitor.lap("fingers", since)
     cloud = _clip_cloud(cloud, candidates[0], clip, config.min_points)
-    hand, reports["field"] = fit_surface(model, cloud, candidates, config, template=template,
+    hand, reports["field"] = fit_surface(model, _free_near(cloud, proxy, candidates, config),
+                                         candidates, config, template=template,
                                          pivot=proxy.pivot, monitor=monitor)
     since = monitor.lap("field", since)
     if config.second_pass_iters > 0:
@@ -258,11 +297,13 @@ def second_finger_pass(model, cloud: TargetCloud, hand: HandParams, config, ener
                                 color.to(**like), config.proxy_points, cloud.generator)
     if config.wrist_clip_m is not None:
         proxy = proxy.without_forearm(config.wrist_clip_m)
-    moved, fingers = restart_fingers(proxy, cloud, [hand], config, monitor=monitor)
+    moved, fingers = restart_fingers(proxy, cloud, [hand], config, monitor=monitor,
+                                     moved_base=cloud.depth is not None)
     notes = list(fingers.notes)
     loss = energy
     if moved[0] is not hand:
         iters = dataclasses.replace(config, field_iters=config.second_pass_iters)
+        cloud = _free_near(cloud, proxy, [moved[0], hand], config)
         hand, field = fit_surface(model, cloud, [moved[0], hand], iters, template=template,
                                   pivot=proxy.pivot, monitor=monitor)
         loss = field.loss
@@ -279,6 +320,7 @@ def fit_points(
     *,
     rest_joints: torch.Tensor | None = None,
     side: str = "right",
+    viewpoint: np.ndarray | torch.Tensor | None = None,
     progress: bool = False,
     callback: Callable[[FitStep], None] | None = None,
 ) -> FitResult:
@@ -292,6 +334,10 @@ def fit_points(
     rest_joints: [16, 3] metres, a fixed skeleton (of the ``side`` hand); None: the template's
         (:func:`lisa_hand.handmodel.template.load_template`), whose betas are fitted.
     side: 'right' or 'left': the hand the cloud shows (a left one is fitted mirrored).
+    viewpoint: [3] world metres, the sensor position of a one-view scan (a depth camera's
+        points in its own frame: the origin), or None; with it the surface stage keeps the hand
+        out of what the sensor saw to be empty (:mod:`.free_space`,
+        ``config.free_space_weight``). Leave it None for a scan merged from several views.
     progress: show a progress bar. callback: called with a :class:`FitStep` after every
         iteration (for benchmarks and logging; its hands are of ``side``).
     -> :class:`FitResult`. Runs on ``config.device`` (default: the model's), in the model's dtype.
@@ -313,6 +359,8 @@ def fit_points(
                             else mirror_cloud(cloud.normals, side), cloud.generator)
         rest_joints = None if rest_joints is None else mirror_cloud(rest_joints, side)
         callback = _left_callback(callback)
+    if viewpoint is not None and config.free_space_weight > 0:
+        cloud = with_free_space(cloud, viewpoint, side, config)
     total = config.align_iters + config.pose_iters + config.finger_iters + config.field_iters
     if config.second_pass_iters > 0:  # at most: its field steps run when a finger changed
         total += config.finger_iters + config.second_pass_iters

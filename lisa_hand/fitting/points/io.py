@@ -19,7 +19,7 @@ Formats (normals are optional everywhere):
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from ...data.meshio import read_ply_vertices
-from ...data.units import UNIT_CHOICES, decide_length_unit
+from ...data.units import LENGTH_UNITS, UNIT_CHOICES, decide_length_unit
 from ...utils.io import require_file
 
 __all__ = [
@@ -296,6 +296,7 @@ def fit_point_file(
     progress: bool = False,
     log: Callable[[str], None] | None = None,
     refine: Any = None,
+    viewpoint: Sequence[float] | None = None,
 ) -> FitPointsReport:
     """Read a cloud, fit the model, write ``params.json``, ``mesh.ply`` (skinning weights, and
     vertex colours from the mean colour code when the model has colour) and (with ``gt_path``)
@@ -318,6 +319,9 @@ def fit_point_file(
     side: "right" or "left", the hand the cloud shows
     (:func:`lisa_hand.fitting.points.fit.fit_points`).
     log: called with one line per note (unit conversion, dropped points).
+    viewpoint: the sensor position of a one-view scan, 3 numbers in the cloud's units (a depth
+        camera's points in its own frame: 0, 0, 0), or None
+        (:func:`lisa_hand.fitting.points.fit.fit_points`).
     """
     from ...inference import MeshConfig, mesh_hand
     from ...model.trained import model_label
@@ -335,11 +339,20 @@ def fit_point_file(
         log(f"{points_path}: {note}")
     truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
 
-    fit = fit_points(model, cloud.points, cloud.normals, config, side=side, progress=progress)
+    view = None
+    if viewpoint is not None:
+        view = np.asarray(viewpoint, dtype=np.float64)
+        if view.shape != (3,) or not np.isfinite(view).all():
+            raise ValueError(f"viewpoint must be 3 finite numbers, got {list(viewpoint)}")
+        view = view * LENGTH_UNITS[cloud.unit]
+    fit = fit_points(model, cloud.points, cloud.normals, config, side=side, viewpoint=view,
+                     progress=progress)
     params = fit.params
     params.model = model_label(model_path)
     params.extra["input"] = {"path": str(points_path), "unit": cloud.unit,
                              "num_input_points": cloud.num_input, "notes": cloud.notes}
+    if view is not None:
+        params.extra["input"]["viewpoint_m"] = [float(v) for v in view]
     if fit.beyond_wrist_points:
         log(f"{points_path}: {fit.beyond_wrist_points} points lie beyond the wrist cut "
             f"({1000 * config.wrist_clip_m:g} mm past the fitted wrist joint) and were left "

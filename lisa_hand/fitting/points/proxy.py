@@ -10,7 +10,12 @@ distance), plus ``coverage_weight`` times a robust distance from each proxy poin
 finger beside the curled finger of a fist scan); the second is a bounded Geman-McClure term
 (scale ``coverage_scale_mm``), so the unseen side of a partial scan costs little and pulls
 weakly. ``sigma`` goes down geometrically from ``robust_scale_start_mm`` to
-``robust_scale_mm`` over each stage (coarse to fine).
+``robust_scale_mm`` over each stage (coarse to fine). For a one-view scan whose sensor
+position is known, a third term, ``free_space_weight`` times the bounded penalty (same scale) of
+how far each proxy point lies in the space the sensor saw to be empty
+(:class:`~.free_space.DepthImage`; points beyond the wrist joint are not asked, a scan may stop
+there), in every stage but the global search ('align', where a hand still turned the wrong way
+would be pushed sideways rather than turned).
 """
 
 from __future__ import annotations
@@ -154,11 +159,13 @@ def build_surface_proxy(model, rest_joints: torch.Tensor, shape_code: torch.Tens
 
 def proxy_energy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, config,
                  scale: float, subset: torch.Tensor | None = None,
-                 num_points: int = _PROXY_STAGE_POINTS) -> torch.Tensor:
+                 num_points: int = _PROXY_STAGE_POINTS, free_space: bool = True
+                 ) -> torch.Tensor:
     """[K] the proxy energy of the module docstring at robust scale ``scale`` (metres), on
     ``num_points`` random cloud points (drawn from ``cloud.generator``; 256 by default, the
     same for every candidate) and the proxy points ``subset`` (all: None). config: a
-    :class:`~lisa_hand.fitting.points.config.FitPointsConfig`."""
+    :class:`~lisa_hand.fitting.points.config.FitPointsConfig`. free_space: add the free-space
+    term (when the cloud has a depth image)."""
     proxy_points = proxy.world(batch, subset)
     points = cloud.points[cloud.sample(num_points)]
     tangent = config.proxy_tangent_weight
@@ -170,6 +177,13 @@ def proxy_energy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch,
         uncovered = cloud.distance_grid(proxy_points)
         coverage = robust_loss(uncovered, "geman_mcclure", config.coverage_scale_mm * _MM)
         energy = energy + config.coverage_weight * coverage.mean(-1)
+    if free_space and cloud.depth is not None and config.free_space_weight > 0:
+        # no proxy point where the sensor saw nothing (beyond the wrist joint it may stop)
+        rest = proxy.points_rest if subset is None else proxy.points_rest[subset]
+        hand_side = (rest[:, 0] <= proxy.rest_joints[0, 0]).to(proxy_points.dtype)
+        seen = robust_loss(cloud.depth.violation(proxy_points), "geman_mcclure",
+                           config.coverage_scale_mm * _MM)
+        energy = energy + config.free_space_weight * (seen * hand_side).mean(-1)
     return energy
 
 
@@ -194,7 +208,7 @@ def optimise_on_proxy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateB
     for step in range(step_offset, step_offset + iterations):
         optimizer.factor = cosine_factor(step, total, config.lr_decay)
         energy = proxy_energy(proxy, cloud, batch, config, annealed_scale(start, end, step, total),
-                              proxy_subset)
+                              proxy_subset, free_space=stage != "align")
         loss = energy
         if stage != "align":
             loss = loss + point_prior(config, batch, mean_fingers, None)
@@ -206,7 +220,8 @@ def optimise_on_proxy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateB
     if energy is None:  # no iteration: score the starting points
         with torch.no_grad():
             energy = proxy_energy(proxy, cloud, batch, config,
-                                  annealed_scale(start, end, step_offset, total), proxy_subset)
+                                  annealed_scale(start, end, step_offset, total), proxy_subset,
+                                  free_space=stage != "align")
     batch.fold()
     return energy.detach()
 

@@ -4,16 +4,19 @@ Field energy (lengths in metres), per candidate::
 
     E = mean_i rho(G(x_i))
         + w_n mean_i [rho(G(x_i + eps n_i) - eps) + rho(G(x_i - eps n_i) + eps)] / 2
+        + w_f mean_j rho(min(G(f_j), 0))
         + w_s mean (beta+ / s)^2 + w_p prior(theta_fingers) + w_l limits(theta) + w_b |betas|^2
 
 ``rho`` is :func:`lisa_hand.fitting.robust.robust_loss` at scale ``robust_scale_mm`` (the paper's
-``|G|`` with 'l1'). The normal term (only with normals) asks the field to grow outwards along
-the normals, which fixes the side of the surface the points are on. Far from the hand ``G`` does
-not vanish: outside every bone region the field is the distance to the regions plus a margin, so
-far points still pull the hand towards them. The data term only asks every scan point to be on
-the surface, never every surface point to be seen, so partial scans work; what the scan does not
-see stays near the prior (shape code near the mean, fingers near ``prior_pose`` and within the
-joint limits).
+``|G|`` with 'l1'). The free-space term (only for a one-view scan whose sensor position is known,
+:mod:`.free_space`) asks the field to be outside at points ``f_j`` the sensor saw to be empty: some
+spread over the view, the rest near the candidates' surfaces. The normal term (only with normals)
+asks the field to grow outwards along the normals, which fixes the side of the surface the points
+are on. Far from the hand ``G`` does not vanish: outside every bone region the field is the
+distance to the regions plus a margin, so far points still pull the hand towards them. The data
+term only asks every scan point to be on the surface, never every surface point to be seen, so
+partial scans work; what the scan does not see stays near the prior (shape code near the mean,
+fingers near ``prior_pose`` and within the joint limits).
 
 The unknowns: the global rotation, the translation, the finger pose, the shape code and the
 template's betas (whose joint regressor gives the skeleton LISA is conditioned on), on
@@ -101,8 +104,10 @@ class _FieldEnergy:
         color = None if self.color_code is None else self.color_code.expand(batch.count, -1)
         return self.field.prepare(pose, translation, rest_joints, batch.shape_code, color)
 
-    def data(self, batch: CandidateBatch, index: torch.Tensor, scale: float) -> torch.Tensor:
-        """[K] mean robust penalty of the field at the cloud points ``index`` (and offsets)."""
+    def data(self, batch: CandidateBatch, index: torch.Tensor, scale: float,
+             free_index: torch.Tensor | None = None) -> torch.Tensor:
+        """[K] mean robust penalty of the field at the cloud points ``index`` (and offsets),
+        plus the free-space term at the cloud's free points ``free_index`` (when it has any)."""
         config, cloud = self.config, self.cloud
         points = cloud.points[index]
         num = points.shape[0]
@@ -110,29 +115,52 @@ class _FieldEnergy:
         if use_normals:
             offset = config.normal_offset_mm * _MM * cloud.normals[index]
             points = torch.cat([points, points + offset, points - offset])
+        use_free = free_index is not None and free_index.numel() > 0
+        if use_free:
+            points = torch.cat([points, cloud.free[free_index]])
         sdf = self.field.field(self.state(batch), points.expand(batch.count, -1, -1).contiguous(),
                                with_color=False).sdf
         data = robust_loss(sdf[:, :num], config.robust_loss, scale).mean(-1)
         if use_normals:
             eps = config.normal_offset_mm * _MM
             outside = robust_loss(sdf[:, num:2 * num] - eps, config.robust_loss, scale)
-            inside = robust_loss(sdf[:, 2 * num:] + eps, config.robust_loss, scale)
+            inside = robust_loss(sdf[:, 2 * num:3 * num] + eps, config.robust_loss, scale)
             data = data + config.normal_weight * 0.5 * (outside.mean(-1) + inside.mean(-1))
+        if use_free:  # the field must be outside (>= 0) where the sensor saw nothing
+            inside = sdf[:, sdf.shape[1] - free_index.numel():].clamp(max=0.0)
+            data = data + config.free_space_weight * robust_loss(
+                inside, config.robust_loss, scale).mean(-1)
         return data
 
-    def total(self, batch: CandidateBatch, index: torch.Tensor) -> torch.Tensor:
+    def free_sample(self, count: int) -> torch.Tensor | None:
+        """[min(M, count)] random indices of the cloud's free points, or None without any."""
+        free = self.cloud.free
+        if free is None or self.config.free_space_weight <= 0 or free.shape[0] == 0:
+            return None
+        if free.shape[0] <= count:
+            return torch.arange(free.shape[0], device=free.device)
+        return torch.randperm(free.shape[0], generator=self.cloud.generator)[:count].to(
+            free.device)
+
+    def total(self, batch: CandidateBatch, index: torch.Tensor,
+              free_index: torch.Tensor | None = None) -> torch.Tensor:
         """[K] data term at the final robust scale plus the prior."""
-        data = self.data(batch, index, self.config.robust_scale_mm * _MM)
+        data = self.data(batch, index, self.config.robust_scale_mm * _MM, free_index)
         return data + point_prior(self.config, batch, self.mean_fingers, self.shape_scale)
 
     @torch.no_grad()
     def evaluate(self, batch: CandidateBatch) -> torch.Tensor:
-        """[K] the energy on a fixed subset of the cloud (seed ``config.seed + 1``)."""
+        """[K] the energy on a fixed subset of the cloud (seed ``config.seed + 1``) and the first
+        :data:`_EVALUATION_POINTS` of its free points."""
         generator = torch.Generator(device="cpu").manual_seed(self.config.seed + 1)
         num = self.cloud.num_points
         index = torch.arange(num) if num <= _EVALUATION_POINTS else torch.randperm(
             num, generator=generator)[:_EVALUATION_POINTS]
-        return self.total(batch, index.to(self.cloud.points.device))
+        free = None
+        if self.free_sample(1) is not None:
+            free = torch.arange(min(self.cloud.free.shape[0], _EVALUATION_POINTS),
+                                device=self.cloud.free.device)
+        return self.total(batch, index.to(self.cloud.points.device), free)
 
 
 def _prune_schedule(config, count: int) -> dict[int, int]:
@@ -204,7 +232,8 @@ def _optimise(energy: _FieldEnergy, batch: CandidateBatch, like: HandParams,
             optimizer.select(best, [t for t in batch.unknowns(config.fit_shape)
                                     if t is not None])
         optimizer.factor = cosine_factor(step, iterations, config.lr_decay)
-        total = energy.total(batch, cloud.sample(config.points_per_iteration))
+        total = energy.total(batch, cloud.sample(config.points_per_iteration),
+                             energy.free_sample(config.points_per_iteration))
         batch.clear_grads()
         total.sum().backward()
         optimizer.step()
