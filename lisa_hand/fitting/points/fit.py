@@ -176,9 +176,10 @@ def with_free_space(cloud: TargetCloud, viewpoint, side: str, config: FitPointsC
                          f"{list(view.shape)} values")
     if side == "left":
         view = mirror_cloud(view[None], side)[0]
-    free = free_space_points(cloud.points, view, config.free_space_points, cloud.generator)
-    return TargetCloud(cloud.points, cloud.normals, cloud.generator, free,
-                       DepthImage(cloud.points, view))
+    image = DepthImage(cloud.points, view)
+    free = free_space_points(cloud.points, view, config.free_space_points, cloud.generator,
+                             image=image)
+    return TargetCloud(cloud.points, cloud.normals, cloud.generator, free, image)
 
 
 def _free_near(cloud: TargetCloud, proxy, hands: list[HandParams], config: FitPointsConfig

@@ -1,20 +1,24 @@
-"""Free space of a one-view scan: points a depth sensor saw to be empty.
+"""Free space of a one-view scan: where a depth sensor saw nothing.
 
 A sensor at ``viewpoint`` that returned the point ``x`` saw through the segment from itself to
 ``x``, and where it returned nothing (pixels around the hand with no point) it saw through the
 whole ray. So a hand fitted to a one-view scan must not put surface there: a finger left straight
-in front of the sensor where the real one curls away out of sight fits every scan point, yet the
-sensor would have seen it. :func:`free_space_points` samples such empty points near the scan;
-the surface stage asks the field to be outside at them (``FitPointsConfig.free_space_weight``,
-:mod:`.surface_stage`). A full (many-view) scan has no single viewpoint and gets none.
+where the real one curls away out of sight can fit every scan point, yet the sensor would have
+seen it. A full (many-view) scan has no single viewpoint and gets none of this.
 
-Both kinds are drawn near the hand, where a wrong hand can be:
+* :class:`DepthImage`: the scan seen from its sensor (gnomonic projection about the mean viewing
+  direction, ``pixel_m`` pixels at the mean range, occupied pixels dilated by ``dilate_px`` so
+  that gaps between sparse points stay unknown, ``border_m`` of empty image around), and how far
+  a point lies in the free space (:meth:`DepthImage.violation`, differentiable): the proxy
+  stages' free-space term (:mod:`.proxy`).
+* :func:`free_space_points`: empty points spread over the view, *in front* (on the ray of a scan
+  point, ``margin_m`` to ``depth_m`` before it) and *beside* (on rays through empty pixels,
+  between ``depth_m`` before the nearest return and beyond the farthest);
+  :func:`free_points_near`: empty points near a candidate hand's surface, where a wrong hand is.
+  The surface stage asks the field to be outside at both (:mod:`.surface_stage`).
 
-* *in front*: on the ray of a scan point, between ``margin_m`` and ``depth_m`` before it;
-* *beside*: on rays through empty pixels of the scan's depth image (gnomonic projection about
-  the mean viewing direction, ``pixel_m`` pixels at the mean range, the occupied ones dilated by
-  ``dilate_px`` so that gaps between sparse points stay unknown), within ``border_m`` of the
-  scan's image and between ``depth_m`` before its nearest and beyond its farthest range.
+``FitPointsConfig.free_space_weight`` weighs the terms; ``fit_points(viewpoint=...)`` (``lisa
+fit-points --viewpoint``) turns them on.
 """
 
 from __future__ import annotations
@@ -24,88 +28,13 @@ import torch
 __all__ = ["DepthImage", "free_space_points", "free_points_near"]
 
 
-def free_space_points(
-    points: torch.Tensor,
-    viewpoint: torch.Tensor,
-    count: int,
-    generator: torch.Generator,
-    *,
-    margin_m: float = 0.003,
-    depth_m: float = 0.02,
-    pixel_m: float = 0.002,
-    dilate_px: int = 2,
-    border_m: float = 0.03,
-    beside_fraction: float = 0.5,
-) -> torch.Tensor:
-    """[count, 3] world metres: empty points of the one-view scan ``points`` (module docstring).
-
-    points: [N, 3] world metres, what the sensor returned. viewpoint: [3] world metres, the
-    sensor's position. generator: a CPU generator (the samples are deterministic given it).
-    beside_fraction: the share of the points drawn beside the scan (the rest in front of it);
-    when no pixel around the scan is empty, all are in front.
-    """
-    like = dict(device=points.device, dtype=points.dtype)
-    viewpoint = viewpoint.to(**like)
-    rays = points - viewpoint
-    ranges = rays.norm(dim=-1)
-    if not bool((ranges > margin_m).all()):
-        raise ValueError("viewpoint: the sensor position lies within the scan's points")
-    units = rays / ranges[:, None]
-    axis = units.mean(0)
-    axis = axis / axis.norm()
-    helper = torch.eye(3, **like)[int(torch.argmin(axis.abs()))]
-    e1 = torch.linalg.cross(axis, helper)
-    e1 = e1 / e1.norm()
-    e2 = torch.linalg.cross(axis, e1)
-    along = units @ axis
-    if not bool((along > 0.2).all()):
-        raise ValueError("viewpoint: the scan spans too wide an angle from the sensor position "
-                         "to be one view of it")
-    plane = torch.stack([units @ e1, units @ e2], dim=-1) / along[:, None]  # [N, 2] gnomonic
-    pixel = pixel_m / float(ranges.mean())
-    border = border_m / float(ranges.mean())
-    low = plane.amin(0) - border
-    size = ((plane.amax(0) + border - low) / pixel).ceil().long() + 1
-    cells = ((plane - low) / pixel).long()
-    occupied = torch.zeros(int(size[0]), int(size[1]), dtype=torch.bool, device=points.device)
-    occupied[cells[:, 0], cells[:, 1]] = True
-    if dilate_px > 0:
-        occupied = torch.nn.functional.max_pool2d(
-            occupied[None, None].float(), 2 * dilate_px + 1, stride=1, padding=dilate_px
-        )[0, 0] > 0
-    empty = (~occupied).nonzero()
-
-    def uniform(num: int) -> torch.Tensor:
-        return torch.rand(num, generator=generator).to(**like)
-
-    beside = int(round(count * beside_fraction)) if empty.shape[0] > 0 else 0
-    front = count - beside
-    chosen = torch.randint(points.shape[0], (front,), generator=generator).to(points.device)
-    back = margin_m + (depth_m - margin_m) * uniform(front)
-    samples = [viewpoint + units[chosen] * (ranges[chosen] - back)[:, None]]
-    if beside > 0:
-        picked = empty[torch.randint(empty.shape[0], (beside,), generator=generator)
-                       .to(points.device)]
-        coords = low + (picked.to(**like) + torch.stack([uniform(beside), uniform(beside)], -1)) \
-            * pixel
-        directions = axis + coords[:, :1] * e1 + coords[:, 1:] * e2
-        directions = directions / directions.norm(dim=-1, keepdim=True)
-        near = float(ranges.min()) - depth_m
-        far = float(ranges.max()) + depth_m
-        distance = near + (far - near) * uniform(beside)
-        samples.append(viewpoint + directions * distance[:, None])
-    return torch.cat(samples)
-
-
 class DepthImage:
     """The scan's depth image seen from its sensor, to tell how far points lie in its free space.
 
-    Pixels as in :func:`free_space_points` (gnomonic about the mean viewing direction,
-    ``pixel_m`` at the mean range, occupied pixels dilated by ``dilate_px``, ``border_m`` around).
-    :meth:`violation` is 0 for a point behind the scan's nearest return at its pixel (or less
-    than ``margin_m`` before it), the depth by which it lies before that return otherwise, and
-    for a point on an empty pixel its distance across the image to the nearest occupied pixel
-    (at its range), plus ``margin_m``.
+    Pixels as in the module docstring. :meth:`violation` is 0 for a point behind the scan's
+    nearest return at its pixel (or less than ``margin_m`` before it), the depth by which it
+    lies before that return otherwise, and for a point on an empty pixel its distance across
+    the image to the nearest occupied pixel (at its range), plus ``margin_m``.
     """
 
     def __init__(self, points: torch.Tensor, viewpoint: torch.Tensor, *,
@@ -117,7 +46,13 @@ class DepthImage:
 
         like = dict(device=points.device, dtype=points.dtype)
         self.viewpoint = viewpoint.to(**like)
-        self.axis, self.e1, self.e2 = _view_frame(points - self.viewpoint)
+        rays = points - self.viewpoint
+        if not bool((rays.norm(dim=-1) > margin_m).all()):
+            raise ValueError("viewpoint: the sensor position lies within the scan's points")
+        self.axis, self.e1, self.e2 = _view_frame(rays)
+        if not bool((rays @ self.axis > 0.2 * rays.norm(dim=-1)).all()):
+            raise ValueError("viewpoint: the scan spans too wide an angle from the sensor "
+                             "position to be one view of it")
         plane, ranges = self.project(points)
         self.pixel = pixel_m / float(ranges.mean())
         self.low = plane.amin(0) - border_m / float(ranges.mean())
@@ -182,6 +117,53 @@ def _view_frame(rays: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.T
     e1 = torch.linalg.cross(axis, helper)
     e1 = e1 / e1.norm()
     return axis, e1, torch.linalg.cross(axis, e1)
+
+
+def free_space_points(
+    points: torch.Tensor,
+    viewpoint: torch.Tensor,
+    count: int,
+    generator: torch.Generator,
+    *,
+    depth_m: float = 0.02,
+    beside_fraction: float = 0.5,
+    image: DepthImage | None = None,
+) -> torch.Tensor:
+    """[count, 3] world metres: empty points of the one-view scan ``points`` (module docstring).
+
+    points: [N, 3] world metres, what the sensor returned. viewpoint: [3] world metres, the
+    sensor's position. generator: a CPU generator (the samples are deterministic given it).
+    depth_m: how far before a return (and beyond the farthest) samples go. beside_fraction: the
+    share of the points drawn beside the scan (the rest in front of it); when no pixel around
+    the scan is empty, all are in front. image: the scan's :class:`DepthImage` (built here
+    with its defaults when None).
+    """
+    image = DepthImage(points, viewpoint) if image is None else image
+    like = dict(device=points.device, dtype=points.dtype)
+    _, ranges = image.project(points)
+    units = (points - image.viewpoint) / ranges[:, None]
+    empty = (~torch.isfinite(image.depth)).nonzero()
+
+    def uniform(num: int) -> torch.Tensor:
+        return torch.rand(num, generator=generator).to(**like)
+
+    beside = int(round(count * beside_fraction)) if empty.shape[0] > 0 else 0
+    front = count - beside
+    chosen = torch.randint(points.shape[0], (front,), generator=generator).to(points.device)
+    back = image.margin + (depth_m - image.margin) * uniform(front)
+    samples = [image.viewpoint + units[chosen] * (ranges[chosen] - back)[:, None]]
+    if beside > 0:
+        picked = empty[torch.randint(empty.shape[0], (beside,), generator=generator)
+                       .to(points.device)]
+        jitter = torch.stack([uniform(beside), uniform(beside)], dim=-1)
+        coords = image.low + (picked.to(**like) + jitter) * image.pixel
+        directions = image.axis + coords[:, :1] * image.e1 + coords[:, 1:] * image.e2
+        directions = directions / directions.norm(dim=-1, keepdim=True)
+        near = float(ranges.min()) - depth_m
+        far = float(ranges.max()) + depth_m
+        distance = near + (far - near) * uniform(beside)
+        samples.append(image.viewpoint + directions * distance[:, None])
+    return torch.cat(samples)
 
 
 def free_points_near(depth: DepthImage, surface: torch.Tensor, count: int,
