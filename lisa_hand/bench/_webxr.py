@@ -181,7 +181,7 @@ def _points_to_mesh_mm(points: np.ndarray, mesh, plane) -> float:
 
 def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int = 0,
                    threads: int = 1, wrists: tuple[str, ...] = ("as-is",),
-                   config=None, refine=None, viewpoints: bool = True, log=None) -> list[dict]:
+                   config=None, refine=None, viewpoints: bool = False, log=None) -> list[dict]:
     """Fit ``model`` to the WebXR hand in each pose of :data:`WEBXR_POSES` and each wrist
     variant of ``wrists`` (:data:`WEBXR_WRISTS`), from a full scan and from a one-view partial
     scan (noise 0.3 mm), each in a random placement (the same for every variant of a pose).

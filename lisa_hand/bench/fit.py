@@ -327,9 +327,9 @@ def main(argv: list[str] | None = None) -> None:
                              f"{', '.join(WEBXR_WRISTS)} (default as-is)")
     parser.add_argument("--webxr-refine", action="store_true",
                         help="also refine each WebXR fit (lisa fit-points --refine) and measure it")
-    parser.add_argument("--webxr-no-viewpoint", action="store_true",
-                        help="fit the one-view WebXR scans without their sensor position (no "
-                             "free-space term), as for a scan of unknown origin")
+    parser.add_argument("--webxr-viewpoint", action="store_true",
+                        help="give the one-view WebXR scans' fits their sensor position (lisa "
+                             "fit-points --viewpoint: the free-space term)")
     parser.add_argument("--only-webxr", action="store_true",
                         help="skip the self-consistency benchmark")
     args = parser.parse_args(argv)
@@ -362,7 +362,7 @@ def main(argv: list[str] | None = None) -> None:
             refine = RefineConfig(seed=args.seed)
         numbers["webxr"] = run_webxr_fits(model, args.webxr, seed=args.seed,
                                           threads=args.threads, wrists=wrists, refine=refine,
-                                          viewpoints=not args.webxr_no_viewpoint,
+                                          viewpoints=args.webxr_viewpoint,
                                           log=shown_row)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
