@@ -331,8 +331,8 @@ def _exported_model(run: str | os.PathLike) -> TrainedModel | None:
 
 
 def prior_from_trained(model: TrainedModel) -> PriorModel:
-    """A :class:`PriorModel` holding ``model``'s field (geometry and skinning; its colour network,
-    if any, is copied too but an image run starts its colour afresh) and its shape codes."""
+    """A :class:`PriorModel` holding ``model``'s SDF and skinning networks (not its colour
+    network: an image run starts its colour afresh) and its shape codes."""
     config = dataclasses.replace(model.field.config, use_color=False)
     prior = PriorModel(config, model.subject_ids)
     state = {k: v for k, v in model.field.state_dict().items()

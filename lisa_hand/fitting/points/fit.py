@@ -336,8 +336,8 @@ def fit_points(
         (:func:`lisa_hand.handmodel.template.load_template`), whose betas are fitted.
     side: 'right' or 'left': the hand the cloud shows (a left one is fitted mirrored).
     viewpoint: [3] world metres, the sensor position of a one-view scan (a depth camera's
-        points in its own frame: the origin), or None; with it the surface stage keeps the hand
-        out of what the sensor saw to be empty (:mod:`.free_space`,
+        points in its own frame: the origin), or None; with it the proxy and surface stages keep
+        the hand out of what the sensor saw to be empty (:mod:`.free_space`,
         ``config.free_space_weight``). Leave it None for a scan merged from several views.
     progress: show a progress bar. callback: called with a :class:`FitStep` after every
         iteration (for benchmarks and logging; its hands are of ``side``).
