@@ -32,7 +32,8 @@ def _sphere_sdf(points: torch.Tensor) -> torch.Tensor:
 
 def test_free_points_lie_outside_the_scanned_object_and_before_it(sphere_scan):
     points, viewpoint = sphere_scan
-    free = free_space_points(points, viewpoint, 2000, torch.Generator().manual_seed(0))
+    free = free_space_points(DepthImage(points, viewpoint), points, 2000,
+                             torch.Generator().manual_seed(0))
     assert free.shape == (2000, 3)
     # every sample is outside the sphere (the icosphere's facets are within 0.1 mm of it)
     assert float(_sphere_sdf(free).min()) > -1e-4
@@ -42,7 +43,8 @@ def test_free_points_lie_outside_the_scanned_object_and_before_it(sphere_scan):
     assert float(_sphere_sdf(front).min()) > 0.0
     assert float((front - viewpoint).norm(dim=-1).max()) < float(
         (points - viewpoint).norm(dim=-1).max())
-    again = free_space_points(points, viewpoint, 2000, torch.Generator().manual_seed(0))
+    again = free_space_points(DepthImage(points, viewpoint), points, 2000,
+                             torch.Generator().manual_seed(0))
     assert torch.equal(free, again)
 
 
@@ -83,7 +85,7 @@ def test_the_violation_pulls_a_point_back_towards_the_scan(sphere_scan):
 def test_a_viewpoint_inside_the_scan_is_refused(sphere_scan):
     points, _ = sphere_scan
     with pytest.raises(ValueError, match="viewpoint"):
-        free_space_points(points, points.mean(0), 10, torch.Generator().manual_seed(0))
+        DepthImage(points, points.mean(0))
 
 
 def test_a_straight_finger_where_the_sensor_saw_nothing_costs_the_fit():

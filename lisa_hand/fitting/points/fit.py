@@ -177,8 +177,7 @@ def with_free_space(cloud: TargetCloud, viewpoint, side: str, config: FitPointsC
     if side == "left":
         view = mirror_cloud(view[None], side)[0]
     image = DepthImage(cloud.points, view)
-    free = free_space_points(cloud.points, view, config.free_space_points, cloud.generator,
-                             image=image)
+    free = free_space_points(image, cloud.points, config.free_space_points, cloud.generator)
     return TargetCloud(cloud.points, cloud.normals, cloud.generator, free, image)
 
 

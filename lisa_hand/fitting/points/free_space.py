@@ -120,25 +120,22 @@ def _view_frame(rays: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.T
 
 
 def free_space_points(
+    image: DepthImage,
     points: torch.Tensor,
-    viewpoint: torch.Tensor,
     count: int,
     generator: torch.Generator,
     *,
     depth_m: float = 0.02,
     beside_fraction: float = 0.5,
-    image: DepthImage | None = None,
 ) -> torch.Tensor:
     """[count, 3] world metres: empty points of the one-view scan ``points`` (module docstring).
 
-    points: [N, 3] world metres, what the sensor returned. viewpoint: [3] world metres, the
-    sensor's position. generator: a CPU generator (the samples are deterministic given it).
-    depth_m: how far before a return (and beyond the farthest) samples go. beside_fraction: the
-    share of the points drawn beside the scan (the rest in front of it); when no pixel around
-    the scan is empty, all are in front. image: the scan's :class:`DepthImage` (built here
-    with its defaults when None).
+    image: the scan's :class:`DepthImage` (its sensor position and pixels). points: [N, 3]
+    world metres, what the sensor returned. generator: a CPU generator (the samples are
+    deterministic given it). depth_m: how far before a return (and beyond the farthest)
+    samples go. beside_fraction: the share of the points drawn beside the scan (the rest in
+    front of it); when no pixel around the scan is empty, all are in front.
     """
-    image = DepthImage(points, viewpoint) if image is None else image
     like = dict(device=points.device, dtype=points.dtype)
     _, ranges = image.project(points)
     units = (points - image.viewpoint) / ranges[:, None]

@@ -339,12 +339,9 @@ def fit_point_file(
         log(f"{points_path}: {note}")
     truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
 
-    view = None
+    view = None  # checked by fit_points
     if viewpoint is not None:
-        view = np.asarray(viewpoint, dtype=np.float64)
-        if view.shape != (3,) or not np.isfinite(view).all():
-            raise ValueError(f"viewpoint must be 3 finite numbers, got {list(viewpoint)}")
-        view = view * LENGTH_UNITS[cloud.unit]
+        view = np.asarray(viewpoint, dtype=np.float64) * LENGTH_UNITS[cloud.unit]
     fit = fit_points(model, cloud.points, cloud.normals, config, side=side, viewpoint=view,
                      progress=progress)
     params = fit.params
