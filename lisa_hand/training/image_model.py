@@ -18,7 +18,7 @@ from ..data.datasets import RayBatch
 from ..fields.config import FieldConfig
 from ..fields.latents import LatentTable
 from ..model.lisa import FrameState, LisaModel, region_bounds
-from ..model.losses import color_loss, eikonal_loss, latent_loss, skinning_loss
+from ..model.losses import color_loss, eikonal_loss, latent_loss, skinning_loss, surface_loss
 from ..render import LaplaceDensity, RenderConfig, calibrate, ray_sphere_bounds, render_rays
 from ..render.samplers import GroupGenerators
 from ..render.shading import SHADING_MODES, HeadlightShading, surface_normals
@@ -219,7 +219,7 @@ class ImageModel(nn.Module):
             through the Eikonal gradient pass: the step as it was before (the reference of
             ``python -m lisa_hand.bench train``). Both compute the same losses; the random jitter
             of the samples differs.
-        -> {"col", "eik", "w", "reg", "mask"} scalar tensors.
+        -> {"col", "eik", "w", "surf", "reg", "mask"} scalar tensors.
         """
         rays = batch.rays
         device, dtype = rays.origins.device, rays.origins.dtype
@@ -316,13 +316,15 @@ class ImageModel(nn.Module):
         uniform = low[:, None] + batch.uniform_unit * (high - low)[:, None]
         num_skin = batch.skin_points.shape[1]
         zero = prediction.new_zeros(())
-        eik = weights = zero
+        eik = weights = surf = zero
         if skin_with_gradient:
             points = torch.cat([batch.skin_points, ray_points, uniform], dim=1)
             if points.shape[1]:
                 geometry = self.field.field(state, points, with_color=False, with_gradient=True)
                 if points.shape[1] > num_skin:
                     eik = eikonal_loss(geometry.sdf_grad[:, num_skin:])
+                if num_skin:
+                    surf = surface_loss(geometry.sdf[:, :num_skin])
                 if num_skin and geometry.weights is not None:
                     weights = skinning_loss(geometry.weights[:, :num_skin], batch.skin_weights)
         else:
@@ -332,6 +334,7 @@ class ImageModel(nn.Module):
                 eik = eikonal_loss(geometry.sdf_grad)
             if num_skin:
                 skin = self.field.field(state, batch.skin_points, with_color=False)
+                surf = surface_loss(skin.sdf)
                 if skin.weights is not None:
                     weights = skinning_loss(skin.weights, batch.skin_weights)
         mask = F.binary_cross_entropy(opacity.clamp(1e-5, 1.0 - 1e-5), rays.in_mask.to(dtype))
@@ -339,6 +342,7 @@ class ImageModel(nn.Module):
             "col": color_loss(prediction.reshape(-1, 3), rays.rgb.reshape(-1, 3)),
             "eik": eik,
             "w": weights,
+            "surf": surf,
             "reg": latent_loss(shape, color),
             "mask": mask,
         }

@@ -22,10 +22,13 @@ through the mask and a band around it (:meth:`RayFrames.sample_rays`), renders t
   analytic stand-in with a unit gradient).
 * ``L_w = |w - w^|_1`` (Eq. 15) at ``skinning_points`` points of each frame's ``scan.npz`` against
   its ``template_weights``: the paper's "approximate 3D mesh and its skinning weights" from the
-  pseudo-ground-truth template. Only these weights are read from the scans, never the geometry.
+  pseudo-ground-truth template. Only these weights are read from the scans, never the geometry
+  (unless ``lambda_surface > 0``, below).
 * ``L_reg = |beta+|_2 + |gamma|_2`` (Eq. 16).
 * Optionally (``lambda_mask > 0``; NOT in the paper, off by default) a binary cross-entropy
   between the rendered opacity and the mask.
+* Optionally (``lambda_surface > 0``; NOT in the paper, off by default) the prior's
+  ``L_surf = |G(x)|_1`` at the same scan points: the scans' geometry kept as a constraint.
 
 With a prior (``lisa train-prior``), the SDF and skinning MLPs and the shape codes start from it
 (subjects the prior has not seen start from its mean code); without one the model trains from
@@ -161,6 +164,13 @@ class ImageTrainConfig:
     lambda_mask: float = 0.0
     """Weight of a BCE loss between the rendered opacity and the mask. Not in the paper
     (which relies on the colour of black backgrounds); 0 turns it off."""
+    lambda_surface: float = 0.0
+    """Weight of L_surf = mean |SDF| (metres) at the ``skinning_points`` scan points of each
+    frame (the prior's Eq. 19 kept on during image training; the prior weighs it 100). NOT in
+    the paper, whose image stage reads only skinning weights from the scans: with it the colour
+    loss cannot thin the prior's surface (VolSDF's density reaches about a beta beyond the zero
+    level, so matching the silhouette shrinks the SDF while beta is large). Needs ``scan.npz``
+    per frame; 0 (default): the paper's losses."""
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """Colour of the images' background (black in the dataset and in InterHand2.6M)."""
     beta_init: float = 0.003
@@ -239,7 +249,7 @@ class ImageTrainConfig:
             raise ValueError(f"pose_refine_start must be in [0, 1], got "
                              f"{self.pose_refine_start!r}")
         for name in ("lambda_col", "lambda_eik", "lambda_w", "lambda_reg", "lambda_mask",
-                     "latent_init_std", "beta_min"):
+                     "lambda_surface", "latent_init_std", "beta_min"):
             check_non_negative(self, name)
         if not self.beta_init > self.beta_min:
             raise ValueError(f"beta_init ({self.beta_init!r}) must be > beta_min "
@@ -254,11 +264,13 @@ class ImageTrainConfig:
             raise ValueError("lambda_eik > 0 needs eikonal_ray_points or eikonal_uniform_points")
         if self.lambda_w > 0 and self.skinning_points == 0:
             raise ValueError("lambda_w > 0 needs skinning_points > 0")
+        if self.lambda_surface > 0 and self.skinning_points == 0:
+            raise ValueError("lambda_surface > 0 needs skinning_points > 0 (its scan points)")
 
     def loss_weights(self) -> dict[str, float]:
         """The weighted terms of the total loss, by log name (terms weighted 0 are left out)."""
         weights = {"col": self.lambda_col, "eik": self.lambda_eik, "w": self.lambda_w,
-                   "reg": self.lambda_reg, "mask": self.lambda_mask}
+                   "reg": self.lambda_reg, "mask": self.lambda_mask, "surf": self.lambda_surface}
         return {name: value for name, value in weights.items() if value > 0}
 
 
@@ -331,13 +343,14 @@ def load_image_data(
     rays = ray_type(data_dir, config.split, max_band_px=config.max_band_px,
                     background_per_view=config.background_per_view, seed=config.trainer.seed,
                     **ray_options)
-    if not (config.lambda_w > 0 and config.skinning_points):
+    if not ((config.lambda_w > 0 or config.lambda_surface > 0) and config.skinning_points):
         return rays, None
     try:
         return rays, scan_type(data_dir, config.split, **scan_options)
     except FileNotFoundError as exc:
         raise FileNotFoundError(f"{exc} (L_w reads the frames' scan.npz: points and "
-                                "template_weights; set lambda_w=0 to train without)") from None
+                                "template_weights; set lambda_w=0 and lambda_surface=0 to "
+                                "train without)") from None
 
 
 def sample_image_batch(

@@ -210,6 +210,9 @@ def test_select_frame_and_region_bounds(tiny_data):
         (dict(pose_refine_start=1.5), "pose_refine_start must be in"),
         (dict(lambda_col=-1.0), "lambda_col must be a finite number >= 0"),
         (dict(skinning_points=0), "lambda_w > 0 needs skinning_points"),
+        (dict(skinning_points=0, lambda_w=0.0, lambda_surface=1.0),
+         "lambda_surface > 0 needs skinning_points"),
+        (dict(lambda_surface=-1.0), "lambda_surface must be a finite number >= 0"),
         (dict(trainer=tiny_trainer(grad_sync="ddp")), "needs trainer.find_unused_parameters"),
     ],
 )
@@ -244,12 +247,12 @@ def test_batched_step_computes_the_per_frame_losses(tiny_data, shading):
     for batched in (False, True):
         model.zero_grad()
         terms = model(batch, render=render, batched=batched)
-        sum(terms[name] for name in ("col", "eik", "w")).backward()
+        sum(terms[name] for name in ("col", "eik", "w", "surf")).backward()
         results[batched] = ({k: v.detach() for k, v in terms.items()},
                             {n: p.grad.clone() for n, p in model.named_parameters()
                              if p.grad is not None})
     (terms_a, grads_a), (terms_b, grads_b) = results[False], results[True]
-    assert float(terms_a["col"]) > 0 and float(terms_a["w"]) > 0
+    assert float(terms_a["col"]) > 0 and float(terms_a["w"]) > 0 and float(terms_a["surf"]) > 0
     if shading == "headlight":  # the colour loss reaches the shading's parameters
         assert float(grads_a["shading.diffuse_raw"].abs().sum()) > 0
     for name in terms_a:
@@ -257,3 +260,62 @@ def test_batched_step_computes_the_per_frame_losses(tiny_data, shading):
     assert grads_a.keys() == grads_b.keys()
     for name in grads_a:
         torch.testing.assert_close(grads_b[name], grads_a[name], rtol=1e-7, atol=1e-12, msg=name)
+
+
+def test_surface_term_is_the_mean_abs_sdf_at_the_scan_points(tiny_data, prior_run):
+    # L_surf of a batch against the model's SDF evaluated afresh (LisaModel.forward, float64)
+    # at the batch's scan points, each frame with its own pose, skeleton and shape code.
+    from lisa_hand.training.images import sample_image_batch
+
+    config = tiny_image_config(lambda_w=0.0, lambda_surface=100.0)
+    resolved, prior_model, _ = resolve_prior(config, prior_run)
+    rays, scans = load_image_data(tiny_data, resolved)
+    assert scans is not None  # read for L_surf although L_w is off
+    model, _ = build_image_model(rays, resolved, prior_model)
+    model = model.double()
+    batch = sample_image_batch(rays, scans, resolved, torch.Generator().manual_seed(2))
+    batch = batch.to("cpu", torch.float64)
+    terms = model(batch, render=resolved.render, batched=True)
+    r = batch.rays
+    shape_codes, color_codes = model.shape_codes(r.subject_index), model.color_codes(
+        r.subject_index)
+    with torch.no_grad():
+        sdf = torch.cat([model.field(batch.skin_points[f:f + 1], r.pose[f:f + 1],
+                                     r.translation[f:f + 1], r.rest_joints[f:f + 1],
+                                     shape_codes[f:f + 1], color_codes[f:f + 1],
+                                     with_color=False).sdf[0]
+                         for f in range(r.num_frames)])
+    assert sdf.shape == (batch.skin_points.shape[0] * batch.skin_points.shape[1],)
+    expected = sdf.abs().mean()
+    assert float(expected) > 1e-4  # a prior of 6 steps: the scan is not yet its zero level
+    torch.testing.assert_close(terms["surf"].detach(), expected, rtol=1e-10, atol=0.0)
+
+
+def test_surface_term_keeps_the_surface_on_the_scans(tiny_data, prior_run, tmp_path):
+    # From the same prior and the same seed, 30 steps with L_surf end with the scan points
+    # nearer the zero level (the logged term) than 30 steps with the paper's losses.
+    ends = {}
+    for weight in (0.0, 100.0):
+        config = tiny_image_config(trainer=tiny_trainer(steps=30), lambda_surface=weight)
+        run = tmp_path / f"surf{weight:g}"
+        train_images(tiny_data, run, config, prior=prior_run)
+        log = _log(run)
+        assert ("surf" in log[0]["losses"]) == (weight > 0)
+        ends[weight] = _surface_error(load_image_model(run), tiny_data, config)
+    assert ends[100.0] < 0.7 * ends[0.0], ends
+
+
+def _surface_error(model, data, config) -> float:
+    """Mean |SDF| of ``model`` at 4 batches of scan points of ``data``'s training frames."""
+    from lisa_hand.training.images import sample_image_batch
+
+    config = dataclasses.replace(config, lambda_surface=1.0)
+    rays, scans = load_image_data(data, config)
+    generator = torch.Generator().manual_seed(11)
+    errors = []
+    for _ in range(4):
+        batch = sample_image_batch(rays, scans, config, generator)
+        with torch.no_grad():
+            terms = model(batch, render=config.render, batched=True)
+        errors.append(float(terms["surf"]))
+    return sum(errors) / len(errors)
