@@ -2,6 +2,10 @@
 
 ``python -m lisa_hand.bench train [--data DIR] [--work DIR] [--budget-s S] [--json FILE]``
 
+``python -m lisa_hand.bench train --steps N [--set KEY=VALUE ...]``: one run of the fast step
+with the overrides, its PSNR and surface error (what a training setting buys, from the same
+start as every other such run).
+
 Two configurations of ``lisa train`` (:class:`~lisa_hand.training.images.ImageTrainConfig`):
 
 * **reference**: the step of the first release: frame after frame (``batched_step=false``), the
@@ -71,6 +75,7 @@ from ..training.images import (
     train_images,
 )
 from ..training.prior import PriorModel
+from ..utils.config import apply_overrides
 from ..utils.io import write_json
 from ..utils.threads import cpu_threads
 
@@ -262,14 +267,42 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--eval-scale", type=float, default=0.5,
                         help="resolution of the held-out renders, as a fraction of the images'")
     parser.add_argument("--model", type=Path, default=None,
-                        help="trained model whose geometry is the prior (default: shipped)")
+                        help="trained model whose geometry is the prior (default: the shipped "
+                             "LISA-full; 'geometry': the shipped 203-subject prior)")
     parser.add_argument("--threads", type=int, default=None,
                         help="torch CPU threads (default: torch's; 1 on a shared machine)")
     parser.add_argument("--shaded", action="store_true",
                         help="also train the fast step with headlight shading "
                              "(shading=headlight) for the fast run's steps: PSNR 'psnr_shaded'")
+    parser.add_argument("--steps", type=int, default=None,
+                        help="one run instead of the comparison: the fast step with the --set "
+                             "overrides for this many steps, then its PSNR and surface error "
+                             "(no timing, no reference)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE",
+                        help="with --steps: a config override of the fast step, as in 'lisa "
+                             "train --set' (repeatable), e.g. lambda_surface=100")
     parser.add_argument("--json", type=Path, default=None, help="write the numbers here")
     return parser
+
+
+def run_variant(train_data: Path, data: Path, work: Path, held_out: str, prior: PriorModel | None,
+                steps: int, overrides: list[str], scale: float) -> dict:
+    """``--steps``: the fast step with ``overrides`` trained ``steps`` steps (constant learning
+    rate, from ``prior``) into ``work/run_<overrides>``, resumed if there, then evaluated. ->
+    :func:`evaluate`'s numbers plus "steps", "overrides", "train_seconds"."""
+    config = apply_overrides(fast_config(steps), overrides)
+    name = "_".join(o.replace("=", "-").replace(".", "") for o in overrides) or "default"
+    run = work / f"run_{name}"
+    start = time.perf_counter()
+    train_images(train_data, run, config, prior=prior, resume=True)
+    result = evaluate(run, data, held_out, scale)
+    result.update(steps=steps, overrides=list(overrides),
+                  train_seconds=round(time.perf_counter() - start, 1))
+    print(f"{' '.join(overrides) or 'defaults'}: {steps} steps, PSNR held-out views "
+          f"{result['psnr_mask']:.2f} dB in the mask, {result['psnr_image']:.2f} dB whole image, "
+          f"surface |SDF| {result['surface_error_mm']:.3f} mm", flush=True)
+    return result
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -283,6 +316,14 @@ def main(argv: list[str] | None = None) -> dict:
     held_out = args.held_out or load_cameras(first[0])[-1].name
     train_data = held_out_copy(data, args.work / "train_views", held_out)
     prior = prior_from_trained(args.model)
+    if args.steps is not None:
+        result = run_variant(train_data, data, args.work, held_out, prior, args.steps,
+                             args.overrides, args.eval_scale)
+        if args.json is not None:
+            write_json(args.json, result)
+        return result
+    if args.overrides:
+        raise SystemExit("--set needs --steps (one run with the overrides)")
 
     rates = measure_rates(train_data, prior, args.rate_rounds, args.rate_steps)
     ref_rate, fast_rate = 1.0 / rates["reference"], 1.0 / rates["fast"]

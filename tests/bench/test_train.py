@@ -13,6 +13,7 @@ from lisa_hand.bench.train import (
     held_out_copy,
     prior_from_trained,
     reference_config,
+    run_variant,
 )
 from lisa_hand.data.datasets import RayFrames
 from lisa_hand.geometry.cameras import load_cameras
@@ -83,3 +84,22 @@ def test_reference_and_fast_configurations_differ_only_in_the_step():
     for name in ("num_rays", "num_frames", "lambda_col", "lambda_eik", "lambda_w", "field"):
         assert getattr(ref, name) == getattr(fast, name), name
     assert ref.trainer == fast.trainer
+
+
+def test_one_variant_run_trains_with_its_overrides(tmp_path):
+    # --steps N --set ...: the fast step with the overrides, trained and scored like the others.
+    import json
+
+    data = write_tiny_dataset(tmp_path / "data")
+    names = [c.name for c in load_cameras(next(data.glob("s*/f*/cameras.json")))]
+    copy = held_out_copy(data, tmp_path / "copy", names[-1])
+    result = run_variant(copy, data, tmp_path, names[-1], None, 2,
+                         ["lambda_surface=100", "render.num_samples=6"], 1.0)
+    run = tmp_path / "run_lambda_surface-100_rendernum_samples-6"
+    log = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+    assert len(log) == 2 and "surf" in log[0]["losses"]
+    config = json.loads((run / "config.json").read_text())
+    assert config["lambda_surface"] == 100.0 and config["render"]["num_samples"] == 6
+    assert result["steps"] == 2 and result["overrides"] == ["lambda_surface=100",
+                                                            "render.num_samples=6"]
+    assert 0.0 < result["surface_error_mm"] < 100.0 and result["frames"] == 4
