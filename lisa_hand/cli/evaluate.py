@@ -10,6 +10,7 @@ import typer
 
 def _parse_models(values: list[str] | None) -> dict[str, str]:
     from ..evaluation.methods import METHODS
+    from ..model.trained import shipped_name
 
     models: dict[str, str] = {}
     for value in values or []:
@@ -22,8 +23,9 @@ def _parse_models(values: list[str] | None) -> dict[str, str]:
                              "MANO-like template is always evaluated)")
         if method in models:
             raise ValueError(f"--model: {method} given twice")
-        if not Path(path).exists():
-            raise FileNotFoundError(f"{path}: no such model file or run folder ({method})")
+        if not Path(path).exists() and shipped_name(path) is None:
+            raise FileNotFoundError(f"{path}: no such model file, run folder or shipped model "
+                                    f"({method})")
         models[method] = path
     return models
 

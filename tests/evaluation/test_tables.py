@@ -149,6 +149,11 @@ def test_eval_command_checks_its_input(quick, tmp_path, capsys):
     assert "DATA is required" in error("--out", tmp_path / "e")
     assert "not a dataset folder" in error(tmp_path, "--out", tmp_path / "e")
     assert "views must be" in error(data, "--out", tmp_path / "e", "--views", "3")
+    assert "nowhere: no such model file, run folder or shipped model (nasa)" in error(
+        data, "--out", tmp_path / "e", "--model", "nasa=nowhere")
+    # A shipped model by name passes the path check and reaches the method check.
+    assert "geometry: a 'lisa' model cannot be NASA" in error(data, "--out", tmp_path / "e",
+                                                              "--model", "nasa=geometry")
 
 
 def test_eval_quick_command_needs_nothing(tmp_path, capsys):
