@@ -1,8 +1,8 @@
 """Synthetic photos with ground truth for the photo benchmark (``python -m lisa_hand.bench photo``).
 
 Each photo is one hand of a HELD-OUT subject of the open hand model: the test split
-(:func:`lisa_hand.data.synth.split_subjects`) of the dataset the shipped model was trained on
-(``lisa synth --subjects 30 --seed 0``: subjects s002, s008, s010, s017, s020, s025), rebuilt with
+(:func:`lisa_hand.data.synth.split_subjects`) of the shipped models' dataset (290 subjects,
+seed 0: its first six test subjects, s000, s001, s009, s010, s018, s020), rebuilt with
 :func:`lisa_hand.data.synth.make_subject`, so the fit has never seen the hand. Every other photo
 shows the mirror image of the subject (the same hand as a left hand). Per photo ``i`` (a
 ``numpy.random.SeedSequence`` keyed by ``(seed, 7, i)``, independent of the number of photos):
@@ -40,9 +40,11 @@ __all__ = ["PhotoSceneConfig", "SyntheticPhoto", "held_out_subjects", "photo_ori
            "make_photo"]
 
 _STREAM_PHOTO = 7
-# The dataset the shipped model was trained on (README, "Pretrained model").
-_TRAINING_SUBJECTS = 30
+# The split the shipped models were trained on (README, "Pretrained model"): the 203-subject
+# prior's 290-subject dataset, whose split the shipped LISA-full's 80-subject dataset keeps.
+_TRAINING_SUBJECTS = 290
 _TRAINING_SEED = 0
+_HELD_OUT_PHOTO_SUBJECTS = 6
 
 
 @dataclass(frozen=True)
@@ -106,11 +108,12 @@ class SyntheticPhoto:
 
 
 def held_out_subjects() -> list[int]:
-    """Indices of the test subjects of the shipped model's training dataset (6 subjects)."""
+    """Indices of the first 6 test subjects of the shipped models' split (no shipped model saw
+    them)."""
     from ..data.synth import split_subjects
 
     test = split_subjects(_TRAINING_SUBJECTS, seed=_TRAINING_SEED)["test"]
-    return [int(name[1:]) for name in test]
+    return [int(name[1:]) for name in test[:_HELD_OUT_PHOTO_SUBJECTS]]
 
 
 def _rotation(axis, angle: float) -> np.ndarray:

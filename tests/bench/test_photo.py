@@ -30,9 +30,11 @@ def test_held_out_subjects_are_not_the_shipped_models():
     from lisa_hand.model.trained import load_trained
 
     trained = load_trained(None, "cpu")
+    geometry = load_trained("geometry", "cpu")
     held_out = {f"s{index:03d}" for index in held_out_subjects()}
-    assert len(held_out) == 6 and len(trained.subject_ids) == 21
+    assert len(held_out) == 6 and len(trained.subject_ids) == 51
     assert held_out.isdisjoint(trained.subject_ids)
+    assert held_out.isdisjoint(geometry.subject_ids)
 
 
 @pytest.mark.parametrize("side", ["right", "left"])
