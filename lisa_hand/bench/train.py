@@ -75,6 +75,7 @@ from ..training.images import (
     train_images,
 )
 from ..training.prior import PriorModel
+from ..training.prior import prior_from_trained as prior_of_subjects
 from ..utils.config import apply_overrides
 from ..utils.io import write_json
 from ..utils.threads import cpu_threads
@@ -107,14 +108,11 @@ def prior_from_trained(model_path: str | Path | None = None) -> PriorModel:
     """A prior (geometry networks, one mean shape code) from a trained model file: the shipped
     model by default. Its subjects are unknown to any dataset, so image runs start every
     subject from its mean code."""
-    trained = load_trained(model_path)
-    config = dataclasses.replace(trained.config, use_color=False)
-    prior = PriorModel(config, ["mean"])
-    state = {k: v for k, v in trained.field.state_dict().items()
-             if not k.startswith("color_mlp.")}
-    prior.field.load_state_dict(state)
+    subjects = prior_of_subjects(load_trained(model_path))
+    prior = PriorModel(subjects.field.config, ["mean"])
+    prior.field.load_state_dict(subjects.field.state_dict())
     with torch.no_grad():
-        prior.shape_codes.weight[0] = trained.shape_codes.float().mean(dim=0)
+        prior.shape_codes.weight[0] = subjects.shape_codes.weight.float().mean(dim=0)
     return prior.float()
 
 
