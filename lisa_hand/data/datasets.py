@@ -294,6 +294,9 @@ class RayBatch(_Batch):
     """[B, R] long, index into :attr:`RayFrames.camera_names` (per-camera calibration)."""
     pixels: torch.Tensor
     """[B, R, 2] continuous pixel coordinates (u, v) of the ray (pixel centres)."""
+    rotations: torch.Tensor
+    """[B, R, 3, 3] the world-to-camera rotation ``R`` of the ray's view (a light fixed to the
+    camera, :mod:`lisa_hand.render.shading`)."""
 
 
 def _camera_names(frames: list[FramePaths], frame_cameras: list[list[Camera]]) -> list[str]:
@@ -422,6 +425,7 @@ class RayFrames:
             world_from_pixel.append((R.T @ torch.linalg.inv(K)).float())
         self.view_world_from_pixel = torch.stack(world_from_pixel)  # [V, 3, 3]
         self.view_centre = torch.stack([camera.center.float() for camera, _ in views])  # [V, 3]
+        self.view_rotation = torch.stack([camera.R.float() for camera, _ in views])  # [V, 3, 3]
         self.view_width = torch.tensor([camera.width for camera, _ in views], dtype=torch.long)
         self.view_camera = torch.tensor([camera_lookup[camera.name] for camera, _ in views],
                                         dtype=torch.long)
@@ -563,4 +567,5 @@ class RayFrames:
             in_mask=in_mask,
             camera_index=self.view_camera[view],
             pixels=pixels,
+            rotations=self.view_rotation[view],
         )

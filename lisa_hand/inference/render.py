@@ -113,7 +113,7 @@ def _shaded(output: ImageOutput, model: TrainedModel, camera: Camera,
     height, width = camera.height, camera.width
     _, directions = pixel_rays(camera, device=output.rgb.device, dtype=output.rgb.dtype)
     with torch.no_grad():
-        factor = model.shading.factor(output.normals.reshape(-1, 3), directions)
+        factor = model.shading.factor(output.normals.reshape(-1, 3), directions, camera.R)
         background = torch.tensor(config.background, dtype=output.rgb.dtype,
                                   device=output.rgb.device)
         rgb = shade_foreground(output.rgb.reshape(-1, 3), output.opacity.reshape(-1),

@@ -66,9 +66,9 @@ class TrainedModel:
     gain, bias: [3] the per-camera colour calibration averaged over the training cameras (LISA's
         inference-time calibration); identity for a geometry-only model.
     source: where it was loaded from (for messages and reports).
-    shading: the learned headlight shading of a model trained with ``shading="headlight"``
-        (:class:`~lisa_hand.render.shading.HeadlightShading`), else None (the field's colour as
-        it is).
+    shading: the learned shading of a model trained with ``shading="headlight"`` or
+        ``"camera_light"`` (:class:`~lisa_hand.render.shading.HeadlightShading`), else None (the
+        field's colour as it is).
     """
 
     field: LisaModel
@@ -219,9 +219,12 @@ def trained_from_checkpoint(ckpt: Checkpoint) -> TrainedModel:
     beta_raw = _tensor(ckpt.model, "density.beta_raw", source, ())
     shading = None
     if "shading.diffuse_raw" in ckpt.model:
-        shading = HeadlightShading().eval()
-        shading.load_state_dict(
-            {"diffuse_raw": _tensor(ckpt.model, "shading.diffuse_raw", source, ())})
+        learned = "shading.light_raw" in ckpt.model
+        shading = HeadlightShading(learn_light=learned).eval()
+        state = {"diffuse_raw": _tensor(ckpt.model, "shading.diffuse_raw", source, ())}
+        if learned:
+            state["light_raw"] = _tensor(ckpt.model, "shading.light_raw", source, (3,))
+        shading.load_state_dict(state)
     return TrainedModel(
         field=field,
         shape_codes=_tensor(ckpt.model, "shape_codes.weight", source, (num, dims[0])).clone(),
@@ -274,8 +277,8 @@ def _from_export(path: Path, data: dict) -> TrainedModel:
         try:
             shading = HeadlightShading.from_values(**data["shading"]).eval()
         except (TypeError, ValueError) as exc:
-            raise ValueError(f"{path}: 'shading' must hold a diffuse fraction in (0, 1) "
-                             f"({exc})") from None
+            raise ValueError(f"{path}: 'shading' must hold a diffuse fraction in (0, 1) and "
+                             f"optionally a light direction [3] ({exc})") from None
     return TrainedModel(
         field=field.eval(),
         shape_codes=shape_codes,

@@ -16,6 +16,13 @@ normal of the SDF at the ray's expected surface point ``o + depth d``
 colour loss does not bend the geometry through the normals). ``k``, the light's diffuse
 fraction, is learned (one number) and starts at 0.5: a surface facing the camera keeps its
 albedo, one seen edge-on half of it.
+
+``shading="camera_light"`` is the same term with the light's direction learned too: a directional
+light fixed to the camera (a flash or ring light beside the lens, a studio light that moves with
+the camera) at an unknown offset, ``c = albedo * ((1 - k) + k * max(0, n . R^T l))`` with ``l``
+the unit direction towards the light in the camera frame (x right, y down, z forward; starts at
+``(0, 0, -1)``, the camera's axis) and ``R`` each ray's world-to-camera rotation. Three more
+numbers; it needs the rays' camera rotations wherever it is rendered.
 A ray's weights sit within a few ``beta`` of its surface, so one normal a ray is what the samples
 would have given (the Lambert term is linear in the colour).
 """
@@ -23,6 +30,7 @@ would have given (the Lambert term is linear in the colour).
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 
 import torch
 from torch import nn
@@ -30,11 +38,19 @@ from torch import nn
 from ..geometry.fields import SdfFn
 from ..geometry.tracing import sdf_normals
 
-__all__ = ["SHADING_MODES", "HeadlightShading", "surface_normals", "shade_foreground"]
+__all__ = [
+    "SHADING_MODES", "CAMERA_AXIS_LIGHT", "HeadlightShading", "surface_normals",
+    "shade_foreground",
+]
 
-SHADING_MODES = ("none", "headlight")
+SHADING_MODES = ("none", "headlight", "camera_light")
 """``"none"``: colours as the field gives them (the paper); ``"headlight"``:
-:class:`HeadlightShading`."""
+:class:`HeadlightShading` lit along each ray; ``"camera_light"``: lit from a learned direction
+fixed to the camera (``HeadlightShading(learn_light=True)``)."""
+
+CAMERA_AXIS_LIGHT = (0.0, 0.0, -1.0)
+"""The camera-frame direction towards a light on the camera's axis (where ``camera_light``
+starts)."""
 
 
 class HeadlightShading(nn.Module):
@@ -46,42 +62,95 @@ class HeadlightShading(nn.Module):
     channel or unnormalised term is a colour gain, which the colour field and the cameras'
     calibration already have (trained per channel, it went to ambient 0.98 / 0.80 / 0.71, a red
     cast, with the diffuse part shrinking).
+
+    With ``learn_light`` (``shading="camera_light"``) the light is not at the camera but in a
+    learned direction fixed to it, :attr:`light` (``light_raw`` normalised, camera frame), and
+    :meth:`factor` needs each ray's camera rotation.
     """
 
-    def __init__(self, diffuse: float = 0.5) -> None:
+    def __init__(self, diffuse: float = 0.5, learn_light: bool = False,
+                 light: Sequence[float] = CAMERA_AXIS_LIGHT) -> None:
         super().__init__()
         if not 0.0 < diffuse < 1.0:
             raise ValueError(f"diffuse must be in (0, 1), got {diffuse}")
         self.diffuse_raw = nn.Parameter(torch.tensor(math.log(diffuse / (1.0 - diffuse))))
+        light_raw = None
+        if learn_light:
+            direction = torch.as_tensor(light, dtype=torch.float32).flatten()
+            if direction.numel() != 3 or not bool(torch.isfinite(direction).all()) \
+                    or float(direction.norm()) == 0.0:
+                raise ValueError(f"light must be a finite non-zero 3-vector, got "
+                                 f"{direction.tolist()}")
+            light_raw = nn.Parameter(direction / direction.norm())
+        self.register_parameter("light_raw", light_raw)
+
+    @property
+    def learns_light(self) -> bool:
+        """True for ``camera_light`` (a learned direction), False for the light at the camera."""
+        return self.light_raw is not None
+
+    @property
+    def light(self) -> torch.Tensor | None:
+        """[3] unit direction towards the light in the camera frame (differentiable), or None
+        for the light at the camera."""
+        if self.light_raw is None:
+            return None
+        return self.light_raw / self.light_raw.norm().clamp_min(1e-12)
 
     @property
     def diffuse(self) -> torch.Tensor:
         """[] the diffuse fraction ``k`` in (0, 1), unitless (differentiable)."""
         return torch.sigmoid(self.diffuse_raw)
 
-    def factor(self, normals: torch.Tensor, directions: torch.Tensor) -> torch.Tensor:
+    def factor(self, normals: torch.Tensor, directions: torch.Tensor,
+               rotations: torch.Tensor | None = None) -> torch.Tensor:
         """normals: [R, 3] unit (zero: no surface, ambient only); directions: [R, 3] unit ray
-        directions -> [R, 1] the shading factor ``1 - k + k max(0, n . -d)``."""
-        cosine = (-(normals * directions).sum(-1, keepdim=True)).clamp_min(0.0)
+        directions; rotations: [R, 3, 3] (or [3, 3], one camera) each ray's world-to-camera
+        rotation, needed with a learned light -> [R, 1] the shading factor
+        ``1 - k + k max(0, n . l)``, ``l = -d`` (light at the camera) or ``R^T light``."""
+        if self.light_raw is None:
+            towards = -directions
+        else:
+            if rotations is None:
+                raise ValueError("a learned camera light needs the rays' camera rotations")
+            light = self.light.to(normals.dtype)
+            towards = torch.einsum("...ij,i->...j", rotations.to(normals.dtype), light)
+        cosine = (normals * towards).sum(-1, keepdim=True).clamp_min(0.0)
         diffuse = self.diffuse.to(cosine.dtype)
         return 1.0 - diffuse + diffuse * cosine
 
-    def forward(self, albedo: torch.Tensor, normals: torch.Tensor,
-                directions: torch.Tensor) -> torch.Tensor:
-        """albedo: [R, 3] composited colours over black (``sum_i w_i c_i``) -> [R, 3] shaded."""
-        return albedo * self.factor(normals, directions)
+    def forward(self, albedo: torch.Tensor, normals: torch.Tensor, directions: torch.Tensor,
+                rotations: torch.Tensor | None = None) -> torch.Tensor:
+        """albedo: [R, 3] composited colours over black (``sum_i w_i c_i``) -> [R, 3] shaded
+        (the other arguments as in :meth:`factor`)."""
+        return albedo * self.factor(normals, directions, rotations)
 
     def values(self) -> dict[str, torch.Tensor]:
-        """{"diffuse": []} float32 CPU tensor, detached (for files)."""
-        return {"diffuse": self.diffuse.detach().cpu().float()}
+        """{"diffuse": [], and "light": [3] with a learned light} float32 CPU tensors,
+        detached (for files)."""
+        values = {"diffuse": self.diffuse.detach().cpu().float()}
+        if self.light is not None:
+            values["light"] = self.light.detach().cpu().float()
+        return values
 
     @classmethod
-    def from_values(cls, diffuse: torch.Tensor | float) -> HeadlightShading:
-        """The shading with this diffuse fraction (in (0, 1); :meth:`values`)."""
+    def from_values(cls, diffuse: torch.Tensor | float,
+                    light: torch.Tensor | Sequence[float] | None = None) -> HeadlightShading:
+        """The shading with this diffuse fraction (in (0, 1)) and, if given, this learned light
+        direction ([3], camera frame; :meth:`values`)."""
         value = torch.as_tensor(diffuse, dtype=torch.float64)
         if value.numel() != 1 or not bool(torch.isfinite(value).all()):
             raise ValueError(f"diffuse must be one finite number, got {value.tolist()}")
-        return cls(float(value))
+        if light is None:
+            return cls(float(value))
+        return cls(float(value), learn_light=True, light=torch.as_tensor(light).tolist())
+
+    @classmethod
+    def for_mode(cls, mode: str) -> HeadlightShading | None:
+        """The untrained shading of a :data:`SHADING_MODES` name (None for "none")."""
+        if mode not in SHADING_MODES:
+            raise ValueError(f"shading must be one of {SHADING_MODES}, got {mode!r}")
+        return None if mode == "none" else cls(learn_light=mode == "camera_light")
 
 
 def surface_normals(

@@ -154,7 +154,7 @@ class ImageModel(nn.Module):
         self.bias = nn.Parameter(torch.zeros(len(camera_names), 3))
         self.pose_offsets = nn.Parameter(torch.zeros(len(frame_keys), POSE_DIM))
         self.translation_offsets = nn.Parameter(torch.zeros(len(frame_keys), 3))
-        self.shading = HeadlightShading() if shading == "headlight" else None
+        self.shading = HeadlightShading.for_mode(shading)
         self.subject_ids = list(subject_ids)
         self.camera_names = list(camera_names)
         self.frame_keys = list(frame_keys)
@@ -251,7 +251,7 @@ class ImageModel(nn.Module):
                               near, far, render, self.density, hit=hit, background=black,
                               generator=generator)
             camera = rays.camera_index[frame]
-            rgb = self._shaded(out, sdf_fn, origins, directions)
+            rgb = self._shaded(out, sdf_fn, origins, directions, rays.rotations[frame])
             predictions.append(calibrate(rgb, out.opacity, self.gain[camera],
                                          self.bias[camera], background_rgb))
             opacities.append(out.opacity)
@@ -286,7 +286,8 @@ class ImageModel(nn.Module):
                           background=torch.zeros(3, dtype=dtype, device=device),
                           generator=generator, groups=groups)
         camera = rays.camera_index.reshape(-1)  # [B R]
-        rgb = self._shaded(out, sdf_fn, origins, directions, groups)
+        rgb = self._shaded(out, sdf_fn, origins, directions, rays.rotations.reshape(-1, 3, 3),
+                           groups)
         prediction = calibrate(rgb, out.opacity, self.gain[camera], self.bias[camera],
                                background_rgb)
         t_vals, hit = out.t_vals.reshape(num_frames, num_rays, -1), hit.reshape(num_frames, -1)
@@ -298,12 +299,13 @@ class ImageModel(nn.Module):
                 out.opacity.reshape(num_frames, num_rays), ray_points)
 
     def _shaded(self, out: Any, sdf_fn: Any, origins: torch.Tensor, directions: torch.Tensor,
-                groups: torch.Tensor | None = None) -> torch.Tensor:
-        """The rays' composited colours over black [R, 3], lit by :attr:`shading` if any."""
+                rotations: torch.Tensor, groups: torch.Tensor | None = None) -> torch.Tensor:
+        """The rays' composited colours over black [R, 3], lit by :attr:`shading` if any
+        (rotations: [R, 3, 3] the rays' world-to-camera rotations)."""
         if self.shading is None:
             return out.rgb
         normals = surface_normals(sdf_fn, origins, directions, out.depth, out.opacity, groups)
-        return self.shading(out.rgb, normals, directions)
+        return self.shading(out.rgb, normals, directions, rotations)
 
     def _loss_terms(self, batch: ImageBatch, state: FrameState, low: torch.Tensor,
                     high: torch.Tensor, prediction: torch.Tensor, opacity: torch.Tensor,

@@ -196,9 +196,11 @@ class ImageTrainConfig:
     colour as it is (the paper, the shipped model); "headlight", the composited colour times a
     learned Lambert term lit from the camera (``1 - k + k max(0, n . -d)``, ``k`` one learned
     number, ``n`` the SDF's normal at the ray's surface point): for images lit from the camera
-    (``lisa synth``'s), so that the colour field learns an albedo rather than the shading."""
+    (``lisa synth``'s), so that the colour field learns an albedo rather than the shading;
+    "camera_light", the same with the light's direction fixed to the camera but learned (three
+    more numbers: a light beside the lens, as ``lisa synth``'s, 27 degrees above it)."""
     shading_lr: float | None = 0.01
-    """Learning rate of the shading's diffuse fraction (``shading="headlight"``; None: the
+    """Learning rate of the shading's diffuse fraction and light direction (None: the
     trainer's lr). At the trainer's 5e-4 its terms moved by 0.03 in 400 steps: too slow for a
     number that sets the look of every pixel."""
 

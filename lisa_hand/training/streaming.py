@@ -319,6 +319,7 @@ class StreamingRayFrames:
         self.max_band_px = int(max_band_px)
         self.table = read_frame_table(root, split)
         names, view_frame, world_from_pixel, centres, sizes, frame_views = set(), [], [], [], [], []
+        rotations = []
         for frame, paths in enumerate(self.table.frames):
             cameras = load_cameras(paths.cameras)
             if not cameras:
@@ -332,6 +333,7 @@ class StreamingRayFrames:
                 world_from_pixel.append((camera.R.double().T @ torch.linalg.inv(
                     camera.K.double())).float())
                 centres.append(camera.center.float())
+                rotations.append(camera.R.float())
                 sizes.append((camera.width, camera.height))
                 frame_views[-1].append((camera.name, int(camera.width), int(camera.height)))
         self.camera_names = sorted(names)
@@ -339,6 +341,7 @@ class StreamingRayFrames:
         self.view_frame = torch.tensor(view_frame, dtype=torch.long)
         self.view_world_from_pixel = torch.stack(world_from_pixel)
         self.view_centre = torch.stack(centres)
+        self.view_rotation = torch.stack(rotations)  # [V, 3, 3] world-to-camera
         self.view_size = torch.tensor(sizes, dtype=torch.long)  # [V, 2] width, height
         self.view_camera = torch.tensor([lookup[n] for views in frame_views for n, _, _ in views],
                                         dtype=torch.long)
@@ -433,7 +436,7 @@ class StreamingRayFrames:
             directions=directions / directions.norm(dim=-1, keepdim=True),
             rgb=torch.from_numpy(np.stack(colours)).float() / 255.0,
             in_mask=torch.from_numpy(np.stack(in_mask)), camera_index=self.view_camera[view],
-            pixels=coords)
+            pixels=coords, rotations=self.view_rotation[view])
 
 
 class StreamingScanFrames:

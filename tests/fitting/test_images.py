@@ -200,13 +200,14 @@ def test_fit_images_runs_on_cuda(scene):
 
 
 
-def test_color_stage_shades_the_rays_like_the_renderer(scene):
+@pytest.mark.parametrize("light", [None, (0.3, -0.5, -1.0)])
+def test_color_stage_shades_the_rays_like_the_renderer(scene, light):
     # A model trained with headlight shading: the colour stage lights its rays as the image
     # renderer lit the views (at the true hand the colour loss is small), and an unshaded copy
     # of the same model does not explain those views.
     from lisa_hand.render.shading import HeadlightShading
 
-    shading = HeadlightShading.from_values(0.7).eval()
+    shading = HeadlightShading.from_values(0.7, light).eval()
     shaded = dataclasses.replace(scene["model"], shading=shading)
     views = render_frame(shaded, scene["truth"])
     config = FitImagesConfig(color_iters=1, num_rays=512, render=FAST_RENDER,

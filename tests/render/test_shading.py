@@ -102,3 +102,99 @@ def test_values_round_trip_and_bad_values():
     for bad in (0.0, 1.0, float("nan"), torch.ones(2)):
         with pytest.raises(ValueError, match="diffuse"):
             HeadlightShading.from_values(bad)
+
+
+def _random_rotations(num: int, generator: torch.Generator) -> torch.Tensor:
+    """[num, 3, 3] float64 proper rotations (QR of Gaussian matrices, signs fixed)."""
+    q, r = torch.linalg.qr(torch.randn(num, 3, 3, generator=generator, dtype=torch.float64))
+    q = q * torch.sign(torch.diagonal(r, dim1=-2, dim2=-1))[:, None, :]
+    return q * torch.det(q)[:, None, None]
+
+
+def test_camera_light_matches_the_generators_shading():
+    """A learned camera light set to the generator's light gives the generator's shading
+    (:func:`lisa_hand.data.shading.shade`, an independent implementation): each camera's light
+    turned into the world frame, ambient 1 - k, diffuse k, one light."""
+    import numpy as np
+
+    from lisa_hand.data.shading import ShadingConfig, lights_per_view, shade
+    from lisa_hand.geometry.cameras import Camera
+
+    generator = torch.Generator().manual_seed(5)
+    light = (0.0, -0.5, -1.0)
+    shading = HeadlightShading(0.65, learn_light=True, light=light).double()
+    config = ShadingConfig(ambient=0.35, diffuse=0.65, light_directions=(light,))
+    rotations = _random_rotations(4, generator)
+    cameras = [Camera(K=torch.eye(3), R=rotation.float(), t=torch.zeros(3), width=8, height=8)
+               for rotation in rotations]
+    world_lights = lights_per_view(cameras, config, None)
+    normals = torch.nn.functional.normalize(
+        torch.randn(4, 200, 3, generator=generator, dtype=torch.float64), dim=-1)
+    albedo = torch.rand(4, 200, 3, generator=generator, dtype=torch.float64) * 0.9
+    directions = torch.nn.functional.normalize(torch.randn(4, 200, 3, dtype=torch.float64), dim=-1)
+    shaded = shading(albedo.reshape(-1, 3), normals.reshape(-1, 3), directions.reshape(-1, 3),
+                     rotations[:, None].expand(4, 200, 3, 3).reshape(-1, 3, 3)).reshape(4, 200, 3)
+    for view in range(4):
+        expected = shade(normals[view].numpy(), albedo[view].numpy(), world_lights[view],
+                         np.ones(3), np.zeros(3), config)
+        np.testing.assert_allclose(shaded[view].detach().numpy(), expected, atol=2e-6)
+    # The ray direction does not matter for a learned light; one [3, 3] rotation broadcasts.
+    one = shading.factor(normals[0], -directions[0], rotations[0])
+    torch.testing.assert_close(one, shading.factor(normals[0], directions[0],
+                                                   rotations[0].expand(200, 3, 3)))
+
+
+def test_camera_light_gradient_and_start():
+    """The light direction gets the finite-difference gradient; it starts on the camera axis,
+    where a surface facing the camera keeps its albedo; without rotations it refuses."""
+    generator = torch.Generator().manual_seed(6)
+    shading = HeadlightShading(0.6, learn_light=True).double()
+    assert shading.learns_light and not HeadlightShading().learns_light
+    torch.testing.assert_close(shading.light.detach(),
+                               torch.tensor([0.0, 0.0, -1.0], dtype=torch.float64))
+    rotation = _random_rotations(1, generator)[0]
+    facing = -rotation[2]  # the world normal facing the camera: -(optical axis)
+    factor = shading.factor(facing[None], torch.zeros(1, 3, dtype=torch.float64), rotation)
+    torch.testing.assert_close(factor, torch.ones(1, 1, dtype=torch.float64))
+    with torch.no_grad():
+        shading.light_raw.copy_(torch.tensor([0.3, -0.4, -1.0], dtype=torch.float64))
+    normals = torch.nn.functional.normalize(
+        torch.randn(50, 3, generator=generator, dtype=torch.float64), dim=-1)
+    directions = torch.zeros(50, 3, dtype=torch.float64)
+
+    def energy():
+        return (shading.factor(normals, directions, rotation) ** 2).sum()
+
+    energy().backward()
+    analytic = shading.light_raw.grad.clone()
+    numeric = torch.zeros(3, dtype=torch.float64)
+    for axis in range(3):
+        with torch.no_grad():
+            shading.light_raw[axis] += 1e-6
+            plus = float(energy())
+            shading.light_raw[axis] -= 2e-6
+            minus = float(energy())
+            shading.light_raw[axis] += 1e-6
+        numeric[axis] = (plus - minus) / 2e-6
+    torch.testing.assert_close(analytic, numeric, rtol=1e-5, atol=1e-7)
+    with pytest.raises(ValueError, match="rotations"):
+        shading.factor(normals, directions)
+
+
+def test_camera_light_values_round_trip():
+    shading = HeadlightShading(0.4, learn_light=True, light=(0.0, -2.0, -4.0))
+    values = shading.values()
+    assert set(values) == {"diffuse", "light"}
+    torch.testing.assert_close(values["light"], torch.tensor([0.0, -1.0, -2.0]) / math.sqrt(5))
+    again = HeadlightShading.from_values(**values)
+    assert again.learns_light
+    torch.testing.assert_close(again.light.detach(), values["light"])
+    assert float(again.diffuse.detach()) == pytest.approx(0.4)
+    assert set(HeadlightShading().values()) == {"diffuse"}
+    assert HeadlightShading.for_mode("none") is None
+    assert HeadlightShading.for_mode("camera_light").learns_light
+    for bad in ((0.0, 0.0, 0.0), (1.0, float("nan"), 0.0), (1.0, 2.0)):
+        with pytest.raises(ValueError, match="light"):
+            HeadlightShading(learn_light=True, light=bad)
+    with pytest.raises(ValueError, match="shading"):
+        HeadlightShading.for_mode("studio")

@@ -99,6 +99,7 @@ def test_rays_match_the_images_masks_and_cameras(tiny_data, rays):
             origin, direction = pixel_rays(cameras[name], batch.pixels[row, ray][None])
             assert torch.allclose(batch.directions[row, ray], direction[0], atol=1e-6)
             assert torch.allclose(batch.origins[row, ray], origin[0], atol=1e-6)
+            assert torch.equal(batch.rotations[row, ray], cameras[name].R.float())
 
 
 def test_rays_mask_fraction_and_band(tiny_data, rays):

@@ -228,7 +228,7 @@ def test_missing_dataset(tmp_path):
         train_images(tmp_path, tmp_path / "run", tiny_image_config(), prior=tmp_path)
 
 
-@pytest.mark.parametrize("shading", ["none", "headlight"])
+@pytest.mark.parametrize("shading", ["none", "headlight", "camera_light"])
 def test_batched_step_computes_the_per_frame_losses(tiny_data, shading):
     # One pass for every frame (grouped callbacks, skinning points without the gradient pass)
     # against frame after frame: the same loss terms and gradients (deterministic samples);
@@ -253,8 +253,10 @@ def test_batched_step_computes_the_per_frame_losses(tiny_data, shading):
                              if p.grad is not None})
     (terms_a, grads_a), (terms_b, grads_b) = results[False], results[True]
     assert float(terms_a["col"]) > 0 and float(terms_a["w"]) > 0 and float(terms_a["surf"]) > 0
-    if shading == "headlight":  # the colour loss reaches the shading's parameters
+    if shading != "none":  # the colour loss reaches the shading's parameters
         assert float(grads_a["shading.diffuse_raw"].abs().sum()) > 0
+    if shading == "camera_light":  # and the light's direction, through the rays' rotations
+        assert float(grads_a["shading.light_raw"].abs().sum()) > 0
     for name in terms_a:
         torch.testing.assert_close(terms_b[name], terms_a[name], rtol=1e-9, atol=1e-12, msg=name)
     assert grads_a.keys() == grads_b.keys()

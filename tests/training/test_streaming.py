@@ -55,6 +55,7 @@ def test_rays_hit_the_right_pixels(data):
             origin, direction = pixel_rays(cameras[name], batch.pixels[row, k][None])
             assert torch.allclose(batch.directions[row, k], direction[0], atol=1e-5)
             assert torch.allclose(batch.origins[row, k], origin[0], atol=1e-5)
+            assert torch.equal(batch.rotations[row, k], cameras[name].R.float())
 
 
 def test_deterministic_whatever_the_workers(data):

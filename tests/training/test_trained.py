@@ -87,7 +87,8 @@ def test_bad_model_files_get_clear_errors(tmp_path):
         load_trained(tmp_path)
 
 
-def test_headlight_shading_is_trained_exported_and_rendered(tiny_data, tmp_path):
+@pytest.mark.parametrize("mode", ["headlight", "camera_light"])
+def test_headlight_shading_is_trained_exported_and_rendered(tiny_data, tmp_path, mode):
     from lisa_hand.geometry.cameras import pixel_rays
     from lisa_hand.inference.render import orbit_views, prepare_render
     from lisa_hand.render.shading import HeadlightShading
@@ -95,18 +96,24 @@ def test_headlight_shading_is_trained_exported_and_rendered(tiny_data, tmp_path)
 
     from .tiny_dataset import base_rest_joints
 
-    config = tiny_image_config(trainer=tiny_trainer(steps=3), shading="headlight")
+    config = tiny_image_config(trainer=tiny_trainer(steps=3), shading=mode)
     train_images(tiny_data, tmp_path / "run", config)
     model = load_trained(tmp_path / "run")
     assert isinstance(model.shading, HeadlightShading)
-    start = HeadlightShading()
+    start = HeadlightShading.for_mode(mode)
+    assert model.shading.learns_light == (mode == "camera_light")
     assert not torch.equal(model.shading.diffuse_raw, start.diffuse_raw)  # it was trained
     trained = load_image_model(tmp_path / "run")
     assert torch.equal(model.shading.diffuse, trained.shading.diffuse)
+    if mode == "camera_light":  # the light turned away from the camera's axis
+        assert not torch.equal(model.shading.light, start.light)
+        assert torch.equal(model.shading.light, trained.shading.light)
 
     path, _ = export_trained(model, tmp_path / "model.pt")
     again = load_trained(path)
     torch.testing.assert_close(again.shading.diffuse, model.shading.diffuse)
+    if mode == "camera_light":
+        torch.testing.assert_close(again.shading.light, model.shading.light)
 
     # Rendered: the unshaded model's hand colour times the Lambert factor at each normal.
     params = HandParams(pose=torch.zeros(48), translation=torch.zeros(3),
@@ -120,7 +127,8 @@ def test_headlight_shading_is_trained_exported_and_rendered(tiny_data, tmp_path)
     assert int(plain.mask.sum()) > 20
     assert torch.equal(shaded.opacity, plain.opacity)
     _, directions = pixel_rays(camera)
-    factor = again.shading.factor(plain.normals.reshape(-1, 3), directions).reshape(20, 24, 1)
+    factor = again.shading.factor(plain.normals.reshape(-1, 3), directions,
+                                  camera.R).reshape(20, 24, 1)
     bias = again.bias * plain.opacity[..., None]
     expected = ((plain.rgb - bias) * factor + bias).clamp(0, 1)  # black background
     torch.testing.assert_close(shaded.rgb, expected, rtol=0, atol=1e-5)

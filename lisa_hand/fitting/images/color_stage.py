@@ -77,13 +77,14 @@ class RayPool:
     def __init__(self, views: Sequence[ImageView], band_px: int,
                  boxes: Sequence[Box | None]) -> None:
         device = views[0].rgb.device
-        world_from_pixel, centres, backgrounds = [], [], []
+        world_from_pixel, centres, rotations, backgrounds = [], [], [], []
         near_parts, far_parts = [], []
         for index, (view, box) in enumerate(zip(views, boxes, strict=True)):
             camera = view.camera
             world_from_pixel.append((camera.R.double().T @ torch.linalg.inv(camera.K.double()))
                                     .float())
             centres.append(camera.center.float())
+            rotations.append(camera.R.float())
             backgrounds.append(background_colour(view))
             near, in_mask, target = _view_pixels(view, band_px, box)
             has_mask = view.mask is not None
@@ -94,6 +95,7 @@ class RayPool:
                              torch.full(pixel.shape, has_mask, dtype=torch.bool, device=device)))
         self.world_from_pixel = torch.stack(world_from_pixel)  # [C, 3, 3]
         self.centre = torch.stack(centres)  # [C, 3]
+        self.rotation = torch.stack(rotations)  # [C, 3, 3] world-to-camera
         self.background = torch.stack(backgrounds)  # [C, 3]
         self.width = torch.tensor([v.width for v in views], device=device)
         self.near = [torch.cat(values) for values in zip(*near_parts, strict=True)]
@@ -102,7 +104,8 @@ class RayPool:
     def sample(self, num_rays: int, mask_fraction: float, generator: torch.Generator
                ) -> dict[str, torch.Tensor]:
         """-> origins, directions [R, 3] (world, metres / unit); target, background [R, 3];
-        in_mask, has_mask [R] bool; view [R] the index of each ray's view."""
+        in_mask, has_mask [R] bool; view [R] the index of each ray's view; rotations [R, 3, 3]
+        its view's world-to-camera rotation."""
         num_near_pool, num_far_pool = self.near[0].numel(), self.far[0].numel()
         num_near = int(round(mask_fraction * num_rays)) if num_far_pool else num_rays
         if num_near_pool == 0:
@@ -122,7 +125,7 @@ class RayPool:
         directions = directions / directions.norm(dim=-1, keepdim=True)
         return {"origins": self.centre[view], "directions": directions, "target": target,
                 "background": self.background[view], "in_mask": in_mask,
-                "has_mask": has_mask, "view": view}
+                "has_mask": has_mask, "view": view, "rotations": self.rotation[view]}
 
 
 def _view_pixels(view: ImageView, band_px: int, box: Box | None
@@ -323,7 +326,7 @@ class _Renderer:
         if self.model.shading is not None:  # a model trained with headlight shading
             normals = surface_normals(sdf_fn, rays["origins"], rays["directions"], out.depth,
                                       out.opacity)
-            rgb = self.model.shading(rgb, normals, rays["directions"])
+            rgb = self.model.shading(rgb, normals, rays["directions"], rays["rotations"])
         gain, bias = self.calibration.for_rays(self.gain, self.bias, rays["view"])
         prediction = calibrate(rgb, out.opacity, gain, bias, rays["background"])
         terms = {"col": color_loss(prediction, rays["target"]),
