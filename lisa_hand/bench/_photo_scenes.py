@@ -79,6 +79,14 @@ class PhotoSceneConfig:
     """Version of the open hand model photographed (``lisa synth --hand-model``): "v1", the one
     the shipped model was trained on, or "v2" (rounded, padded palm, forearm stub: a hand the
     model never saw the like of, closer to a real one)."""
+    subjects: str = "test"
+    """Whose hands: "test", the first 6 held-out test subjects of the shipped models' split (the
+    benchmark); "train", its first 6 training subjects (to measure a convention, such as where the
+    detector puts the wrist, on hands that are not the benchmark's)."""
+
+    def __post_init__(self) -> None:
+        if self.subjects not in ("test", "train"):
+            raise ValueError(f"subjects must be 'test' or 'train', got {self.subjects!r}")
 
 
 @dataclass(frozen=True, eq=False)
@@ -107,13 +115,13 @@ class SyntheticPhoto:
     """Textured background (else plain)."""
 
 
-def held_out_subjects() -> list[int]:
+def held_out_subjects(part: str = "test") -> list[int]:
     """Indices of the first 6 test subjects of the shipped models' split (no shipped model saw
-    them)."""
+    them), or with ``part="train"`` of its first 6 training subjects."""
     from ..data.synth import split_subjects
 
-    test = split_subjects(_TRAINING_SUBJECTS, seed=_TRAINING_SEED)["test"]
-    return [int(name[1:]) for name in test[:_HELD_OUT_PHOTO_SUBJECTS]]
+    names = split_subjects(_TRAINING_SUBJECTS, seed=_TRAINING_SEED)[part]
+    return [int(name[1:]) for name in names[:_HELD_OUT_PHOTO_SUBJECTS]]
 
 
 def _rotation(axis, angle: float) -> np.ndarray:
@@ -203,7 +211,7 @@ def make_photo(config: PhotoSceneConfig, index: int, out_dir: Path) -> Synthetic
     from ..handmodel import sample_pose
 
     rng = np.random.default_rng(np.random.SeedSequence([config.seed, _STREAM_PHOTO, index]))
-    subjects = held_out_subjects()
+    subjects = held_out_subjects(config.subjects)
     record = make_subject(SynthConfig(seed=_TRAINING_SEED, hand_model=config.hand_model),
                           subjects[index % len(subjects)], fit_template=False)
     side = "left" if index % 2 else "right"

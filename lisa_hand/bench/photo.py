@@ -45,7 +45,8 @@ import numpy as np
 from ..utils.threads import cpu_threads
 
 __all__ = ["SyntheticResult", "SharedResult", "PhotoBenchmark", "default_shared_dir",
-           "keypoint_error_px", "reference_keypoints", "run_photo_benchmark", "main"]
+           "keypoint_error_px", "reference_keypoints", "detector_wrist_shift",
+           "run_photo_benchmark", "main"]
 
 SHARED_PHOTOS = ("hand_thumb_up.jpg", "thumbs-up.png")
 """The shared real photos (``../shared/data/photos/README.md``)."""
@@ -83,6 +84,11 @@ class SyntheticResult:
     """Fitted surface area / keypoint-stage mesh area (guard)."""
     error: str | None = None
     """Why the fit failed (its one-line message), or None."""
+    detector_wrist_shift: float | None = None
+    """Where the detector put the wrist: its offset from the true wrist along the true
+    wrist-to-middle-knuckle line, a fraction of that line's length in the photo (+: towards the
+    fingers; :data:`lisa_hand.fitting.photo.detect.MEDIAPIPE_WRIST_SHIFT`); None without
+    detection."""
 
 
 @dataclass
@@ -124,6 +130,9 @@ class PhotoBenchmark:
     wrist_error_mm: float
     failed: int
     """Synthetic photos whose fit failed (no hand found, ...)."""
+    detector_wrist_shift: float | None
+    """The median of the photos' :attr:`SyntheticResult.detector_wrist_shift` (None without
+    detection)."""
     synthetic: list[SyntheticResult]
     shared: dict[str, SharedResult]
     targets: dict[str, bool | None]
@@ -223,12 +232,25 @@ def _synthetic_one(fit, photo, out_dir: Path, detect: bool, options: dict) -> Sy
     fitted = np.asarray(fit["keypoints_3d"], np.float64)
     wrist = fitted[0] - photo.keypoints_3d[0]
     guard = _guard_of(reports, folder)
+    shift = None
+    if detect:
+        detector = np.asarray(fit.get("keypoints_2d_detector", fit["keypoints_2d_detected"]))
+        shift = detector_wrist_shift(detector, photo.keypoints_2d)  # both in the photo's pixels
     return SyntheticResult(photo.path.name, photo.subject, photo.side, fit.get("side"), seconds,
                            mpjpe(fitted, photo.keypoints_3d), pa_mpjpe(fitted, photo.keypoints_3d),
                            reference, float(np.linalg.norm(wrist) * 1000.0),
                            float(wrist[2] * 1000.0),
                            pieces=None if guard is None else int(guard.pieces),
-                           area_ratio=None if guard is None else float(guard.area_ratio))
+                           area_ratio=None if guard is None else float(guard.area_ratio),
+                           detector_wrist_shift=shift)
+
+
+def detector_wrist_shift(detected: np.ndarray, true: np.ndarray) -> float:
+    """detected, true: [21, 2] pixels -> the detected wrist's offset from the true one along the
+    true wrist-to-middle-knuckle line, a fraction of its length (+: towards the knuckle)."""
+    axis = true[9] - true[0]
+    length = float(np.linalg.norm(axis))
+    return float((detected[0] - true[0]) @ axis) / (length * length)
 
 
 def _guard_of(reports: list, folder: Path | None = None) -> Any:
@@ -333,7 +355,10 @@ def run_photo_benchmark(num_photos: int = 12, *, shared_dir: Path | None = None,
         pa_mpjpe_mm=_mean(r.pa_mpjpe_mm for r in fitted),
         reference_pa_mpjpe_mm=_mean(r.reference_pa_mpjpe_mm for r in fitted),
         wrist_error_mm=_mean(r.wrist_error_mm for r in fitted),
-        failed=len(synthetic) - len(fitted), synthetic=synthetic, shared=shared,
+        failed=len(synthetic) - len(fitted),
+        detector_wrist_shift=_median([r.detector_wrist_shift for r in fitted
+                                      if r.detector_wrist_shift is not None]),
+        synthetic=synthetic, shared=shared,
         targets=_targets(synthetic, shared), notes=notes)
 
 
@@ -370,6 +395,10 @@ def _shared_part(fit, shared_dir, work_dir: Path, options: dict, notes: list[str
 # Printing
 
 
+def _median(values: list[float]) -> float | None:
+    return float(np.median(values)) if values else None
+
+
 def _number(value, digits: int = 1) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "-"
@@ -402,6 +431,10 @@ def _table(result: PhotoBenchmark) -> list[str]:
             f"{_number(result.mpjpe_mm)} | {_number(result.pa_mpjpe_mm)} | "
             f"{_number(result.reference_pa_mpjpe_mm)} | {_number(result.wrist_error_mm, 0)} | "
             f"{result.failed} |"]
+    if result.detector_wrist_shift is not None:
+        rows += ["", f"the detector's wrist, median over the photos: "
+                 f"{result.detector_wrist_shift:+.3f} of the wrist-to-middle-knuckle length "
+                 "towards the fingers from the true wrist (detector_wrist_shift)"]
     if result.shared:
         rows += ["", "| real photo | s | pieces | area ratio | keypoint error px | guard |",
                  "| --- | --- | --- | --- | --- | --- |"]
@@ -450,11 +483,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--hand-model", default="v1", choices=("v1", "v2"),
                         help="open hand model version of the synthetic photos (default v1, "
                              "the shipped model's)")
+    parser.add_argument("--subjects", default="test", choices=("test", "train"),
+                        help="whose hands the synthetic photos show: the held-out test subjects "
+                             "(the benchmark) or training subjects (to measure a convention, "
+                             "e.g. detector_wrist_shift, off the benchmark)")
     parser.add_argument("--true-keypoints", action="store_true",
                         help="give the fit the true 2D keypoints and side of the synthetic photos "
                              "instead of detecting them (the fit's error without the detector's)")
     args = parser.parse_args(argv)
-    print(f"photo fitting: {args.photos} synthetic photos (held-out subjects), then the shared "
+    whose = "held-out" if args.subjects == "test" else "training"
+    print(f"photo fitting: {args.photos} synthetic photos ({whose} subjects), then the shared "
           f"photos; {args.threads} torch threads, {args.device}")
     from ._photo_scenes import PhotoSceneConfig
 
@@ -463,7 +501,8 @@ def main(argv: list[str] | None = None) -> None:
                                  model_path=args.model, seed=args.seed,
                                  detect=False if args.true_keypoints else None,
                                  scene=PhotoSceneConfig(seed=args.seed,
-                                                        hand_model=args.hand_model))
+                                                        hand_model=args.hand_model,
+                                                        subjects=args.subjects))
     print()
     print("\n".join(_table(result)))
     print()

@@ -100,6 +100,13 @@ class FitPhotoConfig:
     side_confidence: float = 0.75
     """``--side auto``: a detected side less certain than this (the detector's score, 0.5-1) is
     not trusted: both sides are fitted and the better one kept."""
+    detector_wrist_shift: float = 0.0
+    """Detected hands: the detector's wrist is moved back towards the forearm by this fraction of
+    the wrist-to-middle-knuckle length (:func:`lisa_hand.fitting.photo.detect.to_skeleton_wrist`)
+    before the fit; 0 (default): as detected. :data:`~lisa_hand.fitting.photo.detect.
+    MEDIAPIPE_WRIST_SHIFT` (0.17) matches photos of the open hand model's hands but not real
+    ones (:mod:`lisa_hand.fitting.photo.detect`, "Wrist"). ``--keypoints`` files are taken as
+    they are."""
     mesh_resolution: int = 128
     """Marching-cubes samples a side of ``mesh.ply``."""
     render_samples: int = 16
@@ -122,6 +129,9 @@ class FitPhotoConfig:
         for name in ("crop_margin", "min_hand_px", "inconsistent_fraction", "side_confidence"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0.0 <= self.detector_wrist_shift < 1.0:
+            raise ValueError("detector_wrist_shift must be in [0, 1), got "
+                             f"{self.detector_wrist_shift!r}")
 
 
 @dataclass
@@ -193,9 +203,12 @@ def _find_hands(photo: Any, keypoints_json: Any, config: FitPhotoConfig,
     if not found:
         raise ValueError(f"{photo.path}: no hand found (searched the whole photo, zoomed out "
                          "and in crops); pass the 21 keypoints with --keypoints KP.json")
-    hands = [PhotoHand(keypoints=np.asarray(hand.keypoints, np.float64),
+    shift = config.detector_wrist_shift
+    hands = [PhotoHand(keypoints=detect.to_skeleton_wrist(hand.keypoints, shift),
                        visible=np.ones(len(hand.keypoints), bool), side=hand.side,
-                       score=float(hand.score), source="detected") for hand in found]
+                       score=float(hand.score), source="detected",
+                       detector_keypoints=np.asarray(hand.keypoints, np.float64) if shift else None)
+             for hand in found]
     log(f"{photo.path.name}: {len(hands)} hand(s) found ("
         + ", ".join(f"{hand.side} {hand.score:.2f}" for hand in hands) + ")")
     return hands

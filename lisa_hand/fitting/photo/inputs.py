@@ -58,7 +58,9 @@ class PhotoHand:
     keypoints: [21, 2] float64 pixels of the photo's (downscaled) image (``Photo.image``); rows
     that are not visible hold a stand-in (their nearest visible ancestor) and do not count.
     visible: [21] bool. side: "right", "left" or None (unknown). score: the detector's
-    confidence, or None. source: "detected" or the ``--keypoints`` file.
+    confidence, or None. source: "detected" or the ``--keypoints`` file. detector_keypoints:
+    [21, 2] the detector's own keypoints, same pixels, when they differ from ``keypoints`` (the
+    wrist moved to the skeleton's: :func:`lisa_hand.fitting.photo.detect.to_skeleton_wrist`).
     """
 
     keypoints: np.ndarray
@@ -66,6 +68,7 @@ class PhotoHand:
     side: str | None
     score: float | None
     source: str
+    detector_keypoints: np.ndarray | None = None
 
 
 def _image_factors(photo: Any) -> np.ndarray:

@@ -8,8 +8,9 @@ One fitted hand's folder (``DIR``, or ``DIR/handN`` when a photo holds several h
 * ``mesh.ply``: its surface with vertex colours and skinning weights
   (:func:`lisa_hand.inference.mesh_hand`), same frame;
 * ``keypoints.json`` (:func:`keypoints_record`): ``"names"`` the 21 keypoint names in OpenPose
-  order, ``"keypoints_2d_detected"`` [21, 2] (what the fit was given: detected, or
-  ``--keypoints``) and ``"keypoints_2d_fitted"`` [21, 2] (the fitted hand's keypoints
+  order, ``"keypoints_2d_detected"`` [21, 2] (what the fit was given: detected, the wrist moved
+  to the skeleton's, or ``--keypoints``; detected hands also keep the detector's own as
+  ``"keypoints_2d_detector"``) and ``"keypoints_2d_fitted"`` [21, 2] (the fitted hand's keypoints
   projected) in pixels of the ORIGINAL photo (upright, full size, continuous coordinates: pixel
   ``(col, row)`` covers ``[col, col + 1) x [row, row + 1)``), ``"visible"`` [21],
   ``"keypoints_3d"`` [21, 3] metres in the photo's camera frame, ``"side"``, ``"photo"``,
@@ -105,6 +106,8 @@ class PhotoViewOutputs:
     keypoints_3d: [21, 3] metres in this photo's camera frame. mask: [H, W] bool at the
     original size. overlay: [h, w, 3] uint8 (:func:`lisa_hand.fitting.photo.report.overlay_image`).
     keypoint_error_px: mean distance (original pixels) of the visible keypoints.
+    detector_px: [21, 2] original pixels, the detector's own keypoints when the fit was given
+    them changed (its wrist moved to the skeleton's), else None.
     """
 
     photo: Path
@@ -118,6 +121,7 @@ class PhotoViewOutputs:
     mask: np.ndarray
     overlay: np.ndarray
     keypoint_error_px: float
+    detector_px: np.ndarray | None = None
 
 
 @dataclass
@@ -218,7 +222,9 @@ def _view_outputs(model: Any, params: HandParams, keypoints_world: np.ndarray,
         camera_source=item.camera_source, detected_px=item.hand.keypoints / factors,
         fitted_px=fitted / factors, visible=visible, keypoints_3d=in_camera,
         mask=resize_array(refined, (int(width), int(height))), overlay=overlay,
-        keypoint_error_px=float(error.mean()))
+        keypoint_error_px=float(error.mean()),
+        detector_px=(None if item.hand.detector_keypoints is None
+                     else item.hand.detector_keypoints / factors))
 
 
 def build_hand_outputs(model: Any, params: HandParams, photos: Sequence[PhotoOfHand],
@@ -301,12 +307,15 @@ def photo_report_html(hand: PhotoHandOutputs, notes: Sequence[str]) -> str:
 
 
 def _view_record(view: PhotoViewOutputs, side: str) -> dict[str, Any]:
-    return {"photo": str(view.photo), "image_size": list(view.original_size), "side": side,
-            "keypoints_2d_detected": np.asarray(view.detected_px, np.float64).tolist(),
-            "keypoints_2d_fitted": np.asarray(view.fitted_px, np.float64).tolist(),
-            "visible": np.asarray(view.visible, bool).tolist(),
-            "keypoints_3d": np.asarray(view.keypoints_3d, np.float64).tolist(),
-            "keypoint_error_px": float(view.keypoint_error_px)}
+    record = {"photo": str(view.photo), "image_size": list(view.original_size), "side": side,
+              "keypoints_2d_detected": np.asarray(view.detected_px, np.float64).tolist(),
+              "keypoints_2d_fitted": np.asarray(view.fitted_px, np.float64).tolist(),
+              "visible": np.asarray(view.visible, bool).tolist(),
+              "keypoints_3d": np.asarray(view.keypoints_3d, np.float64).tolist(),
+              "keypoint_error_px": float(view.keypoint_error_px)}
+    if view.detector_px is not None:
+        record["keypoints_2d_detector"] = np.asarray(view.detector_px, np.float64).tolist()
+    return record
 
 
 def keypoints_record(hand: PhotoHandOutputs) -> dict[str, Any]:

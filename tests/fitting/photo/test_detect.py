@@ -17,11 +17,13 @@ from scipy import ndimage
 
 from lisa_hand.fitting.photo.detect import (
     MEDIAPIPE_LABEL_TO_SIDE,
+    MEDIAPIPE_WRIST_SHIFT,
     PHOTO_EXTRA_HINT,
     DetectConfig,
     DetectedHand,
     detect_hands,
     photo_extra_missing,
+    to_skeleton_wrist,
 )
 from lisa_hand.skeleton import KEYPOINT_NAMES
 
@@ -127,6 +129,35 @@ def test_extra_missing_hint(monkeypatch):
     assert "\n" not in PHOTO_EXTRA_HINT
     with pytest.raises(ImportError, match=r"pip install -e '\.\[photo\]'"):
         detect_hands(canvas())
+
+
+def test_to_skeleton_wrist_undoes_the_detectors_wrist():
+    """A wrist a fraction f of the way to the middle knuckle, projected by a pinhole camera, is
+    moved back to the projection of the true wrist (exact along a line parallel to the image;
+    within 3% of the wrist-to-knuckle length in the image for a hand tilted 40 degrees in depth
+    at 0.4 m: measured 2.9 px of 125); the other rows stay."""
+    rng = np.random.default_rng(0)
+    keypoints = rng.uniform(100.0, 300.0, size=(21, 2))
+    wrist, knuckle = np.array([0.0, 0.0, 0.4]), np.array([0.0, 0.09, 0.4])
+    tilted = np.array([0.0, 0.09 * np.cos(0.7), 0.4 + 0.09 * np.sin(0.7)])
+    focal, centre = 800.0, np.array([320.0, 240.0])
+
+    def project(point):
+        return focal * point[:2] / point[2] + centre
+
+    for end, tolerance in ((knuckle, 1e-9), (tilted, 0.03)):
+        detected = keypoints.copy()
+        detected[9] = project(end)
+        detected[0] = project(wrist + MEDIAPIPE_WRIST_SHIFT * (end - wrist))
+        moved = to_skeleton_wrist(detected)
+        length = np.linalg.norm(detected[9] - project(wrist))
+        assert np.linalg.norm(moved[0] - project(wrist)) < tolerance * length
+        np.testing.assert_array_equal(moved[1:], detected[1:])
+        assert np.linalg.norm(detected[0] - project(wrist)) > 10.0  # the shift is not small
+    np.testing.assert_array_equal(to_skeleton_wrist(keypoints, 0.0), keypoints)
+    for bad in (-0.1, 1.0):
+        with pytest.raises(ValueError, match="wrist shift"):
+            to_skeleton_wrist(keypoints, bad)
 
 
 def test_label_mapping():

@@ -5,6 +5,7 @@ photos)."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -278,19 +279,27 @@ def test_detected_hands_and_an_unsure_side(model_file, tmp_path, monkeypatch):
     jpeg = save_jpeg(tmp_path / "hand.jpg", photo.image)
     points = photo.keypoints[0]
     box = (*points.min(0), *points.max(0))
+    # The detector's convention: its wrist a fraction of the way to the middle knuckle.
+    shift = detect.MEDIAPIPE_WRIST_SHIFT
+    detector = points.copy()
+    detector[0] = points[0] + shift * (points[9] - points[0])
     monkeypatch.setattr(detect, "photo_extra_missing", lambda: None)
     for score, side, source in ((0.98, "right", "detected"), (0.6, "right", "fitted")):
-        found = [detect.DetectedHand(keypoints=points, score=score, side="left" if
+        found = [detect.DetectedHand(keypoints=detector, score=score, side="left" if
                                      score < 0.75 else "right", box=box)]
         monkeypatch.setattr(detect, "detect_hands", lambda image, max_hands=4, found=found:
                             found)
         lines = []
+        config = dataclasses.replace(fast_config(color_iters=0), detector_wrist_shift=shift)
         report = fit_photo_folder(jpeg, tmp_path / f"out{score}", focal_px=FOCAL,
                                   model_path=path, device="cpu", progress=False,
-                                  log=lines.append, config=fast_config(color_iters=0))[0]
+                                  log=lines.append, config=config)[0]
         assert (report.side, report.side_source) == (side, source)
-        assert report.keypoint_error_px[0] < 2.0
+        assert report.keypoint_error_px[0] < 2.0  # against the wrist moved back
         assert any("1 hand(s) found" in line for line in lines)
+        record = json.loads((tmp_path / f"out{score}" / "keypoints.json").read_text())
+        np.testing.assert_allclose(record["keypoints_2d_detector"], detector, atol=1e-6)
+        np.testing.assert_allclose(record["keypoints_2d_detected"], points, atol=1e-6)
     assert any("the detector is unsure of the side (left 0.60, below 0.75)" in line
                for line in lines)
 
