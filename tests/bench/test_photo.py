@@ -17,7 +17,12 @@ from lisa_hand.bench._photo_scenes import (
     make_photo,
     photo_orientation,
 )
-from lisa_hand.bench.photo import keypoint_error_px, reference_keypoints, run_photo_benchmark
+from lisa_hand.bench.photo import (
+    detector_wrist_shift,
+    keypoint_error_px,
+    reference_keypoints,
+    run_photo_benchmark,
+)
 from lisa_hand.geometry.rotations import axis_angle_to_matrix
 from lisa_hand.handmodel import OpenHand
 from lisa_hand.metrics import pa_mpjpe
@@ -35,6 +40,25 @@ def test_held_out_subjects_are_not_the_shipped_models():
     assert len(held_out) == 6 and len(trained.subject_ids) == 51
     assert held_out.isdisjoint(trained.subject_ids)
     assert held_out.isdisjoint(geometry.subject_ids)
+
+
+def test_training_subjects_photos_are_not_the_benchmarks():
+    from lisa_hand.fitting.photo.detect import to_skeleton_wrist
+
+    train = held_out_subjects("train")
+    assert len(train) == 6 and set(train).isdisjoint(held_out_subjects())
+    with pytest.raises(ValueError, match="subjects"):
+        PhotoSceneConfig(subjects="val")
+    # The wrist offset the bench reports is the one to_skeleton_wrist undoes.
+    rng = np.random.default_rng(1)
+    true = rng.uniform(0, 500, size=(21, 2))
+    detected = true.copy()
+    detected[0] = true[0] + 0.2 * (true[9] - true[0]) + 3.0 * np.array(
+        [true[9, 1] - true[0, 1], true[0, 0] - true[9, 0]]) / np.linalg.norm(true[9] - true[0])
+    assert detector_wrist_shift(detected, true) == pytest.approx(0.2)  # across: not counted
+    along = true.copy()
+    along[0] = true[0] + 0.2 * (true[9] - true[0])
+    np.testing.assert_allclose(to_skeleton_wrist(along, 0.2), true, atol=1e-9)
 
 
 @pytest.mark.parametrize("side", ["right", "left"])
