@@ -59,6 +59,7 @@ def test_demo_fits_measures_renders_and_reports(model_file, tmp_path):
     for row in result.rows:
         assert all(math.isfinite(row[key]) and row[key] > 0 for key in METRICS), row
         assert math.isfinite(row["psnr_db"]) and row["psnr_db"] > 0
+        assert math.isfinite(row["psnr_calibrated_db"]) and row["psnr_calibrated_db"] > 0
         assert row["seconds"] > 0
     table = (out / "results.md").read_text()
     assert table.count("\n| LISA, ") == 3 and table.strip() in "\n".join(lines)
@@ -79,6 +80,34 @@ def test_demo_fits_measures_renders_and_reports(model_file, tmp_path):
     assert sources and all(src.startswith("data:image/") for src in sources)
     assert any(src.startswith("data:image/gif;base64,") for src in sources)
     assert "href=" not in page and page.count("<tr><td>LISA, ") == 3
+
+    # The calibrated PSNR renders each novel view with that camera's gain and bias from the
+    # frame's truth: given the model's own mean calibration there, it is the plain PSNR; a
+    # wrong response there lowers it.
+    import json
+
+    from lisa_hand.data.layout import FramePaths
+    from lisa_hand.evaluation.demo import _novel_view_psnr
+    from lisa_hand.model.trained import load_trained
+    from lisa_hand.skeleton.params import read_params
+
+    model = load_trained(model_file, "cpu")
+    frame = FramePaths(out / "input" / "s000" / "f000")
+    params = read_params(out / "fit_4views" / "params.json")
+    truth = json.loads(frame.params.read_text())
+    novel = [name for name in truth["camera_gain"] if name not in ("cam000", "cam001", "cam002",
+                                                                    "cam003")]
+    assert len(novel) == 1
+    for name in novel:
+        truth["camera_gain"][name] = model.gain.tolist()
+        truth["camera_bias"][name] = model.bias.tolist()
+    frame.params.write_text(json.dumps(truth))
+    plain, calibrated, _ = _novel_view_psnr(model, params, frame, novel)
+    assert calibrated == pytest.approx(plain, abs=1e-9)
+    truth["camera_bias"][novel[0]] = [0.3, -0.2, 0.25]
+    frame.params.write_text(json.dumps(truth))
+    _, shifted, _ = _novel_view_psnr(model, params, frame, novel)
+    assert shifted < plain - 3.0
 
 
 def test_demo_rejects_bad_input_before_writing(model_file, tmp_path):
