@@ -17,14 +17,15 @@ colour loss does not bend the geometry through the normals). ``k``, the light's 
 fraction, is learned (one number) and starts at 0.5: a surface facing the camera keeps its
 albedo, one seen edge-on half of it.
 
+A ray's weights sit within a few ``beta`` of its surface, so one normal a ray is what the samples
+would have given (the Lambert term is linear in the colour).
+
 ``shading="camera_light"`` is the same term with the light's direction learned too: a directional
 light fixed to the camera (a flash or ring light beside the lens, a studio light that moves with
 the camera) at an unknown offset, ``c = albedo * ((1 - k) + k * max(0, n . R^T l))`` with ``l``
 the unit direction towards the light in the camera frame (x right, y down, z forward; starts at
 ``(0, 0, -1)``, the camera's axis) and ``R`` each ray's world-to-camera rotation. Three more
 numbers; it needs the rays' camera rotations wherever it is rendered.
-A ray's weights sit within a few ``beta`` of its surface, so one normal a ray is what the samples
-would have given (the Lambert term is linear in the colour).
 """
 
 from __future__ import annotations

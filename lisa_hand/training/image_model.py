@@ -122,8 +122,8 @@ class ImageModel(nn.Module):
 
     field: :class:`LisaModel` with colour. shape_codes, color_codes: :class:`LatentTable`
     [S, D]. density: :class:`LaplaceDensity`. gain, bias: [C, 3] per camera and channel.
-    shading: :class:`~lisa_hand.render.shading.HeadlightShading` (``shading="headlight"``) or
-    None (colours as the field gives them).
+    shading: :class:`~lisa_hand.render.shading.HeadlightShading` (``shading="headlight"`` or
+    ``"camera_light"``) or None (colours as the field gives them).
     pose_offsets: [F, 48] radians; translation_offsets: [F, 3] metres (per training frame).
     subject_ids [S], camera_names [C], frame_keys [F] name the rows.
     """
