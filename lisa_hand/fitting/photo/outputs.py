@@ -11,8 +11,8 @@ One fitted hand's folder (``DIR``, or ``DIR/handN`` when a photo holds several h
   order, ``"keypoints_2d_detected"`` [21, 2] (what the fit was given: detected, or
   ``--keypoints``; with ``FitPhotoConfig.detector_wrist_shift`` the detected wrist moved, and
   the detector's own keypoints kept as ``"keypoints_2d_detector"``) and
-  ``"keypoints_2d_fitted"`` [21, 2] (the fitted hand's keypoints projected) in pixels of the ORIGINAL photo (upright, full size, continuous coordinates: pixel
-  ``(col, row)`` covers ``[col, col + 1) x [row, row + 1)``), ``"visible"`` [21],
+  ``"keypoints_2d_fitted"`` [21, 2] (the fitted hand's keypoints projected) in pixels of the
+  ORIGINAL photo (upright, full size, continuous coordinates: pixel ``(col, row)`` covers ``[col, col + 1) x [row, row + 1)``), ``"visible"`` [21],
   ``"keypoints_3d"`` [21, 3] metres in the photo's camera frame, ``"side"``, ``"photo"``,
   ``"image_size"`` (W, H of the original photo), ``"keypoint_error_px"`` (the mean distance
   between the two sets of 2D keypoints over the visible ones, original pixels), ``"frame"``
