@@ -8,16 +8,16 @@ One fitted hand's folder (``DIR``, or ``DIR/handN`` when a photo holds several h
 * ``mesh.ply``: its surface with vertex colours and skinning weights
   (:func:`lisa_hand.inference.mesh_hand`), same frame;
 * ``keypoints.json`` (:func:`keypoints_record`): ``"names"`` the 21 keypoint names in OpenPose
-  order, ``"keypoints_2d_detected"`` [21, 2] (what the fit was given: detected, or
-  ``--keypoints``; with ``FitPhotoConfig.detector_wrist_shift`` the detected wrist moved, and
-  the detector's own keypoints kept as ``"keypoints_2d_detector"``) and
-  ``"keypoints_2d_fitted"`` [21, 2] (the fitted hand's keypoints projected) in pixels of the
-  ORIGINAL photo (upright, full size, continuous coordinates: pixel ``(col, row)`` covers ``[col, col + 1) x [row, row + 1)``), ``"visible"`` [21],
+  order, ``"keypoints_2d_detected"`` [21, 2] (what the fit was given: detected, or ``--keypoints``;
+  with ``FitPhotoConfig.detector_wrist_shift`` the detected wrist moved, and the detector's own
+  keypoints kept as ``"keypoints_2d_detector"``) and ``"keypoints_2d_fitted"`` [21, 2] (the fitted
+  hand's keypoints projected) in pixels of the ORIGINAL photo (upright, full size, continuous
+  coordinates: pixel ``(col, row)`` covers ``[col, col + 1) x [row, row + 1)``), ``"visible"`` [21],
   ``"keypoints_3d"`` [21, 3] metres in the photo's camera frame, ``"side"``, ``"photo"``,
-  ``"image_size"`` (W, H of the original photo), ``"keypoint_error_px"`` (the mean distance
-  between the two sets of 2D keypoints over the visible ones, original pixels), ``"frame"``
-  (``"camera"``) and ``"units"`` (:data:`UNITS`, in words). ``lisa fit-photo --keypoints``
-  reads this file back (its detected keypoints).
+  ``"image_size"`` (W, H of the original photo), ``"keypoint_error_px"`` (the mean distance between
+  the two sets of 2D keypoints over the visible ones, original pixels), ``"frame"`` (``"camera"``)
+  and ``"units"`` (:data:`UNITS`, in words). ``lisa fit-photo --keypoints`` reads this file back
+  (its detected keypoints).
 * ``camera.json``: the camera used (:func:`lisa_hand.data.photo.save_camera`: at the fitted
   image's size and at the original photo's, with its source);
 * ``mask.png``: the hand's mask at the original photo's size (white: hand);
