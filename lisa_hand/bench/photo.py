@@ -248,7 +248,9 @@ def _synthetic_one(fit, photo, out_dir: Path, detect: bool, options: dict) -> Sy
 def detector_wrist_shift(detected: np.ndarray, true: np.ndarray) -> float:
     """detected, true: [21, 2] pixels -> the detected wrist's offset from the true one along the
     true wrist-to-middle-knuckle line, a fraction of its length (+: towards the knuckle)."""
-    axis = true[9] - true[0]
+    from ..fitting.photo.detect import MIDDLE_MCP
+
+    axis = true[MIDDLE_MCP] - true[0]
     length = float(np.linalg.norm(axis))
     return float((detected[0] - true[0]) @ axis) / (length * length)
 

@@ -88,7 +88,7 @@ from typing import Any
 
 import numpy as np
 
-from ...skeleton import NUM_KEYPOINTS
+from ...skeleton import KEYPOINT_NAMES, NUM_KEYPOINTS
 
 __all__ = [
     "PHOTO_EXTRA_HINT",
@@ -113,7 +113,8 @@ MEDIAPIPE_WRIST_SHIFT = 0.17
 finger's knuckle on photos of the generator's hands, a fraction of the wrist-to-knuckle length
 (measured on training subjects; not a property of real hands: the module docstring)."""
 
-_MIDDLE_MCP = 9  # KEYPOINT_NAMES index of the middle finger's knuckle
+MIDDLE_MCP = KEYPOINT_NAMES.index("middle_mcp")
+"""Row of the middle finger's knuckle, the wrist shift's other end."""
 
 
 def to_skeleton_wrist(keypoints: np.ndarray, shift: float = MEDIAPIPE_WRIST_SHIFT) -> np.ndarray:
@@ -126,7 +127,7 @@ def to_skeleton_wrist(keypoints: np.ndarray, shift: float = MEDIAPIPE_WRIST_SHIF
     if not 0.0 <= shift < 1.0:
         raise ValueError(f"the wrist shift must be in [0, 1), got {shift!r}")
     moved = np.array(keypoints, dtype=np.float64, copy=True)
-    moved[0] = (moved[0] - shift * moved[_MIDDLE_MCP]) / (1.0 - shift)
+    moved[0] = (moved[0] - shift * moved[MIDDLE_MCP]) / (1.0 - shift)
     return moved
 
 _WHOLE = "whole image"  # the first search level: the image as it is and zoomed out
