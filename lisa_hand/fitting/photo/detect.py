@@ -98,6 +98,7 @@ __all__ = [
     "detect_hands",
     "MEDIAPIPE_LABEL_TO_SIDE",
     "MEDIAPIPE_WRIST_SHIFT",
+    "MIDDLE_MCP",
     "to_skeleton_wrist",
 ]
 
