@@ -40,8 +40,10 @@ from .mesh import (
     HandMesh,
     MeshConfig,
     check_resolution,
+    mesh_attributes,
     mesh_hand,
     mesh_hand_with_stats,
+    mirror_mesh,
     repose_mesh,
 )
 from .render import (
@@ -74,8 +76,10 @@ __all__ = [
     "MeshConfig",
     "HandMesh",
     "check_resolution",
+    "mesh_attributes",
     "mesh_hand",
     "mesh_hand_with_stats",
+    "mirror_mesh",
     "repose_mesh",
     "hand_render_config",
     "HandScene",

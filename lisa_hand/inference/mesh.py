@@ -29,6 +29,8 @@ __all__ = [
     "check_resolution",
     "mesh_hand",
     "mesh_hand_with_stats",
+    "mesh_attributes",
+    "mirror_mesh",
     "repose_mesh",
 ]
 
@@ -226,6 +228,38 @@ def mesh_hand(
     return mesh_hand_with_stats(
         model, params, resolution, config, hand=hand, progress=progress, clip=clip
     ).mesh
+
+
+def mesh_attributes(
+    model: TrainedModel,
+    params: HandParams,
+    mesh: Mesh,
+    config: MeshConfig | None = None,
+    *,
+    hand: HandField | None = None,
+) -> Mesh:
+    """``mesh`` (a surface of this hand already extracted, e.g. by :func:`mesh_hand` with
+    ``colors=False, skin_weights=False``) with the colours and skinning weights ``config`` asks
+    for, as :func:`mesh_hand` attaches them: the same mesh as :func:`mesh_hand` would return
+    for that surface, without extracting it again.
+
+    model, params: the trained model and the hand; hand: a prepared :func:`hand_field` of them.
+    mesh: world frame, metres. -> a new :class:`lisa_hand.geometry.meshing.Mesh`.
+    """
+    config = MeshConfig() if config is None else config
+    hand = hand_field(model, params) if hand is None else hand
+    if not (config.colors or config.skin_weights) or len(mesh.vertices) == 0:
+        return Mesh(vertices=mesh.vertices, faces=mesh.faces)
+    return _vertex_attributes(Mesh(vertices=mesh.vertices, faces=mesh.faces), hand, config)
+
+
+def mirror_mesh(mesh: Mesh) -> Mesh:
+    """``mesh`` mirrored through the x = 0 plane (a right hand's surface <-> the left hand's,
+    :func:`lisa_hand.skeleton.kinematics.mirror_points`), faces turned so that they stay
+    counter-clockwise seen from outside; colours and skinning weights kept."""
+    vertices = mesh.vertices * np.array([-1.0, 1.0, 1.0], dtype=np.float32)
+    return Mesh(vertices=vertices, faces=np.ascontiguousarray(mesh.faces[:, ::-1]),
+                colors=mesh.colors, skin_weights=mesh.skin_weights)
 
 
 def repose_mesh(

@@ -4,6 +4,7 @@ inside :func:`fit_images` (pass, fallback to a pose-and-colour fit, and the last
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 
@@ -186,6 +187,48 @@ def test_fit_images_guard_passes_and_is_recorded(scene):
     assert off.notes and "surface guard is off" in off.notes[0]
 
 
+def assert_same_surface(reused, fresh, tolerance: float = 1e-5) -> None:
+    """Two meshes of one surface (the guard's reused, a fresh extraction): every vertex of
+    each on a vertex of the other (within ``tolerance`` metres: a left hand's is the right
+    hand's mirrored, its grid rounded differently, ~1 um), the same area (to 1e-3: marching
+    cubes may split a mirrored ambiguous cell the other way), the same colours and skinning
+    weights at the matched vertices."""
+    from scipy.spatial import cKDTree
+
+    distance, match = cKDTree(fresh.vertices).query(reused.vertices)
+    assert distance.max() < tolerance
+    assert cKDTree(reused.vertices).query(fresh.vertices)[0].max() < tolerance
+    assert surface_pieces(reused)[1] == pytest.approx(surface_pieces(fresh)[1], rel=1e-3)
+    np.testing.assert_allclose(reused.colors.astype(int), fresh.colors[match].astype(int),
+                               atol=1)
+    np.testing.assert_allclose(reused.skin_weights, fresh.skin_weights[match], atol=1e-4)
+
+
+@pytest.mark.usefixtures("one_thread")
+@pytest.mark.parametrize("side", ["right", "left"])
+def test_the_written_mesh_is_the_guards_mesh(scene, side):
+    from lisa_hand.fitting.images.folder import fitted_mesh, output_surface
+    from lisa_hand.inference import mesh_hand
+
+    model = scene["model"]
+    result = fit_images(model, scene["views"], FitImagesConfig(**FAST), side=side)
+    assert set(result.surface_meshes) == {"start", "returned"}
+    assert result.surface_resolution == FAST["guard_resolution"] == 24
+    reused = fitted_mesh(model, result, 24)
+    fresh = mesh_hand(model, result.params, 24)
+    assert_same_surface(reused, fresh)
+    # Another resolution: extracted, not the guard's.
+    other = fitted_mesh(model, result, 20)
+    assert_same_surface(other, mesh_hand(model, result.params, 20))
+    # The written mesh's figures against the guard's start: as with the start meshed again.
+    cached = output_surface(model, result, reused, 24)
+    again = output_surface(model, dataclasses.replace(result, surface_meshes={}), fresh, 24)
+    assert cached["pieces"] == again["pieces"] and cached["passed"] == again["passed"]
+    assert cached["area_ratio"] == pytest.approx(again["area_ratio"], rel=1e-3)
+    off = fit_images(model, scene["views"], FitImagesConfig(**FAST, guard=False), side=side)
+    assert off.surface_meshes == {} and off.surface_resolution is None
+
+
 def code_sensitive_model():
     """The tiny model with random weights from the shape code into its SDF MLP (at the
     geometric initialisation they are 0: the code would not change the surface)."""
@@ -219,6 +262,10 @@ def test_a_grown_colour_fit_is_shrunk_back(scene, wreck_start):
     assert result.guard is attempts["shrink_0.25"] and result.guard.passed
     assert result.params.extra["guard"]["fallback"] == "shrink_0.25"
     assert "shrunk to 25 %, which passed" in result.notes[0]
+    from lisa_hand.fitting.images.folder import fitted_mesh
+    from lisa_hand.inference import mesh_hand
+
+    assert_same_surface(fitted_mesh(model, result, 24), mesh_hand(model, result.params, 24))
     # A quarter of the way from the start's shape code, and the skeleton follows the betas.
     assert float((result.params.shape_code - model.mean_shape_code()).norm()) > 0
     template = load_float_template()
@@ -258,3 +305,8 @@ def test_a_wrecked_colour_fit_falls_back(scene, wreck_start):
     assert strict.guard.passed and len(strict.notes) == 1
     assert "the keypoint stage's geometry is kept" in strict.notes[0]
     assert not torch.equal(strict.params.color_code, model.mean_color_code())
+    from lisa_hand.fitting.images.folder import fitted_mesh
+    from lisa_hand.inference import mesh_hand
+
+    assert strict.surface_meshes["returned"] is strict.surface_meshes["start"]
+    assert_same_surface(fitted_mesh(model, strict, 24), mesh_hand(model, strict.params, 24))

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ...inference.mesh import mirror_mesh
 from ...skeleton.params import HandParams
 from ...utils.device import resolve_device
 from ...utils.threads import cpu_threads
@@ -90,6 +91,12 @@ class FitImagesResult:
     notes: sentences for the user: a failed guard and the fallback used, the guard turned off.
     start: the hand the colour stage started from, the guard's reference (the keypoint stage's
         pose, translation and betas with the model's mean codes; ``side`` as ``params``).
+    surface_meshes: the guard's meshes, geometry only (:func:`guard_mesh` at
+        ``surface_resolution`` samples a side, world frame, ``side`` as ``params``): "start"
+        (of ``start``) and "returned" (of ``params``), for writers that mesh the same hands at
+        the same resolution (:func:`lisa_hand.fitting.images.folder.fitted_mesh`); empty when
+        the guard did not run.
+    surface_resolution: the resolution of ``surface_meshes`` (None: empty).
     """
 
     params: HandParams
@@ -102,6 +109,8 @@ class FitImagesResult:
     guard_attempts: dict[str, GuardReport] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     start: HandParams | None = None
+    surface_meshes: dict[str, Any] = field(default_factory=dict)
+    surface_resolution: int | None = None
 
 
 def _keypoint_hand(views: list[ImageView], config: FitImagesConfig, template: Any,
@@ -196,6 +205,8 @@ class _Guarded:
     fallback: str = "none"
     notes: list[str] = field(default_factory=list)
     seconds: float = 0.0
+    meshes: dict[str, Any] = field(default_factory=dict)
+    """{"start", "returned"}: the guard's meshes of ``start`` and ``hand`` (the fit's frame)."""
 
 
 def _guard(model: Any, views: list[ImageView], start: HandParams, fitted: HandParams,
@@ -214,17 +225,21 @@ def _guard(model: Any, views: list[ImageView], start: HandParams, fitted: HandPa
     began = time.perf_counter()
     resolution, change = config.guard_resolution, config.max_area_change
 
-    def judge(hand: HandParams) -> GuardReport:
-        return surface_guard(reference, guard_mesh(model, hand, resolution), change)
+    meshes: dict[str, Any] = {}
+
+    def judge(name: str, hand: HandParams) -> GuardReport:
+        meshes[name] = guard_mesh(model, hand, resolution)
+        return surface_guard(reference, meshes[name], change)
 
     reference = guard_mesh(model, start, resolution)
-    first = judge(fitted)
+    first = judge("color", fitted)
     result = _Guarded(fitted, start=start, guard=first, attempts={"color": first})
     why = "; ".join(note for note in first.notes[1:] if " speck(s) below " not in note)
     failed = f"the colour stage failed the surface guard ({why})"
     for fraction in () if first.passed else config.guard_shrink:
         shrunk = _shrunk(template, start, fitted, fraction)
-        report = result.attempts[f"shrink_{fraction:g}"] = judge(shrunk)
+        name = f"shrink_{fraction:g}"
+        report = result.attempts[name] = judge(name, shrunk)
         if report.passed:
             result.hand, result.guard, result.fallback = shrunk, report, f"shrink_{fraction:g}"
             result.notes.append(f"{failed}: its change of pose and shape was shrunk to "
@@ -232,7 +247,7 @@ def _guard(model: Any, views: list[ImageView], start: HandParams, fitted: HandPa
             break
     if not result.guard.passed:
         fallback = _fixed_shape_fit(model, views, start, config, template, progress, reports)
-        second = result.attempts["fixed_shape"] = judge(fallback)
+        second = result.attempts["fixed_shape"] = judge("fixed_shape", fallback)
         if second.passed:
             result.hand, result.guard, result.fallback = fallback, second, "fixed_shape"
             result.notes.append(f"{failed}: fitted again with the shape code and skeleton "
@@ -242,11 +257,14 @@ def _guard(model: Any, views: list[ImageView], start: HandParams, fitted: HandPa
                                   extra=_calibration_extra(fallback))
             result.guard = surface_guard(reference, reference, change)
             result.fallback = "start_geometry"
+            meshes["start_geometry"] = reference
             result.notes.append(f"{failed}, and so did a fit of pose and colour only: the "
                                 "keypoint stage's geometry is kept, with that fit's colour")
             if not result.guard.passed:
                 result.notes.append("the returned hand fails the surface guard too ("
                                     + "; ".join(result.guard.notes) + ")")
+    chosen = "color" if result.fallback == "none" else result.fallback
+    result.meshes = {"start": reference, "returned": meshes[chosen]}
     result.seconds = time.perf_counter() - began
     return result
 
@@ -326,10 +344,13 @@ def _result(guarded: _Guarded, reports: dict[str, StageReport], views: list[Imag
                                "attempts": {name: report.to_dict() for name, report in
                                             guarded.attempts.items()}}
     start = replace(guarded.start, extra={})
+    meshes = dict(guarded.meshes)
     if side == "left":
         hand, start = mirror_hand(hand), mirror_hand(start)
+        meshes = {name: mirror_mesh(mesh) for name, mesh in meshes.items()}
     return FitImagesResult(params=hand, reports=reports, history=history, seconds=seconds,
                            stage_seconds={"keypoints": stage1, "color": seconds - stage1},
                            keypoint_error_px=errors, guard=guarded.guard,
                            guard_attempts=dict(guarded.attempts), notes=list(guarded.notes),
-                           start=start)
+                           start=start, surface_meshes=meshes,
+                           surface_resolution=config.guard_resolution if meshes else None)

@@ -3,7 +3,8 @@ and the fitted hand re-rendered into the input views (:func:`render_fitted_views
 :func:`view_psnrs`).
 
 Outputs of :func:`fit_image_folder`: ``params.json``, ``mesh.ply``
-(:func:`lisa_hand.inference.mesh_hand`: vertex colours and skinning weights) and
+(:func:`lisa_hand.inference.mesh_hand`: vertex colours and skinning weights; the surface
+guard's mesh of the returned hand reused, :func:`fitted_mesh`) and
 ``metrics.json`` (keypoint errors, PSNR of the re-rendered input views, timings, the surface
 guard's figures, and with a ground truth the V2V / V2S distances), written all or nothing by
 :mod:`lisa_hand.fitting.outputs`.
@@ -31,7 +32,7 @@ from .fit import FitImagesResult, fit_images
 from .views import ImageView, background_colour, fit_target, input_notes, read_views
 
 __all__ = ["ViewRender", "render_fitted_views", "view_psnrs", "FitImagesReport",
-           "fit_image_folder"]
+           "fit_image_folder", "fitted_mesh", "output_surface"]
 
 
 @dataclass
@@ -173,16 +174,33 @@ def fit_image_folder(
                               log)
 
 
-def _output_surface(model: Any, fit: FitImagesResult, mesh: Any, resolution: int
-                    ) -> dict[str, Any] | None:
+def fitted_mesh(model: Any, fit: FitImagesResult, resolution: int) -> Any:
+    """The written mesh of ``fit.params`` (:func:`lisa_hand.inference.mesh_hand`: colours and
+    skinning weights) at ``resolution``: the guard's mesh of the returned hand with its
+    attributes when the guard meshed it at that resolution (the same surface, not extracted
+    twice), else extracted."""
+    from ...inference import mesh_attributes, mesh_hand
+
+    surface = fit.surface_meshes.get("returned")
+    if surface is not None and fit.surface_resolution == resolution:
+        return mesh_attributes(model, fit.params, surface)
+    return mesh_hand(model, fit.params, resolution)
+
+
+def output_surface(model: Any, fit: FitImagesResult, mesh: Any, resolution: int
+                   ) -> dict[str, Any] | None:
     """The guard's figures on the written mesh: ``mesh`` against the colour stage's start
-    meshed at the same ``resolution`` (:func:`lisa_hand.fitting.images.guard.surface_guard`);
-    None when the colour stage did not run."""
+    meshed at the same ``resolution`` (:func:`lisa_hand.fitting.images.guard.surface_guard`;
+    the guard's own mesh of the start when it has that resolution); None when the colour stage
+    did not run."""
     from .guard import guard_mesh, surface_guard
 
     if fit.start is None or "color" not in fit.reports:
         return None
-    report = surface_guard(guard_mesh(model, fit.start, resolution), mesh)
+    reference = fit.surface_meshes.get("start")
+    if reference is None or fit.surface_resolution != resolution:
+        reference = guard_mesh(model, fit.start, resolution)
+    report = surface_guard(reference, mesh)
     return {"resolution": resolution, **report.to_dict()}
 
 
@@ -190,13 +208,12 @@ def _finish_folder(model: Any, fit: FitImagesResult, image_views: Sequence[Image
                    out_dir: Path, truth: Any, resolution: int, psnr: bool,
                    notes: list[str], log: Callable[[str], None]) -> FitImagesReport:
     """Mesh, metrics and files of :func:`fit_image_folder`."""
-    from ...inference import mesh_hand
     from ..outputs import ground_truth_metrics, write_fit_outputs
 
     params = fit.params
     mesh_start = time.perf_counter()
-    mesh = mesh_hand(model, params, resolution)
-    surface = _output_surface(model, fit, mesh, resolution)
+    mesh = fitted_mesh(model, fit, resolution)
+    surface = output_surface(model, fit, mesh, resolution)
     if surface is not None and not surface["passed"]:
         note = (f"the written mesh (resolution {resolution}) fails the surface guard: "
                 + "; ".join(surface["notes"]))

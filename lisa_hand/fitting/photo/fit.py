@@ -109,11 +109,12 @@ class FitPhotoConfig:
     they are."""
     mesh_resolution: int = 128
     """Marching-cubes samples a side of ``mesh.ply``."""
-    render_samples: int = 16
-    """Samples per ray of the rendering into the photos (overlay, silhouette)."""
-    render_max_side: int = 200
+    render_supersample: int = 2
+    """Rays a pixel side of the rendering of ``mesh.ply`` into the photos (overlay,
+    silhouette; :func:`lisa_hand.inference.mesh_render.render_mesh`)."""
+    render_max_side: int = 512
     """The fitted hand is rendered into each photo's crop at most this long side, pixels (then
-    resized: VolSDF costs about 1 s per 10^4 rays of a hand on one CPU core)."""
+    resized)."""
     inconsistent_fraction: float = 0.08
     """Several photos: a photo whose mean keypoint error after the joint fit exceeds this
     fraction of the hand's size in it gets a note."""
@@ -122,7 +123,7 @@ class FitPhotoConfig:
         if not isinstance(self.fit, FitImagesConfig):
             raise TypeError(f"fit must be a FitImagesConfig, got {type(self.fit).__name__}")
         for name in ("max_side", "view_max_side", "max_hands", "mesh_resolution",
-                     "render_samples", "render_max_side"):
+                     "render_supersample", "render_max_side"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
@@ -483,6 +484,7 @@ def _fit_hand(model: Any, inputs: list[_PhotoInput], hands: list[PhotoHand], fol
     """Fit one hand to its photos -> (what to write, the report)."""
     from ...utils.threads import cpu_threads
     from ..images.fit import fit_images
+    from ..images.folder import fitted_mesh, output_surface
     from ..stages import template_on
     from .inputs import crop_view
     from .mask import coarse_mask, mask_method
@@ -531,10 +533,10 @@ def _fit_hand(model: Any, inputs: list[_PhotoInput], hands: list[PhotoHand], fol
                               camera_source=item.camera_source, hand=one, crop=crop,
                               coarse=mask, refine=item.mask is None)
                   for item, one, crop, mask in zip(inputs, hands, crops, coarse, strict=True)]
-        outputs = build_hand_outputs(model, params, photos, folder, config.mesh_resolution,
-                                     config.render_samples, config.render_max_side)
-        outputs.metrics["surface"] = _output_surface(model, result, outputs.mesh,
-                                                     config.mesh_resolution)
+        mesh = fitted_mesh(model, result, config.mesh_resolution)
+        outputs = build_hand_outputs(model, params, photos, folder, mesh,
+                                     config.render_supersample, config.render_max_side)
+        outputs.metrics["surface"] = output_surface(model, result, mesh, config.mesh_resolution)
     _consistency_notes(outputs, photos, config, notes)
     timings["seconds_outputs"] = time.perf_counter() - outputs_began
     seconds = time.perf_counter() - began
@@ -552,18 +554,6 @@ def _fit_hand(model: Any, inputs: list[_PhotoInput], hands: list[PhotoHand], fol
         keypoint_error_px=[view.keypoint_error_px for view in outputs.views], guard=guard,
         seconds=seconds, metrics=outputs.metrics, notes=notes)
     return outputs, report
-
-
-def _output_surface(model: Any, result: Any, mesh: Any, resolution: int) -> dict | None:
-    """The guard's figures on the written ``mesh.ply``: against the colour stage's start meshed
-    at the same resolution (:func:`lisa_hand.fitting.images.guard.surface_guard`); None when the
-    colour stage did not run."""
-    from ..images.guard import guard_mesh, surface_guard
-
-    if getattr(result, "start", None) is None or "color" not in result.reports:
-        return None
-    report = surface_guard(guard_mesh(model, result.start, resolution), mesh)
-    return {"resolution": resolution, **report.to_dict()}
 
 
 def _consistency_notes(outputs: Any, photos: list[Any], config: FitPhotoConfig,

@@ -174,35 +174,29 @@ def _project(camera: Camera, points: np.ndarray) -> tuple[np.ndarray, np.ndarray
     return projected[:, :2] / projected[:, 2:3], in_camera
 
 
-def _render_crop(model: Any, params: HandParams, view: Any, samples: int, max_side: int) -> Any:
-    """The fitted hand rendered into a crop's view at most ``max_side`` pixels a side."""
-    import dataclasses
-
+def _render_crop(model: Any, mesh: Any, view: Any, supersample: int, max_side: int) -> Any:
+    """The fitted hand's mesh rendered into a crop's view at most ``max_side`` pixels a side
+    (:func:`lisa_hand.inference.mesh_render.render_mesh`)."""
     from ...inference import scale_camera
-    from ..images.folder import render_fitted_views
+    from ...inference.mesh_render import render_mesh
 
+    camera = view.camera
     factor = min(1.0, max_side / max(view.width, view.height))
     if factor < 1.0:
-        from .mask import resize_array
-
-        size = (max(int(round(view.width * factor)), 1), max(int(round(view.height * factor)), 1))
-        small_mask = None if view.mask is None else torch.from_numpy(
-            resize_array(view.mask.cpu().numpy(), size))
-        view = dataclasses.replace(view, camera=scale_camera(view.camera, *size),
-                                   rgb=torch.zeros(size[1], size[0], 3), mask=small_mask,
-                                   keypoints=None, visible=None)
-    return render_fitted_views(model, params, [view], samples=samples)[0]
+        camera = scale_camera(camera, max(int(round(view.width * factor)), 1),
+                              max(int(round(view.height * factor)), 1))
+    return render_mesh(model, mesh, camera, supersample)
 
 
-def _view_outputs(model: Any, params: HandParams, keypoints_world: np.ndarray,
-                  item: PhotoOfHand, samples: int, max_side: int) -> PhotoViewOutputs:
-    """Render the fitted hand into one photo's crop; its mask, keypoints and overlay."""
+def _view_outputs(model: Any, mesh: Any, keypoints_world: np.ndarray, item: PhotoOfHand,
+                  supersample: int, max_side: int) -> PhotoViewOutputs:
+    """Render the fitted hand's mesh into one photo's crop; its mask, keypoints and overlay."""
     from .mask import refine_mask, resize_array
     from .report import overlay_image
 
     photo, crop = item.photo, item.crop
-    render = _render_crop(model, params, crop.view, samples, max_side)
-    alpha, rgb = render.opacity.numpy(), render.rgb.numpy()
+    render = _render_crop(model, mesh, crop.view, supersample, max_side)
+    alpha, rgb = render.alpha, render.rgb
     x0, y0, x1, y1 = crop.box
     silhouette = np.zeros(photo.image.shape[:2], dtype=bool)
     silhouette[y0:y1, x0:x1] = resize_array(alpha > 0.5, (x1 - x0, y1 - y0))
@@ -228,19 +222,17 @@ def _view_outputs(model: Any, params: HandParams, keypoints_world: np.ndarray,
 
 
 def build_hand_outputs(model: Any, params: HandParams, photos: Sequence[PhotoOfHand],
-                       folder: str, mesh_resolution: int, render_samples: int,
+                       folder: str, mesh: Any, render_supersample: int,
                        render_max_side: int) -> PhotoHandOutputs:
-    """Everything a fitted hand's folder holds, in memory: the mesh (colours, skinning
-    weights), per photo the render (``render_samples`` per ray, at most ``render_max_side``
-    pixels a side), refined mask, keypoints and overlay, and the per-photo
-    metrics (``report`` is left empty: :func:`photo_report_html`, once the metrics are
-    complete)."""
-    from ...inference import mesh_hand
+    """Everything a fitted hand's folder holds, in memory: ``mesh`` (the hand's
+    :func:`lisa_hand.inference.mesh_hand`: colours, skinning weights), per photo the mesh's
+    render (``render_supersample`` rays a pixel side, at most ``render_max_side`` pixels a side),
+    refined mask, keypoints and overlay, and the per-photo metrics (``report`` is left empty:
+    :func:`photo_report_html`, once the metrics are complete)."""
     from ..outputs import hand_keypoints_3d
 
-    mesh = mesh_hand(model, params, mesh_resolution)
     keypoints_world = hand_keypoints_3d(params)
-    views = [_view_outputs(model, params, keypoints_world, item, render_samples,
+    views = [_view_outputs(model, mesh, keypoints_world, item, render_supersample,
                            render_max_side) for item in photos]
     per_photo = []
     for view in views:

@@ -1,0 +1,80 @@
+"""A fitted hand's mesh rendered into a camera: :func:`render_mesh`, the fast picture.
+
+Ray casting (Embree, :func:`lisa_hand.data.images.render_views`) of the mesh :func:`mesh_hand`
+made, with its vertex colours (calibrated with the model's mean gain and bias) shaded by the
+model's own learned shading (:class:`lisa_hand.render.shading.HeadlightShading`, as the volume
+renderer applies it), at ``supersample x supersample`` rays a pixel averaged into colour and
+coverage. Milliseconds where the volume renderer (:func:`prepare_render`) takes seconds on a CPU:
+for overlays and previews of a surface already meshed; the volume render stays the measure of
+a model's images (PSNR). Runs under ``torch.no_grad``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ..geometry.cameras import Camera, pixel_rays
+from ..geometry.meshing import Mesh
+from ..model.trained import TrainedModel
+from .render import scale_camera
+
+__all__ = ["MeshRender", "render_mesh"]
+
+
+@dataclass(eq=False)
+class MeshRender:
+    """One view of a mesh (numpy; pixel ``(u, v)`` is ``array[v, u]``)."""
+
+    rgb: np.ndarray
+    """[H, W, 3] float32 in [0, 1]: the shaded surface over black (the mean over the pixel's
+    sub-pixels: colour times ``alpha``, as the volume renderer's over a black background)."""
+    alpha: np.ndarray
+    """[H, W] float32 in [0, 1]: the fraction of the pixel's sub-pixels that hit the surface."""
+
+
+@torch.no_grad()
+def render_mesh(model: TrainedModel, mesh: Mesh, camera: Camera, supersample: int = 2
+                ) -> MeshRender:
+    """Render ``mesh`` (a hand of ``model``: world frame metres, outward faces, uint8 colours
+    [V, 3] or none: grey) into ``camera`` with the model's shading.
+
+    supersample: rays a pixel side (>= 1). -> :class:`MeshRender` of ``camera``'s size.
+    """
+    from ..data.images import render_views
+    from ..data.shading import ShadingConfig
+
+    if isinstance(supersample, bool) or not isinstance(supersample, int) or supersample < 1:
+        raise ValueError(f"supersample must be a positive int, got {supersample!r}")
+    height, width = camera.height, camera.width
+    if len(mesh.faces) == 0:
+        return MeshRender(rgb=np.zeros((height, width, 3), np.float32),
+                          alpha=np.zeros((height, width), np.float32))
+    fine = scale_camera(camera.to("cpu"), width * supersample, height * supersample)
+    colors = (np.full((len(mesh.vertices), 3), 0.7, np.float32) if mesh.colors is None
+              else mesh.colors.astype(np.float32) / 255.0)
+    unlit = ShadingConfig(ambient=1.0, diffuse=0.0)  # the model's shading is applied below
+    (view,) = render_views(mesh.vertices, mesh.faces, [fine], colors, unlit,
+                           return_normals=True)
+    hit = view.mask.reshape(-1)
+    rgb = view.rgb.reshape(-1, 3) * hit[:, None]
+    if model.shading is not None and hit.any():
+        device = model.shading.diffuse_raw.device
+        _, directions = pixel_rays(fine, device=device, dtype=torch.float32)
+        rows = torch.from_numpy(np.flatnonzero(hit)).to(device)
+        normals = torch.from_numpy(view.normals.reshape(-1, 3)[hit]).to(device)
+        rotation = fine.R.to(device=device, dtype=torch.float32)
+        factor = model.shading.factor(normals, directions[rows],
+                                      rotation.expand(rows.shape[0], 3, 3))
+        rgb[hit] *= factor.float().cpu().numpy()
+
+    def pooled(values: np.ndarray) -> np.ndarray:
+        blocks = values.reshape(height, supersample, width, supersample, -1)
+        return blocks.sum(axis=(1, 3))
+
+    rays = float(supersample * supersample)
+    alpha = pooled(hit.astype(np.float32)[:, None])[..., 0] / rays
+    return MeshRender(rgb=np.clip(pooled(rgb) / rays, 0.0, 1.0).astype(np.float32),
+                      alpha=alpha.astype(np.float32))
