@@ -305,7 +305,7 @@ def _targets(synthetic: list[SyntheticResult], shared: dict[str, SharedResult]):
 def run_photo_benchmark(num_photos: int = 12, *, shared_dir: Path | None = None,
                         work_dir: Path | None = None, threads: int = 2, device: str = "cpu",
                         model_path=None, seed: int = 0, detect: bool | None = None, fit=None,
-                        scene=None, log=print) -> PhotoBenchmark:
+                        scene=None, config=None, log=print) -> PhotoBenchmark:
     """Run the benchmark (see the module docstring).
 
     work_dir: where the photos and fits go (default: a temporary folder, removed afterwards).
@@ -314,7 +314,8 @@ def run_photo_benchmark(num_photos: int = 12, *, shared_dir: Path | None = None,
         when the extra is installed or ``detect`` is True. fit: a callable with the signature of
         :func:`lisa_hand.fitting.photo.fit.fit_photo_folder` (default: it). scene: the
         :class:`~lisa_hand.bench._photo_scenes.PhotoSceneConfig` of the synthetic photos
-        (default: its defaults with ``seed``).
+        (default: its defaults with ``seed``). config: the
+        :class:`~lisa_hand.fitting.photo.fit.FitPhotoConfig` of every fit (None: the default).
     """
     if isinstance(num_photos, bool) or not isinstance(num_photos, int) or num_photos < 0:
         raise ValueError(f"--photos must be an integer >= 0, got {num_photos!r}")
@@ -322,7 +323,8 @@ def run_photo_benchmark(num_photos: int = 12, *, shared_dir: Path | None = None,
         with tempfile.TemporaryDirectory(prefix="lisa_bench_photo_") as tmp:
             return run_photo_benchmark(num_photos, shared_dir=shared_dir, work_dir=Path(tmp),
                                        threads=threads, device=device, model_path=model_path,
-                                       seed=seed, detect=detect, fit=fit, scene=scene, log=log)
+                                       seed=seed, detect=detect, fit=fit, scene=scene,
+                                       config=config, log=log)
     from ._photo_scenes import PhotoSceneConfig
 
     if fit is None:
@@ -341,6 +343,8 @@ def run_photo_benchmark(num_photos: int = 12, *, shared_dir: Path | None = None,
                      "(no detection)")
     scene = PhotoSceneConfig(seed=seed) if scene is None else scene
     options = {"device": device, "model_path": model_path}
+    if config is not None:
+        options["config"] = config
     with cpu_threads(threads):
         synthetic = _synthetic_part(fit, num_photos, scene, Path(work_dir), detect, options, log)
         shared = {} if not (detect or extra) else _shared_part(fit, shared_dir, Path(work_dir),
@@ -492,7 +496,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--true-keypoints", action="store_true",
                         help="give the fit the true 2D keypoints and side of the synthetic photos "
                              "instead of detecting them (the fit's error without the detector's)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE",
+                        help="override a FitPhotoConfig value of every fit, e.g. --set "
+                             "fit.color_iters=80 --set detector_wrist_shift=0.17 (repeatable)")
     args = parser.parse_args(argv)
+    config = None
+    if args.overrides:
+        from ..fitting.photo.fit import FitPhotoConfig
+        from ..utils.config import apply_overrides
+
+        try:
+            config = apply_overrides(FitPhotoConfig(), args.overrides)
+        except (ValueError, TypeError) as exc:
+            parser.error(f"--set: {exc}")
+        print(f"fit config overrides: {', '.join(args.overrides)}")
     whose = "held-out" if args.subjects == "test" else "training"
     print(f"photo fitting: {args.photos} synthetic photos ({whose} subjects), then the shared "
           f"photos; {args.threads} torch threads, {args.device}")
@@ -504,12 +522,14 @@ def main(argv: list[str] | None = None) -> None:
                                  detect=False if args.true_keypoints else None,
                                  scene=PhotoSceneConfig(seed=args.seed,
                                                         hand_model=args.hand_model,
-                                                        subjects=args.subjects))
+                                                        subjects=args.subjects),
+                                 config=config)
     print()
     print("\n".join(_table(result)))
     print()
     print("\n".join(_target_lines(result.targets)))
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(_json_safe(result.to_dict()), indent=2))
+        numbers = {**_json_safe(result.to_dict()), "overrides": list(args.overrides)}
+        args.json.write_text(json.dumps(numbers, indent=2))
         print(f"wrote {args.json}")
