@@ -173,6 +173,18 @@ def test_benchmark_plumbing_true_keypoints(tmp_path):
         assert row.pa_mpjpe_mm > 5.0 and row.mpjpe_mm >= row.pa_mpjpe_mm
     assert result.targets["pa_mpjpe_under_5_mm"] is False
     assert result.targets["one_piece_on_real_photos"] is None
+    assert all("config" not in call for call in calls)
+    # --set: every fit gets the overridden config.
+    from lisa_hand.fitting.photo.fit import FitPhotoConfig
+    from lisa_hand.utils.config import apply_overrides
+
+    config = apply_overrides(FitPhotoConfig(), ["fit.color_iters=7"])
+    calls = []
+    run_photo_benchmark(1, shared_dir=tmp_path / "absent", work_dir=tmp_path / "set", threads=1,
+                        detect=False, fit=_stand_in_fit(calls), scene=SMALL, config=config,
+                        log=lambda *_: None)
+    assert [call["config"].fit.color_iters for call in calls] == [7]
+    assert calls[0]["config"].fit.keypoint_iters == FitPhotoConfig().fit.keypoint_iters
 
 
 def test_benchmark_plumbing_shared_photos(tmp_path):
