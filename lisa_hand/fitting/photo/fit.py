@@ -15,8 +15,10 @@ loaded; an error is one line and nothing is written.
 
 Then per hand: the keypoint stage (:func:`lisa_hand.fitting.images.keypoint_stage.fit_keypoints`)
 and the image fit from it (:func:`lisa_hand.fitting.images.fit.fit_images`, its ``start``), the
-geometry guard (:mod:`lisa_hand.fitting.images.guard`), the mesh, the fitted hand rendered into
-each photo (its silhouette refines the mask: :func:`lisa_hand.fitting.photo.mask.refine_mask`),
+geometry guard (:mod:`lisa_hand.fitting.images.guard`), the mesh (the guard's own mesh of the
+returned hand, with colours and skinning weights), the mesh ray cast into each photo
+(:func:`lisa_hand.inference.mesh_render.render_mesh`; its silhouette refines the mask:
+:func:`lisa_hand.fitting.photo.mask.refine_mask`),
 and the files (:mod:`lisa_hand.fitting.photo.outputs`, all hands at once, all or nothing).
 
 **Side.** ``--side right|left``, or ``auto``: the detector's side (when its score reaches
@@ -72,9 +74,11 @@ SIDES = ("auto", "right", "left")
 def photo_fit_defaults(**overrides: Any) -> FitImagesConfig:
     """The image fit's settings for photos: :class:`FitImagesConfig`'s defaults with fewer
     iterations and rays (300 keypoint-stage iterations, 40 colour-stage iterations of 256 rays).
-    Measured on ``hand_thumb_up.jpg`` (one torch thread on the busy 2-core machine): 7 s
-    keypoint stage, 11 s colour stage with the guard, 10 s mesh, guard meshes and the render
-    into the photo, 1 s reading, detection and masks: 29 s. Then ``overrides``."""
+    Measured on ``hand_thumb_up.jpg`` (two torch threads, the 2-core machine otherwise idle):
+    0.4 s reading and masks, 3.4 s keypoint stage, 13.6 s colour stage with the guard (its
+    marching cubes at 128^3, about 2 s each), 0.8 s mesh attributes, render and files: 18 s
+    (29 s on one busy thread before the overlay became a ray cast of the guard's mesh). Then
+    ``overrides``."""
     values: dict[str, Any] = {"keypoint_iters": 300, "color_iters": 40, "num_rays": 256}
     values.update(overrides)
     return FitImagesConfig(**values)
