@@ -250,6 +250,14 @@ class DetectedHand:
     found_by: str = ""
     """The search level that found it: "whole image" (as it is or zoomed out), "2x2 crops",
     "3x3 crops", "4x4 crops"."""
+    side_votes: tuple[int, int] = (0, 0)
+    """(right, left): how many of the agreeing estimates (plain and mirrored windows) call it
+    each side; a split vote means MediaPipe's side changed with the window or the mirroring."""
+
+    @property
+    def side_split(self) -> bool:
+        """Some agreeing estimates call it the other side."""
+        return min(self.side_votes) > 0
 
 
 @dataclass
@@ -258,6 +266,7 @@ class _Found:
 
     keypoints: np.ndarray  # [21, 2] image pixels
     p_right: float  # probability that it is a right hand (true side)
+    votes: tuple[int, int] = (0, 0)  # (right, left) of the estimates averaged into it
 
     @property
     def box(self) -> tuple[float, float, float, float]:
@@ -412,7 +421,8 @@ def _consensus(estimates: list[_Found], agreement: float) -> tuple[_Found, int]:
     """The mean of the estimates within ``agreement`` (mean keypoint distance over the hand's
     box diagonal) of their medoid, and how many they are."""
     if len(estimates) == 1:
-        return estimates[0], 1
+        one = estimates[0]
+        return _Found(one.keypoints, one.p_right, (1, 0) if one.p_right >= 0.5 else (0, 1)), 1
     size = max(1.0, float(np.median([math.hypot(e.box[2] - e.box[0], e.box[3] - e.box[1])
                                      for e in estimates])))
     keypoints = np.stack([e.keypoints for e in estimates])  # [E, 21, 2]
@@ -420,7 +430,9 @@ def _consensus(estimates: list[_Found], agreement: float) -> tuple[_Found, int]:
     medoid = int(np.argmin(distance.sum(axis=1)))
     agree = np.flatnonzero(distance[medoid] <= agreement)
     p_right = float(np.mean([estimates[i].p_right for i in agree]))
-    return _Found(keypoints[agree].mean(axis=0), p_right), int(agree.size)
+    right = sum(estimates[i].p_right >= 0.5 for i in agree)
+    return _Found(keypoints[agree].mean(axis=0), p_right, (right, int(agree.size) - right)), \
+        int(agree.size)
 
 
 def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | None = None,
@@ -471,5 +483,5 @@ def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | N
     unique = sorted(unique, key=lambda pair: -_area(pair[0].box))[:max_hands]
     result = [DetectedHand(keypoints=found.keypoints, score=max(found.p_right, 1 - found.p_right),
                            side="right" if found.p_right >= 0.5 else "left", box=found.box,
-                           found_by=level) for found, level in unique]
+                           found_by=level, side_votes=found.votes) for found, level in unique]
     return sorted(result, key=lambda hand: 0.5 * (hand.box[0] + hand.box[2]))

@@ -22,7 +22,8 @@ returned hand, with colours and skinning weights), the mesh ray cast into each p
 and the files (:mod:`lisa_hand.fitting.photo.outputs`, all hands at once, all or nothing).
 
 **Side.** ``--side right|left``, or ``auto``: the detector's side (when its score reaches
-``side_confidence``), or the ``--keypoints`` file's ``"side"``; when neither says, the keypoint
+``side_confidence``; a note when its estimates in plain and mirrored windows disagree), or the
+``--keypoints`` file's ``"side"``; when neither says, the keypoint
 stage is run as a right and as a left hand and the lower objective wins (the wrong side can
 match the 2D keypoints only by bending joints beyond their limits or far from the pose prior;
 the tests check it on a synthetic photo and its mirror image).
@@ -103,7 +104,11 @@ class FitPhotoConfig:
     """At most this many hands are detected in a photo."""
     side_confidence: float = 0.75
     """``--side auto``: a detected side less certain than this (the detector's score, 0.5-1) is
-    not trusted: both sides are fitted and the better one kept."""
+    not trusted: both sides are fitted and the better one kept. A side the detector's own
+    estimates disagree on (:attr:`lisa_hand.fitting.photo.detect.DetectedHand.side_votes`: it
+    changed with the window or the mirroring) gets a note; fitting both sides then did not
+    help (measured on the one such photo of ``python -m lisa_hand.bench photo``: the detector's
+    keypoints fit the side it chose better, objective 5.2 against 6.8)."""
     detector_wrist_shift: float = 0.0
     """Detected hands: the detector's wrist is moved back towards the forearm by this fraction of
     the wrist-to-middle-knuckle length (:func:`lisa_hand.fitting.photo.detect.to_skeleton_wrist`)
@@ -212,10 +217,13 @@ def _find_hands(photo: Any, keypoints_json: Any, config: FitPhotoConfig,
     hands = [PhotoHand(keypoints=detect.to_skeleton_wrist(hand.keypoints, shift),
                        visible=np.ones(len(hand.keypoints), bool), side=hand.side,
                        score=float(hand.score), source="detected",
-                       detector_keypoints=np.asarray(hand.keypoints, np.float64) if shift else None)
+                       detector_keypoints=np.asarray(hand.keypoints, np.float64) if shift else None,
+                       side_votes=tuple(hand.side_votes))
              for hand in found]
     log(f"{photo.path.name}: {len(hands)} hand(s) found ("
-        + ", ".join(f"{hand.side} {hand.score:.2f}" for hand in hands) + ")")
+        + ", ".join(f"{hand.side} {hand.score:.2f}" + (
+            f", split vote {hand.side_votes[0]} right : {hand.side_votes[1]} left"
+            if hand.side_split else "") for hand in hands) + ")")
     return hands
 
 
@@ -367,6 +375,11 @@ def _choose_side(views: list[Any], side: str, hands: list[PhotoHand], config: Fi
     """(side, where it came from, the keypoint-stage hand when choosing it needed one)."""
     if side != "auto":
         return side, "--side", None
+    split = [f"{one.side} {one.side_votes[0]} right : {one.side_votes[1]} left" for one in hands
+             if one.side_split]
+    if split:
+        notes.append(f"the detector's estimates disagree on the side ({', '.join(split)}, plain "
+                     "and mirrored windows): it may be wrong; pass --side to choose")
     known = [one.side for one in hands if one.side is not None and (
         one.score is None or one.score >= config.side_confidence)]
     if known:

@@ -61,6 +61,8 @@ class PhotoHand:
     confidence, or None. source: "detected" or the ``--keypoints`` file. detector_keypoints:
     [21, 2] the detector's own keypoints, same pixels, when they differ from ``keypoints`` (the
     wrist moved to the skeleton's: :func:`lisa_hand.fitting.photo.detect.to_skeleton_wrist`).
+    side_votes: (right, left) of the detector's agreeing estimates
+    (:attr:`lisa_hand.fitting.photo.detect.DetectedHand.side_votes`), None when not detected.
     """
 
     keypoints: np.ndarray
@@ -69,6 +71,12 @@ class PhotoHand:
     score: float | None
     source: str
     detector_keypoints: np.ndarray | None = None
+    side_votes: tuple[int, int] | None = None
+
+    @property
+    def side_split(self) -> bool:
+        """The detector's estimates disagree on the side."""
+        return self.side_votes is not None and min(self.side_votes) > 0
 
 
 def _image_factors(photo: Any) -> np.ndarray:

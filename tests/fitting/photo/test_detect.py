@@ -181,6 +181,28 @@ def test_big_hand_found_in_whole_image():
     np.testing.assert_allclose(hand.box, (300, 200, 500, 350), atol=2.0)
     np.testing.assert_allclose(hand.keypoints[0], (300, 200), atol=2.0)
     np.testing.assert_allclose(hand.keypoints[-1], (500, 350), atol=2.0)
+    # The agreeing estimates (found, then again around it) all call it a right hand.
+    assert hand.side_votes == (3, 0) and not hand.side_split
+
+
+def test_a_side_that_changes_between_estimates_is_a_split_vote():
+    from lisa_hand.fitting.photo.detect import _consensus, _Found
+
+    keypoints = np.stack(np.meshgrid(np.linspace(0, 100, 3), np.linspace(0, 140, 7)),
+                         -1).reshape(-1, 2)
+    far = keypoints + 60.0  # another place: not among the agreeing estimates
+    estimates = [_Found(keypoints, 0.9), _Found(keypoints + 1.0, 0.8),
+                 _Found(keypoints - 1.0, 0.3), _Found(far, 0.1)]
+    found, support = _consensus(estimates, 0.1)
+    assert support == 3 and found.votes == (2, 1)
+    assert found.p_right == pytest.approx((0.9 + 0.8 + 0.3) / 3)
+    np.testing.assert_allclose(found.keypoints, keypoints)
+    alone, _ = _consensus([_Found(keypoints, 0.2)], 0.1)
+    assert alone.votes == (0, 1)
+    hand = DetectedHand(keypoints=keypoints, score=0.67, side="right", box=(0, 0, 100, 140),
+                        side_votes=found.votes)
+    assert hand.side_split and not DetectedHand(keypoints=keypoints, score=0.9, side="right",
+                                                box=(0, 0, 100, 140), side_votes=(3, 0)).side_split
 
 
 def test_mirrored_photo_other_side():

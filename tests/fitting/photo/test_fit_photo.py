@@ -284,9 +284,12 @@ def test_detected_hands_and_an_unsure_side(model_file, tmp_path, monkeypatch):
     detector = points.copy()
     detector[0] = points[0] + shift * (points[9] - points[0])
     monkeypatch.setattr(detect, "photo_extra_missing", lambda: None)
-    for score, side, source in ((0.98, "right", "detected"), (0.6, "right", "fitted")):
+    notes = {}
+    for score, votes, side, source in ((0.98, (3, 0), "right", "detected"),
+                                       (0.6, (0, 3), "right", "fitted"),
+                                       (0.9, (3, 1), "right", "detected")):
         found = [detect.DetectedHand(keypoints=detector, score=score, side="left" if
-                                     score < 0.75 else "right", box=box)]
+                                     score < 0.75 else "right", box=box, side_votes=votes)]
         monkeypatch.setattr(detect, "detect_hands", lambda image, max_hands=4, found=found:
                             found)
         lines = []
@@ -300,8 +303,14 @@ def test_detected_hands_and_an_unsure_side(model_file, tmp_path, monkeypatch):
         record = json.loads((tmp_path / f"out{score}" / "keypoints.json").read_text())
         np.testing.assert_allclose(record["keypoints_2d_detector"], detector, atol=1e-6)
         np.testing.assert_allclose(record["keypoints_2d_detected"], points, atol=1e-6)
+        notes[score] = lines
     assert any("the detector is unsure of the side (left 0.60, below 0.75)" in line
-               for line in lines)
+               for line in notes[0.6])
+    # A split vote: the side is kept, with a note.
+    split = "the detector's estimates disagree on the side (right 3 right : 1 left"
+    assert any(split in line for line in notes[0.9])
+    assert not any(split[:40] in line for line in notes[0.98] + notes[0.6])
+    assert any("split vote 3 right : 1 left" in line for line in notes[0.9])
 
 
 def test_a_failure_while_writing_leaves_the_previous_fit(model_file, tmp_path, monkeypatch):
