@@ -430,7 +430,7 @@ def _consensus(estimates: list[_Found], agreement: float) -> tuple[_Found, int]:
     medoid = int(np.argmin(distance.sum(axis=1)))
     agree = np.flatnonzero(distance[medoid] <= agreement)
     p_right = float(np.mean([estimates[i].p_right for i in agree]))
-    right = sum(estimates[i].p_right >= 0.5 for i in agree)
+    right = int(sum(estimates[i].p_right >= 0.5 for i in agree))
     return _Found(keypoints[agree].mean(axis=0), p_right, (right, int(agree.size) - right)), \
         int(agree.size)
 
