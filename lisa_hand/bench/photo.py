@@ -315,7 +315,7 @@ def run_photo_benchmark(num_photos: int = 12, *, shared_dir: Path | None = None,
         :func:`lisa_hand.fitting.photo.fit.fit_photo_folder` (default: it). scene: the
         :class:`~lisa_hand.bench._photo_scenes.PhotoSceneConfig` of the synthetic photos
         (default: its defaults with ``seed``). config: the
-        :class:`~lisa_hand.fitting.photo.fit.FitPhotoConfig` of every fit (None: the default).
+        :class:`~lisa_hand.fitting.photo.config.FitPhotoConfig` of every fit (None: the default).
     """
     if isinstance(num_photos, bool) or not isinstance(num_photos, int) or num_photos < 0:
         raise ValueError(f"--photos must be an integer >= 0, got {num_photos!r}")
