@@ -62,10 +62,10 @@ lisa_hand.bench photo --subjects train --seed 1``, which prints it as ``detector
 moves the detected wrist back by such a fraction along the wrist-to-middle-knuckle line
 (:attr:`lisa_hand.fitting.photo.config.FitPhotoConfig.detector_wrist_shift`). It is OFF by
 default: the offset belongs to the generator's hands (the wrist keypoint at the end of a long,
-flat-cut palm), not to MediaPipe. Measured with 0.17 on the benchmark's 12 photos, PA-MPJPE 12.7 -> 12.1 mm and the
-wrist 41 -> 25 mm from the true one; but on both shared real photos the moved wrist lies in the
-forearm, a fifth of the palm's length below the visible wrist, and the fitted hand does not follow
-it (its wrist stays where MediaPipe's was).
+flat-cut palm), not to MediaPipe. Measured with 0.17 on the benchmark's 12 photos, PA-MPJPE
+12.7 -> 12.1 mm and the wrist 41 -> 25 mm from the true one; but on both shared real photos the
+moved wrist lies in the forearm, a fifth of the palm's length below the visible wrist, and the
+fitted hand does not follow it (its wrist stays where MediaPipe's was).
 
 **Time.** One process call takes 20-60 ms. Measured on the 2-core CPU machine (one core, the
 other one busy), refinement included: ``hand_thumb_up.jpg`` (640 x 521) 0.35-0.4 s,
