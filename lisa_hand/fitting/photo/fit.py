@@ -149,8 +149,7 @@ def _find_hands(photo: Any, keypoints_json: Any, config: FitPhotoConfig,
              for hand in found]
     log(f"{photo.path.name}: {len(hands)} hand(s) found ("
         + ", ".join(f"{hand.side} {hand.score:.2f}" + (
-            f", split vote {hand.side_votes[0]} right : {hand.side_votes[1]} left"
-            if hand.side_split else "") for hand in hands) + ")")
+            f", split vote {_votes(hand)}" if hand.side_split else "") for hand in hands) + ")")
     return hands
 
 
@@ -296,14 +295,19 @@ def _keypoint_hand(views: list[Any], side: str, config: FitPhotoConfig, template
     return fit_keypoints(views, config.fit, template, progress)
 
 
+def _votes(hand: PhotoHand) -> str:
+    """The detector's side votes in words: "3 right : 1 left"."""
+    right, left = hand.side_votes
+    return f"{right} right : {left} left"
+
+
 def _choose_side(views: list[Any], side: str, hands: list[PhotoHand], config: FitPhotoConfig,
                  template: Any, progress: bool, notes: list[str]
                  ) -> tuple[str, str, HandParams | None]:
     """(side, where it came from, the keypoint-stage hand when choosing it needed one)."""
     if side != "auto":
         return side, "--side", None
-    split = [f"{one.side} {one.side_votes[0]} right : {one.side_votes[1]} left" for one in hands
-             if one.side_split]
+    split = [f"{one.side} {_votes(one)}" for one in hands if one.side_split]
     if split:
         notes.append(f"the detector's estimates disagree on the side ({', '.join(split)}, plain "
                      "and mirrored windows): it may be wrong; pass --side to choose")
