@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import torch
 
+from lisa_hand.fitting.images import keypoint_stage
 from lisa_hand.fitting.images.color_stage import fit_color, with_mean_codes
 from lisa_hand.fitting.images.config import FitImagesConfig
 from lisa_hand.fitting.images.fit import fit_images
@@ -66,7 +67,8 @@ def test_keypoint_stage_recovers_the_pose_from_scratch(scene, which, max_rotatio
     hand, report = fit_keypoints(views, config, load_float_template())
     truth = scene["truth"]
     assert report.stage == "keypoints" and report.candidate is not None
-    assert [record["stage"] for record in report.history] == ["keypoints"] * 150
+    depth = round(config.depth_restart_fraction * 150) if len(views) == 1 else 0
+    assert [record["stage"] for record in report.history] == ["keypoints"] * (150 + depth)
     assert history_columns(report.history)["kp_px"][0] > 5.0 * report.keypoint_error_px
     assert report.energies == [report.loss]
     assert report.keypoint_error_px < 0.5  # pixels, noiseless keypoints
@@ -79,6 +81,66 @@ def test_keypoint_stage_recovers_the_pose_from_scratch(scene, which, max_rotatio
     assert set(errors) == {view.name for view in views}
     assert abs(np.mean(list(errors.values())) - report.keypoint_error_px) < 1e-4
     assert abs(mean_keypoint_error(template, views, hand) - report.keypoint_error_px) < 1e-4
+
+
+def _one_view_optimiser(scene, config):
+    from lisa_hand.fitting.images.terms import ViewData
+    from lisa_hand.fitting.priors import prior_mean_fingers
+
+    data = ViewData(scene["views"][1:2], config.coverage_pixels, torch.Generator().manual_seed(0))
+    return keypoint_stage._Optimiser(load_float_template(), data, config,
+                                     prior_mean_fingers(config.prior_pose, data.device), None)
+
+
+def _candidates(hand, translation):
+    return keypoint_stage._Candidates(hand.pose[None, :3].clone(), hand.pose[None, 3:].clone(),
+                                      translation[None].clone(), hand.betas[None].clone())
+
+
+def test_depth_copies_move_the_hand_along_its_ray(scene):
+    """Each copy's keypoint centre on the ray from the camera centre through the hand's, at the
+    factor times its distance; pose and betas unchanged."""
+    optimiser = _one_view_optimiser(scene, FitImagesConfig())
+    truth, template = scene["truth"], optimiser.template
+    camera = scene["views"][1].camera
+    centre = -(camera.R.T @ camera.t)
+    factors = (0.5, 0.9, 1.3)
+    copies = keypoint_stage._depth_copies(template, _candidates(truth, truth.translation),
+                                          optimiser.data, factors)
+    keypoints = template.forward(copies.pose(), copies.betas, copies.translation).keypoints
+    rays = keypoints.mean(1) - centre  # [4, 3]
+    assert torch.allclose(copies.translation[0], truth.translation)
+    for index, factor in enumerate(factors, start=1):
+        assert torch.allclose(rays[index], factor * rays[0], atol=1e-6)
+    assert torch.equal(copies.fingers, truth.pose[3:].expand(4, -1))
+    assert torch.equal(copies.betas, truth.betas.expand(4, -1))
+
+
+def test_depth_restarts_find_the_depth_and_keep_a_right_one(scene):
+    """One view, the true hand pushed to 1/0.84 of its distance: the copy at 0.84 brings it
+    back (9.5 cm off at the start, within 5 mm after; a 48 x 36 view); the true hand itself is
+    kept exactly as it was."""
+    config = FitImagesConfig()
+    optimiser = _one_view_optimiser(scene, config)
+    truth, template = scene["truth"], optimiser.template
+    camera = scene["views"][1].camera
+    centre = -(camera.R.T @ camera.t)
+    middle = template.forward(truth.pose[None], truth.betas[None],
+                              truth.translation[None]).keypoints[0].mean(0)
+    far = truth.translation + (1 / 0.84 - 1.0) * (middle - centre)
+    for translation, moved in ((far, True), (truth.translation, False)):
+        state = _candidates(truth, translation)
+        with torch.no_grad():
+            loss, error = optimiser.objective(state, rigid=False)
+        state, loss, error, best = keypoint_stage._restart_depth(optimiser, state, loss, error,
+                                                                 0, 60)
+        found = state.translation[best]
+        if moved:
+            assert (translation - truth.translation).norm() > 0.09
+            assert best > 0 and (found - truth.translation).norm() < 0.005
+        else:
+            assert best == 0 and torch.equal(found, truth.translation)
+            assert torch.equal(state.fingers[0], truth.pose[3:])
 
 
 def test_color_stage_lowers_the_color_loss(scene):
@@ -157,6 +219,12 @@ def test_config_validation_and_thread_setting(scene):
         fit_images(scene["model"], scene["views"], side="middle")
     with pytest.raises(ValueError, match="rigid_fraction \\+ finger_restart_fraction"):
         FitImagesConfig(rigid_fraction=0.8, finger_restart_fraction=0.3)
+    with pytest.raises(ValueError, match="depth_factors must be a tuple of positive numbers"):
+        FitImagesConfig(depth_factors=(0.8, -1.2))
+    with pytest.raises(ValueError, match="depth_factors must be a tuple of positive numbers"):
+        FitImagesConfig(depth_factors=[0.8])
+    with pytest.raises(ValueError, match="depth_restart_fraction must be in"):
+        FitImagesConfig(depth_restart_fraction=1.5)
     with pytest.raises(ValueError, match="num_rays must be an int >= 1"):
         FitImagesConfig(num_rays=0)
     with pytest.raises(ValueError, match="prior_pose must be one of relaxed, flat"):

@@ -8,6 +8,7 @@ for the iterations of a stage, ``num_threads``, ``device`` and ``seed``.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from ...render import RenderConfig
@@ -64,6 +65,15 @@ class FitImagesConfig:
     """Keypoint stage: fraction of the iterations, at the end, in which every finger whose
     keypoints are off by more than ``finger_restart_px`` is also restarted from the flat,
     relaxed and fist poses (the best of these and of the unchanged hand wins)."""
+    depth_factors: tuple[float, ...] = (0.71, 0.84, 1.19, 1.41)
+    """Keypoint stage, one view: the best candidate is also restarted at these multiples of its
+    distance from the camera (moved along the ray through its keypoints' centre; ``2^(k/4)``,
+    k = -2..2), and the lowest objective wins. One view leaves the depth to the priors and the
+    silhouette, and the fit can stop at a depth the objective does not prefer (the demo's second
+    hand, ``lisa demo --seed 1``: 10 cm too near, 0.3 px off in the image). () turns it off."""
+    depth_restart_fraction: float = 0.2
+    """Keypoint stage, one view: the depth restarts (``depth_factors``) take this fraction of
+    ``keypoint_iters`` more iterations, before the finger restarts."""
     finger_restart_px: float = 0.0
     """Keypoint stage: mean error (pixels) of a finger's visible keypoints that triggers its
     restart. 0 (the default) restarts every finger: one that fits its keypoints to the pixel can
@@ -203,12 +213,19 @@ class FitImagesConfig:
         check_int_fields(self, ("num_rays", "rotation_pool", "restarts", "keep_restarts",
                                 "shape_dims", "view_calibration_min_views"), 1)
         check_int_fields(self, ("guard_resolution",), 8)
-        for name in ("mask_fraction", "rigid_fraction", "finger_restart_fraction"):
+        for name in ("mask_fraction", "rigid_fraction", "finger_restart_fraction",
+                     "depth_restart_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {getattr(self, name)!r}")
         if self.rigid_fraction + self.finger_restart_fraction > 1.0:
             raise ValueError(f"rigid_fraction + finger_restart_fraction must be <= 1, got "
                              f"{self.rigid_fraction} + {self.finger_restart_fraction}")
+        factors = self.depth_factors
+        if not isinstance(factors, tuple) or not all(
+                isinstance(value, (int, float)) and not isinstance(value, bool)
+                and math.isfinite(value) and value > 0 for value in factors):
+            raise ValueError(f"depth_factors must be a tuple of positive numbers, got "
+                             f"{factors!r}")
         if not 0.0 < self.final_lr_fraction <= 1.0:
             raise ValueError(f"final_lr_fraction must be in (0, 1], got "
                              f"{self.final_lr_fraction!r}")

@@ -20,6 +20,16 @@ the translation in closed form) are optimised rigidly (palm keypoints only) for
 for the last ``finger_restart_fraction`` the best one beside copies of it in which each finger
 whose keypoints are off by more than ``finger_restart_px`` restarts from the flat, relaxed and
 fist poses (a finger bent the wrong way is a local minimum). The lowest objective wins.
+
+One view leaves the depth open: the keypoints fit to a fraction of a pixel with the hand 10-15%
+too near, its fingers curled to match, a local minimum the objective does not prefer (the demo's
+second hand: 10 cm too near, 0.3 px off). So with one view, before the finger restarts, the best
+candidate also restarts at ``depth_factors`` times its distance from the camera, for
+``depth_restart_fraction`` more of the iterations, and the candidates are ranked by the
+objective without the silhouette terms: the template's silhouette is not the subject's, and its
+vertices outside the mask cost less the farther (smaller) the hand, which ranked a hand 8 cm too
+far first on one of ten unseen hands. The best candidate stays as it was unless a moved copy
+ranks lower.
 """
 
 from __future__ import annotations
@@ -85,15 +95,17 @@ class _Candidates:
 
 def _objective(template: Any, state: _Candidates, data: ViewData, config: FitImagesConfig,
                mean_fingers: torch.Tensor, rigid: bool = False,
-               size_prior: HandSizePrior | None = None) -> tuple[torch.Tensor, torch.Tensor]:
+               size_prior: HandSizePrior | None = None, silhouette: bool = True
+               ) -> tuple[torch.Tensor, torch.Tensor]:
     """-> (loss [B], keypoint error [B] pixels). ``rigid``: only the palm's keypoints count
-    (the fingers' pose is not known yet)."""
+    (the fingers' pose is not known yet). ``silhouette``: with the mask terms (when the views
+    have masks)."""
     pose = state.pose()
     out = template.forward(pose, state.betas, state.translation)
     keypoint_pixels, keypoint_depth = data.project(out.keypoints)
     loss = keypoint_l1(keypoint_pixels, data, palm_only=rigid)
     vertex_pixels, vertex_depth = data.project(out.vertices)
-    if data.num_masks:
+    if data.num_masks and silhouette:
         outside, coverage = silhouette_terms(vertex_pixels, data)
         loss = loss + config.silhouette_weight * outside + config.coverage_weight * coverage
     # Keep the hand in front of every camera (5 cm at least): pixels are meaningless behind.
@@ -116,6 +128,26 @@ def _finger_residuals(template: Any, state: _Candidates, data: ViewData) -> torc
         count = data.visible[:, index].sum().clamp_min(1.0)
         residuals.append(distance[..., index].sum((1, 2)) / count)
     return torch.stack(residuals, dim=-1)
+
+
+def _depth_copies(template: Any, state: _Candidates, data: ViewData,
+                  factors: Sequence[float]) -> _Candidates:
+    """``state`` (batch of one) followed by one copy per factor of ``factors``, moved along the
+    ray from the (first) camera's centre through its keypoints' centre to that multiple of its
+    distance: the same image, up to perspective, of a hand nearer or farther."""
+    with torch.no_grad():
+        centre = -(data.R[0].transpose(0, 1) @ data.t[0])  # [3] the camera centre, world
+        keypoints = template.forward(state.pose(), state.betas, state.translation).keypoints[0]
+        ray = keypoints.mean(0) - centre
+        translation = torch.stack([state.translation[0]] + [
+            state.translation[0] + (float(factor) - 1.0) * ray for factor in factors])
+    count = translation.shape[0]
+
+    def repeat(value: torch.Tensor) -> torch.Tensor:
+        return value.expand(count, -1).clone()
+
+    return _Candidates(repeat(state.global_orient), repeat(state.fingers), translation,
+                       repeat(state.betas))
 
 
 def _restart_fingers(state: _Candidates, fingers: Sequence[str]) -> _Candidates:
@@ -193,6 +225,27 @@ class _Optimiser:
             return self.objective(state, rigid)
 
 
+def _restart_depth(optimiser: _Optimiser, state: _Candidates, loss: torch.Tensor,
+                   error: torch.Tensor, best: int, iterations: int
+                   ) -> tuple[_Candidates, torch.Tensor, torch.Tensor, int]:
+    """The depth restarts of a one-view fit (module docstring): candidate ``best`` of ``state``
+    (its ``loss`` and keypoint ``error`` [B]) beside its copies at ``depth_factors`` times its
+    distance, ``iterations`` steps, ranked without the silhouette terms -> (state, loss, error,
+    best) to go on with: the winning copy, or candidate ``best`` as it was."""
+    template, data, config = optimiser.template, optimiser.data, optimiser.config
+    kept = state.select(torch.tensor([best], device=data.device))
+    kept_loss, kept_error = loss[best:best + 1].clone(), error[best:best + 1].clone()
+    moved = _depth_copies(template, kept, data, config.depth_factors)
+    loss, error = optimiser.run(moved, iterations, rigid=False)
+    with torch.no_grad():
+        score, _ = _objective(template, moved, data, config, optimiser.mean_fingers,
+                              size_prior=optimiser.size_prior, silhouette=False)
+    winner = int(score.argmin())
+    if winner == 0:  # the unmoved hand, as it was before these steps
+        return kept, kept_loss, kept_error, 0
+    return moved, loss, error, winner
+
+
 def _start(template: Any, data: ViewData, config: FitImagesConfig,
            generator: torch.Generator) -> _Candidates:
     """The candidates of the global-pose search, fingers relaxed, translation in closed form."""
@@ -248,13 +301,18 @@ def fit_keypoints(
     total_iters = config.keypoint_iters
     rigid_iters = int(round(config.rigid_fraction * total_iters))
     finger_iters = int(round(config.finger_restart_fraction * total_iters))
-    bar = progress_bar(progress, total_iters, "keypoints")
+    one_view = data.K.shape[0] == 1 and len(config.depth_factors) > 0
+    depth_iters = int(round(config.depth_restart_fraction * total_iters)) if one_view else 0
+    bar = progress_bar(progress, total_iters + depth_iters, "keypoints")
     optimiser = _Optimiser(template, data, config, mean_fingers, bar)
     loss, _ = optimiser.run(state, rigid_iters, rigid=True)
     keep = min(config.keep_restarts, state.global_orient.shape[0])
     state = state.select(loss.argsort()[:keep])
     loss, error = optimiser.run(state, total_iters - rigid_iters - finger_iters, rigid=False)
     best = int(loss.argmin())
+    if depth_iters > 0:
+        state, loss, error, best = _restart_depth(optimiser, state, loss, error, best,
+                                                  depth_iters)
     if finger_iters > 0:
         # The best candidate goes on, beside copies of it with each badly fitted finger
         # restarted from other poses (a finger bent the wrong way is a local minimum).
