@@ -3,11 +3,18 @@
 ``spawn`` gives every worker a fresh interpreter (forking a process whose torch thread pools are
 running can deadlock). With one worker, or one task, everything runs in this process with one torch
 thread, so results are the same bits as in a pool (each worker also has one thread).
+
+A spawned worker ends itself within a second of its parent's end, however the parent ended
+(SIGTERM, SIGKILL, a crash): killing ``lisa eval --workers 2`` or ``lisa synth --workers N`` used
+to leave its workers fitting on for many minutes, slowing everything else on the machine.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import os
+import threading
+import time
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import Executor, Future, ProcessPoolExecutor, as_completed
 from typing import Any, TypeVar
@@ -53,16 +60,31 @@ def worker_pool(num_workers: int, initializer: Callable[[], None] | None = None)
         "spawn"), initializer=_Initializer(initializer))
 
 
+_PARENT_POLL_S = 0.5
+
+
 class _Initializer:
-    """Picklable worker initializer: one torch thread, then the caller's initializer."""
+    """Picklable worker initializer: the parent watch (:func:`_exit_with_parent`), one torch
+    thread, then the caller's initializer."""
 
     def __init__(self, then: Callable[[], None] | None) -> None:
         self.then = then
+        self.parent = os.getpid()
 
     def __call__(self) -> None:
+        threading.Thread(target=_exit_with_parent, args=(self.parent,), daemon=True,
+                         name="lisa-parent-watch").start()
         single_thread_worker()
         if self.then is not None:
             self.then()
+
+
+def _exit_with_parent(parent: int) -> None:
+    """Ends this worker process at once when its parent process ``parent`` is gone (the worker
+    is handed to another parent then), checked every :data:`_PARENT_POLL_S` seconds."""
+    while os.getppid() == parent:
+        time.sleep(_PARENT_POLL_S)
+    os._exit(1)
 
 
 def run_tasks(fn: Callable[..., T], tasks: Iterable[tuple], num_workers: int

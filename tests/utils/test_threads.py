@@ -1,5 +1,12 @@
 """cpu_threads and the worker pool: the thread count is set for a block and given back."""
 
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import pytest
 import torch
 
@@ -49,3 +56,48 @@ def test_spawned_pool_workers_have_one_thread():
 def test_task_errors_reach_the_caller():
     with pytest.raises(ZeroDivisionError):
         list(run_tasks(divmod, [(1, 0)], num_workers=1))
+
+
+def _sleeper(path: str) -> None:
+    Path(path).write_text(str(os.getpid()))
+    time.sleep(120)
+
+
+def _pool_then_wait(path: str) -> None:
+    """A parent with a 2-worker pool whose task sleeps (run in a subprocess by the test)."""
+    pool = worker_pool(2)
+    pool.submit(_sleeper, path)
+    time.sleep(120)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+    return state not in ("Z", "X")  # a zombie has ended (nobody may reap it in a container)
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="reads /proc")
+def test_spawned_workers_end_when_their_parent_is_killed(tmp_path):
+    """SIGTERM to a process with a pool ends its busy worker within a few seconds."""
+    marker = tmp_path / "worker.pid"
+    root = Path(__file__).resolve().parents[2]
+    code = (f"import sys; sys.path.insert(0, {str(root)!r}); "
+            f"from tests.utils.test_threads import _pool_then_wait; "
+            f"_pool_then_wait({str(marker)!r})")
+    parent = subprocess.Popen([sys.executable, "-c", code])
+    try:
+        deadline = time.monotonic() + 60
+        while not (marker.exists() and marker.read_text()) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        worker = int(marker.read_text())
+        assert _alive(worker)
+        parent.send_signal(signal.SIGTERM)
+        parent.wait(timeout=10)
+        deadline = time.monotonic() + 10
+        while _alive(worker) and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert not _alive(worker)
+    finally:
+        parent.kill()
