@@ -68,9 +68,11 @@ class FitImagesConfig:
     depth_factors: tuple[float, ...] = (0.71, 0.84, 1.19, 1.41)
     """Keypoint stage, one view: the best candidate is also restarted at these multiples of its
     distance from the camera (moved along the ray through its keypoints' centre; ``2^(k/4)``,
-    k = -2..2), and the lowest objective wins. One view leaves the depth to the priors and the
-    silhouette, and the fit can stop at a depth the objective does not prefer (the demo's second
-    hand, ``lisa demo --seed 1``: 10 cm too near, 0.3 px off in the image). () turns it off."""
+    k = -2, -1, 1, 2), and the lowest objective without the silhouette terms wins (the
+    unmoved hand, as it was, when it ranks first). One view leaves the depth to the priors and
+    the silhouette, and the fit can stop at a depth the objective does not prefer (the demo's
+    second hand, ``lisa demo --seed 1``: 10 cm too near, 0.3 px off in the image). () turns it
+    off."""
     depth_restart_fraction: float = 0.2
     """Keypoint stage, one view: the depth restarts (``depth_factors``) take this fraction of
     ``keypoint_iters`` more iterations, before the finger restarts."""
