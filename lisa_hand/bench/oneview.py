@@ -50,21 +50,22 @@ def unseen_hands(folder: str | Path, count: int, resolution: tuple[int, int] = (
     return frames
 
 
-def one_view_errors(frame: str | Path, view: str, config) -> dict[str, float]:
+def one_view_errors(frame: str | Path, view: str, config, template=None) -> dict[str, float]:
     """Fit the keypoint stage to the view ``view`` of ``frame`` with ``config`` (a
-    :class:`~lisa_hand.fitting.images.config.FitImagesConfig`) -> {"mpjpe_mm": mean keypoint
-    distance to the truth, world frame; "wrist_depth_mm": the fitted wrist's distance from the
-    camera minus the true one; "seconds"}."""
+    :class:`~lisa_hand.fitting.images.config.FitImagesConfig`) and the mesh ``template`` (None:
+    the package's, on the CPU) -> {"mpjpe_mm": mean keypoint distance to the truth, world
+    frame; "wrist_depth_mm": the fitted wrist's distance from the camera minus the true one;
+    "seconds"}."""
     from ..fitting.images.keypoint_stage import fit_keypoints
     from ..fitting.images.views import read_views
     from ..fitting.stages import template_on
 
     frame = Path(frame)
     views = read_views(frame, [view])
+    template = template_on(template, torch.device("cpu"))
     began = time.perf_counter()
-    hand, _ = fit_keypoints(views, config)
+    hand, _ = fit_keypoints(views, config, template)
     seconds = time.perf_counter() - began
-    template = template_on(None, torch.device("cpu"))
     with torch.no_grad():
         fitted = template.forward(hand.pose[None], hand.betas[None],
                                   hand.translation[None]).keypoints[0].double().numpy()
@@ -83,12 +84,15 @@ def run_oneview_benchmark(frames: list[Path], view: str = "cam000",
     ``wrist_depth_mm`` / ``reference_wrist_depth_mm`` (mean absolute), and the lists
     ``per_hand``."""
     from ..fitting.images.config import FitImagesConfig
+    from ..fitting.stages import template_on
 
     config = FitImagesConfig()
     reference = replace(config, depth_factors=())
+    template = template_on(None, torch.device("cpu"))
     rows = []
     for index, frame in enumerate(frames):
-        new, old = one_view_errors(frame, view, config), one_view_errors(frame, view, reference)
+        new = one_view_errors(frame, view, config, template)
+        old = one_view_errors(frame, view, reference, template)
         rows.append({"hand": index, "mpjpe_mm": new["mpjpe_mm"], "wrist_depth_mm":
                      new["wrist_depth_mm"], "seconds": new["seconds"],
                      "reference_mpjpe_mm": old["mpjpe_mm"],
