@@ -20,8 +20,8 @@ import torch
 
 from ..utils.threads import cpu_threads
 
-__all__ = ["WEBXR_POSES", "WEBXR_WRISTS", "pose_webxr_hand", "webxr_wrist", "extend_forearm",
-           "webxr_wrist_variant", "run_webxr_fits"]
+__all__ = ["WEBXR_POSES", "WEBXR_WRISTS", "pose_webxr_hand", "outer_surface", "webxr_wrist",
+           "extend_forearm", "webxr_wrist_variant", "run_webxr_fits"]
 
 WEBXR_WRISTS = ("as-is", "forearm", "cut")
 """What the scans do beyond the wrist (see the module docstring)."""
@@ -42,9 +42,15 @@ def pose_webxr_hand(path: str | Path, pose: str = "rest") -> tuple[np.ndarray, n
     """The WebXR hand (``right_hand.npz``: millimetres, 25 OpenXR joints, its own skinning
     weights) posed by linear blend skinning, in metres.
 
-    Each finger joint of :data:`WEBXR_POSES` turns about the axis ``bone x palm normal`` (palm
-    normal ``thumb x fingers``, the MANO right-hand convention), so positive angles curl the
-    finger towards the palm. -> (vertices [V, 3] metres, faces [F, 3]).
+    Each joint of :data:`WEBXR_POSES` turns about the axis ``bone x palm normal``, so positive
+    angles curl the finger towards the palm (the MANO right-hand convention): for the four
+    fingers the palm normal is the normal of the knuckle plane (wrist, index and little-finger
+    proximal joints), so that they curl as hinges in their own plane; for the thumb it is
+    ``thumb x fingers`` (the plane of the thumb's proximal joint and the middle finger). (Until
+    2026-12-04 the fingers too turned about ``bone x (thumb x fingers)``, 45 degrees off the
+    knuckle plane's normal because the thumb's proximal joint lies well in front of the palm:
+    the bent index and the fist curled diagonally across the palm, sideways at their PIP and DIP
+    hinges, which a hand cannot do.) -> (vertices [V, 3] metres, faces [F, 3]).
     """
     from ..geometry import axis_angle_to_matrix
 
@@ -60,7 +66,11 @@ def pose_webxr_hand(path: str | Path, pose: str = "rest") -> tuple[np.ndarray, n
     fingers /= np.linalg.norm(fingers)
     thumb = joints[index["thumb-phalanx-proximal"]] - joints[0]
     thumb -= fingers * (thumb @ fingers)
-    palm_normal = np.cross(thumb / np.linalg.norm(thumb), fingers)
+    thumb_normal = np.cross(thumb / np.linalg.norm(thumb), fingers)
+    knuckles = np.cross(joints[index["index-finger-phalanx-proximal"]] - joints[0],
+                        joints[index["pinky-finger-phalanx-proximal"]] - joints[0])
+    knuckles /= np.linalg.norm(knuckles)
+    palm_normal = knuckles if knuckles @ thumb_normal > 0 else -knuckles  # same side of the palm
     local = np.tile(np.eye(4), (len(names), 1, 1))
     for finger, angles in WEBXR_POSES[pose].items():
         chain = (["thumb-metacarpal", "thumb-phalanx-proximal", "thumb-phalanx-distal"]
@@ -69,7 +79,8 @@ def pose_webxr_hand(path: str | Path, pose: str = "rest") -> tuple[np.ndarray, n
         ends = chain[1:] + [f"{finger}-tip"]
         for joint_name, end_name, angle in zip(chain, ends, angles, strict=True):
             joint, end = index[joint_name], index[end_name]
-            axis = np.cross(joints[end] - joints[joint], palm_normal)
+            normal = thumb_normal if finger == "thumb" else palm_normal
+            axis = np.cross(joints[end] - joints[joint], normal)
             axis_angle = torch.from_numpy(angle * axis / np.linalg.norm(axis))
             rotation = axis_angle_to_matrix(axis_angle).numpy()
             local[joint, :3, :3] = rotation
@@ -80,6 +91,32 @@ def pose_webxr_hand(path: str | Path, pose: str = "rest") -> tuple[np.ndarray, n
     blended = np.einsum("vj,jab->vab", weights, world)
     posed = np.einsum("vab,vb->va", blended[:, :3, :3], vertices) + blended[:, :3, 3]
     return posed, faces
+
+
+def outer_surface(vertices: np.ndarray, faces: np.ndarray, offset: float = 2e-4
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """The outside of a posed mesh: (vertices [V', 3], faces [F', 3]), without the faces (and
+    the vertices only they use) that linear blend skinning pushed inside the hand (a fist's
+    fingertips sink into the palm: 2.6% of the WebXR fist's area), which no scanner sees and
+    no surface can reach.
+
+    A face is inside when the point ``offset`` metres out along its normal from its centroid
+    has a winding number above one half (point-cloud-utils' fast winding numbers; an open cut
+    at the wrist leaves faces far from it unaffected). vertices: [V, 3] metres; faces: [F, 3]
+    outward.
+    """
+    import point_cloud_utils as pcu
+
+    corners = vertices[faces]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
+    probes = corners.mean(axis=1) + offset * normals
+    winding = pcu.triangle_soup_fast_winding_number(
+        np.ascontiguousarray(vertices, np.float64), np.ascontiguousarray(faces, np.int64),
+        np.ascontiguousarray(probes, np.float64))
+    kept = faces[winding <= 0.5]
+    used, compact = np.unique(kept, return_inverse=True)
+    return vertices[used], compact.reshape(kept.shape).astype(np.int64)
 
 
 def webxr_wrist(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -218,6 +255,7 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
     rows = []
     for pose in WEBXR_POSES:
         posed, faces = pose_webxr_hand(path, pose)
+        outer = outer_surface(posed, faces)  # what a scanner sees of the whole hand
         turn = 3.0 * torch.rand(3, generator=generator, dtype=torch.float64)
         rotation = axis_angle_to_matrix(turn).numpy()
         centre = posed.mean(0)
@@ -227,10 +265,12 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
 
         for variant in wrists:
             vertices, variant_faces = webxr_wrist_variant(posed, faces, wrist, forearm, variant)
+            vertices, variant_faces = outer_surface(vertices, variant_faces)
             placed = place(vertices)
             for partial in (False, True):
-                scan_mesh = place(posed) if variant == "cut" else placed
-                scan = simulate_scan(scan_mesh, faces if variant == "cut" else variant_faces,
+                scan_vertices, scan_faces = ((place(outer[0]), outer[1]) if variant == "cut"
+                                             else (placed, variant_faces))
+                scan = simulate_scan(scan_vertices, scan_faces,
                                      ScanConfig(num_points=num_points, partial=partial,
                                                 noise_normal_std=3e-4), seed=seed)
                 points = scan.points

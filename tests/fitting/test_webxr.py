@@ -80,6 +80,72 @@ def test_benchmark_poses_of_the_webxr_rig():
         pose_webxr_hand(WEBXR / "right_hand.npz", "wave")
 
 
+def test_the_benchmark_fingers_curl_in_their_own_plane():
+    """The four fingers of the bent and fist poses curl as hinges in the plane of their rest
+    direction and the knuckle plane's normal: their fingertips stay in that plane (measured
+    0.05-0.84 mm off), and the bent index's distal phalanx turns 0.9 + 1.2 + 0.7 rad in all.
+    Before 2026-12-04 the fingers turned about axes of the thumb's plane, 45 degrees off: the
+    fingertips left their plane by 21-43 mm."""
+    joints = {name: value * 1e-3 for name, value in _joints_mm().items()}
+    wrist = joints["wrist"]
+    normal = np.cross(joints["index-finger-phalanx-proximal"] - wrist,
+                      joints["pinky-finger-phalanx-proximal"] - wrist)
+    normal /= np.linalg.norm(normal)
+    with np.load(WEBXR / "right_hand.npz", allow_pickle=False) as data:
+        rest_vertices, weights = data["vertices"] * 1e-3, data["weights"]
+        names = [str(n) for n in data["joint_names"]]
+    for pose, curled in (("bent_index", ("index",)),
+                         ("fist", ("index", "middle", "ring", "pinky"))):
+        posed, _ = pose_webxr_hand(WEBXR / "right_hand.npz", pose)
+        for finger in curled:
+            tip = names.index(f"{finger}-finger-tip")
+            base = joints[f"{finger}-finger-phalanx-proximal"]
+            # The plane of the finger's rest direction and the palm normal through its knuckle.
+            direction = joints[f"{finger}-finger-tip"] - base
+            plane = np.cross(direction, normal)
+            plane /= np.linalg.norm(plane)
+            # Vertices of the fingertip (skinned to the tip's distal phalanx): their mean's
+            # offset from the plane, before and after posing, differs by under 2 mm.
+            distal = weights[:, tip - 1] > 0.9
+            before = (rest_vertices[distal].mean(0) - base) @ plane
+            after = (posed[distal].mean(0) - base) @ plane
+            assert abs(after - before) < 0.002, (pose, finger, after - before)
+    # The bent index: the distal phalanx turned 0.9 + 1.2 + 0.7 rad about one axis.
+    posed, _ = pose_webxr_hand(WEBXR / "right_hand.npz", "bent_index")
+    distal = weights[:, names.index("index-finger-phalanx-distal")] > 0.9
+    before = rest_vertices[distal] - rest_vertices[distal].mean(0)
+    after = posed[distal] - posed[distal].mean(0)
+    u, _, vt = np.linalg.svd(after.T @ before)  # Kabsch: after = R before
+    turn = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    angle = math.degrees(math.acos((np.trace(turn) - 1.0) / 2.0))
+    assert angle == pytest.approx(math.degrees(0.9 + 1.2 + 0.7), abs=1.0)
+
+
+def test_outer_surface_drops_the_faces_inside_the_hand():
+    """A box with a smaller box wholly inside it (a fingertip sunk into the palm, in the small):
+    the inner box's 12 faces and 8 vertices go, the outer box is kept exactly; a box beside it
+    is kept whole. On the WebXR fist 2-3% of the area is inside, none in the rest pose."""
+    import trimesh
+
+    from lisa_hand.bench._webxr import outer_surface
+
+    big = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    small = trimesh.creation.box(extents=(0.02, 0.02, 0.02))
+    for shift, kept_faces in ((0.0, 12), (0.2, 24)):
+        vertices = np.concatenate([big.vertices, small.vertices + [shift, 0.0, 0.0]])
+        faces = np.concatenate([big.faces, small.faces + len(big.vertices)])
+        outer_vertices, outer_faces = outer_surface(vertices, faces)
+        assert len(outer_faces) == kept_faces
+        assert len(outer_vertices) == 8 * kept_faces // 12
+        np.testing.assert_array_equal(outer_vertices[outer_faces[:12]], big.vertices[big.faces])
+    for pose, low, high in (("rest", 0.0, 0.0), ("fist", 0.01, 0.05)):
+        posed, faces = pose_webxr_hand(WEBXR / "right_hand.npz", pose)
+        kept_vertices, kept = outer_surface(posed, faces)
+        area = trimesh.Trimesh(posed, faces, process=False).area
+        inside = 1.0 - trimesh.Trimesh(kept_vertices, kept, process=False).area / area
+        assert low <= inside <= high + 1e-12, (pose, inside)
+
+
 def test_fit_points_on_the_real_obj(tmp_path):
     model_path, _ = export_trained(tiny_model(), tmp_path / "tiny.pt")
     out = tmp_path / "fit"
