@@ -84,14 +84,10 @@ class FitPointsConfig:
     robust_scale_start_mm: float = 15.0
     """Scale at the start of each stage, millimetres; it decreases geometrically to
     ``robust_scale_mm`` over the first 60% of the stage."""
-    shape_weight: float = 1e-6
+    shape_weight: float = 1e-5
     """Weight of the shape code's norm (the paper's latent term) relative to the data term
     (metres): ``shape_weight * mean_k (beta+_k / s)^2``, ``s`` the training codes' root mean
-    square entry, so a code of the training subjects' size costs about ``shape_weight``.
-    (1e-5 until 2026-12-04. With the shipped geometric prior, 256^3, V2S scan->recon: unseen
-    hands of the open hand model v2, a hand unlike the prior's v1 subjects, 0.78 -> 0.72 mm over
-    8 scans, lower on every one; the WebXR hand's full scans 1.28 / 1.31 / 1.77 -> 1.10 / 1.13 /
-    1.68 mm at 128^3, rest / bent index / fist; unseen v1 hands 0.153 -> 0.163 mm, README.)"""
+    square entry, so a code of the training subjects' size costs about ``shape_weight``."""
     pose_weight: float = 4.5e-4
     """Weight of the finger-pose prior (:func:`lisa_hand.fitting.priors.finger_pose_prior`:
     the mean over the 45 finger values of the squared difference from ``prior_pose``,
