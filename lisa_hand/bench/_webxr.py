@@ -20,8 +20,8 @@ import torch
 
 from ..utils.threads import cpu_threads
 
-__all__ = ["WEBXR_POSES", "WEBXR_WRISTS", "pose_webxr_hand", "outer_surface", "webxr_wrist",
-           "extend_forearm", "webxr_wrist_variant", "run_webxr_fits"]
+__all__ = ["WEBXR_POSES", "WEBXR_WRISTS", "pose_webxr_hand", "outer_surface", "webxr_side",
+           "webxr_wrist", "extend_forearm", "webxr_wrist_variant", "run_webxr_fits"]
 
 WEBXR_WRISTS = ("as-is", "forearm", "cut")
 """What the scans do beyond the wrist (see the module docstring)."""
@@ -43,10 +43,11 @@ def pose_webxr_hand(path: str | Path, pose: str = "rest") -> tuple[np.ndarray, n
     weights) posed by linear blend skinning, in metres.
 
     Each joint of :data:`WEBXR_POSES` turns about the axis ``bone x palm normal``, so positive
-    angles curl the finger towards the palm (the MANO right-hand convention): for the four
-    fingers the palm normal is the normal of the knuckle plane (wrist, index and little-finger
-    proximal joints), so that they curl as hinges in their own plane; for the thumb it is
-    ``thumb x fingers`` (the plane of the thumb's proximal joint and the middle finger). (Until
+    angles curl the finger towards the palm, of a right hand (``right_hand.npz``) or a left one
+    (``left_hand.npz``): for the four fingers the palm normal is the normal of the knuckle plane
+    (wrist, index and little-finger proximal joints) on the thumb's side, so that they curl as
+    hinges in their own plane; for the thumb it is the normal of the plane of the thumb's
+    proximal joint and the middle finger, on the same side. (Until
     2026-12-04 the fingers too turned about ``bone x (thumb x fingers)``, 45 degrees off the
     knuckle plane's normal because the thumb's proximal joint lies well in front of the palm:
     the bent index and the fist curled diagonally across the palm, sideways at their PIP and DIP
@@ -66,11 +67,14 @@ def pose_webxr_hand(path: str | Path, pose: str = "rest") -> tuple[np.ndarray, n
     fingers /= np.linalg.norm(fingers)
     thumb = joints[index["thumb-phalanx-proximal"]] - joints[0]
     thumb -= fingers * (thumb @ fingers)
-    thumb_normal = np.cross(thumb / np.linalg.norm(thumb), fingers)
     knuckles = np.cross(joints[index["index-finger-phalanx-proximal"]] - joints[0],
                         joints[index["pinky-finger-phalanx-proximal"]] - joints[0])
     knuckles /= np.linalg.norm(knuckles)
-    palm_normal = knuckles if knuckles @ thumb_normal > 0 else -knuckles  # same side of the palm
+    # The palm's side of the knuckle plane is the thumb's (its proximal joint lies in front of
+    # the palm), for a right hand and a left one alike.
+    palm_normal = knuckles if knuckles @ thumb > 0 else -knuckles
+    thumb_normal = np.cross(thumb / np.linalg.norm(thumb), fingers)
+    thumb_normal = thumb_normal if thumb_normal @ palm_normal > 0 else -thumb_normal
     local = np.tile(np.eye(4), (len(names), 1, 1))
     for finger, angles in WEBXR_POSES[pose].items():
         chain = (["thumb-metacarpal", "thumb-phalanx-proximal", "thumb-phalanx-distal"]
@@ -117,6 +121,23 @@ def outer_surface(vertices: np.ndarray, faces: np.ndarray, offset: float = 2e-4
     kept = faces[winding <= 0.5]
     used, compact = np.unique(kept, return_inverse=True)
     return vertices[used], compact.reshape(kept.shape).astype(np.int64)
+
+
+def webxr_side(path: str | Path) -> str:
+    """'right' or 'left': the hand of a WebXR rig file. Looking from the palm's side (the thumb's
+    proximal joint's side of the knuckle plane) with the fingers up, a right hand's thumb points
+    one way and a left hand's the other: the sign of ``(thumb x fingers) . palm normal``
+    (MANO's right-hand convention makes it positive)."""
+    with np.load(path, allow_pickle=False) as data:
+        joints = data["joints"].astype(np.float64)
+        names = [str(n) for n in data["joint_names"]]
+    wrist = joints[names.index("wrist")]
+    fingers = joints[names.index("middle-finger-phalanx-proximal")] - wrist
+    thumb = joints[names.index("thumb-phalanx-proximal")] - wrist
+    knuckles = np.cross(joints[names.index("index-finger-phalanx-proximal")] - wrist,
+                        joints[names.index("pinky-finger-phalanx-proximal")] - wrist)
+    palm = knuckles if knuckles @ thumb > 0 else -knuckles
+    return "right" if np.cross(thumb, fingers) @ palm > 0 else "left"
 
 
 def webxr_wrist(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
@@ -187,14 +208,17 @@ def _refined_row(model, fit, points: np.ndarray, vertices: np.ndarray, faces: np
     """The distances of ``fit`` refined on ``points`` (``refined_`` + the four keys) and the
     refinement's seconds."""
     from ..fitting.points.refine import refine_surface
+    from ..fitting.sides import mirror_cloud, mirror_hand
     from ..inference import MeshConfig, mesh_hand
     from ..metrics import mesh_distances
 
     keep = fit.wrist_plane.keeps(points) if fit.wrist_plane is not None else slice(None)
+    side = fit.params.side  # LISA is a right hand: a left one is refined mirrored
+    hand = mirror_hand(fit.params) if side == "left" else fit.params
     with cpu_threads(threads):
-        refined, report = refine_surface(model, fit.params,
-                                         torch.as_tensor(points[keep], dtype=torch.float32),
-                                         None, refine)
+        refined, report = refine_surface(
+            model, hand, mirror_cloud(torch.as_tensor(points[keep], dtype=torch.float32), side),
+            None, refine)
         mesh = mesh_hand(refined, fit.params, 128, MeshConfig(colors=False, skin_weights=False),
                          clip=fit.wrist_plane)
     distances = mesh_distances(mesh.vertices, mesh.faces, vertices, faces, clip=fit.wrist_plane)
@@ -219,7 +243,8 @@ def _points_to_mesh_mm(points: np.ndarray, mesh, plane) -> float:
 def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int = 0,
                    threads: int = 1, wrists: tuple[str, ...] = ("as-is",),
                    config=None, refine=None, viewpoints: bool = False, log=None) -> list[dict]:
-    """Fit ``model`` to the WebXR hand in each pose of :data:`WEBXR_POSES` and each wrist
+    """Fit ``model`` to the WebXR hand (``right_hand.npz`` or ``left_hand.npz``, its side found
+    by :func:`webxr_side`) in each pose of :data:`WEBXR_POSES` and each wrist
     variant of ``wrists`` (:data:`WEBXR_WRISTS`), from a full scan and from a one-view partial
     scan (noise 0.3 mm), each in a random placement (the same for every variant of a pose).
 
@@ -252,6 +277,7 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
     generator = torch.Generator().manual_seed(seed)
     plain = MeshConfig(colors=False, skin_weights=False)
     wrist, forearm = webxr_wrist(path)
+    side = webxr_side(path)
     rows = []
     for pose in WEBXR_POSES:
         posed, faces = pose_webxr_hand(path, pose)
@@ -279,7 +305,8 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                                           -(forearm @ rotation.T)).keeps(points)]
                 with cpu_threads(threads):  # the fit and its mesh on ``threads`` threads
                     viewpoint = scan.viewpoint if partial and viewpoints else None
-                    fit = fit_points(model, points, None, config, viewpoint=viewpoint)
+                    fit = fit_points(model, points, None, config, side=side,
+                                     viewpoint=viewpoint)
                     mesh = mesh_hand(model, fit.params, 128, plain, clip=fit.wrist_plane)
                 distances = mesh_distances(mesh.vertices, mesh.faces, placed, variant_faces,
                                            clip=fit.wrist_plane)

@@ -121,6 +121,31 @@ def test_the_benchmark_fingers_curl_in_their_own_plane():
     assert angle == pytest.approx(math.degrees(0.9 + 1.2 + 0.7), abs=1.0)
 
 
+@pytest.mark.parametrize("hand", ["right", "left"])
+def test_the_benchmark_fist_closes_on_the_palm_side(hand):
+    """Either hand's fist closes towards its palm: every fingertip (the vertices skinned to its
+    distal phalanx) ends on the side of the knuckle plane where the thumb's proximal joint is
+    (the palm's side), 3-5 cm from that plane. Before 2026-12-04 the left hand's fingers
+    curled back over the back of the hand."""
+    from lisa_hand.bench._webxr import webxr_side
+
+    path = WEBXR / f"{hand}_hand.npz"
+    assert webxr_side(path) == hand  # what the bench fits it as (fit_points(side=...))
+    with np.load(path, allow_pickle=False) as data:
+        weights, names = data["weights"], [str(n) for n in data["joint_names"]]
+        joints = {name: joint * 1e-3 for name, joint in zip(names, data["joints"], strict=True)}
+    wrist = joints["wrist"]
+    normal = np.cross(joints["index-finger-phalanx-proximal"] - wrist,
+                      joints["pinky-finger-phalanx-proximal"] - wrist)
+    normal /= np.linalg.norm(normal)
+    palm_side = np.sign((joints["thumb-phalanx-proximal"] - wrist) @ normal)
+    posed, _ = pose_webxr_hand(path, "fist")
+    for finger in ("index", "middle", "ring", "pinky"):
+        tip = weights[:, names.index(f"{finger}-finger-phalanx-distal")] > 0.9
+        depth = palm_side * (posed[tip].mean(0) - wrist) @ normal
+        assert 0.01 < depth < 0.06, (hand, finger, depth)
+
+
 def test_outer_surface_drops_the_faces_inside_the_hand():
     """A box with a smaller box wholly inside it (a fingertip sunk into the palm, in the small):
     the inner box's 12 faces and 8 vertices go, the outer box is kept exactly; a box beside it
