@@ -67,12 +67,7 @@ def pose_webxr_hand(path: str | Path, pose: str = "rest") -> tuple[np.ndarray, n
     fingers /= np.linalg.norm(fingers)
     thumb = joints[index["thumb-phalanx-proximal"]] - joints[0]
     thumb -= fingers * (thumb @ fingers)
-    knuckles = np.cross(joints[index["index-finger-phalanx-proximal"]] - joints[0],
-                        joints[index["pinky-finger-phalanx-proximal"]] - joints[0])
-    knuckles /= np.linalg.norm(knuckles)
-    # The palm's side of the knuckle plane is the thumb's (its proximal joint lies in front of
-    # the palm), for a right hand and a left one alike.
-    palm_normal = knuckles if knuckles @ thumb > 0 else -knuckles
+    palm_normal = _palm_normal(joints, names)
     thumb_normal = np.cross(thumb / np.linalg.norm(thumb), fingers)
     thumb_normal = thumb_normal if thumb_normal @ palm_normal > 0 else -thumb_normal
     local = np.tile(np.eye(4), (len(names), 1, 1))
@@ -134,10 +129,19 @@ def webxr_side(path: str | Path) -> str:
     wrist = joints[names.index("wrist")]
     fingers = joints[names.index("middle-finger-phalanx-proximal")] - wrist
     thumb = joints[names.index("thumb-phalanx-proximal")] - wrist
+    return "right" if np.cross(thumb, fingers) @ _palm_normal(joints, names) > 0 else "left"
+
+
+def _palm_normal(joints: np.ndarray, names: list[str]) -> np.ndarray:
+    """[3] unit normal of the knuckle plane (wrist, index and little-finger proximal joints;
+    joints [25, 3] in the rig's order ``names``) on the palm's side, which is the thumb's: its
+    proximal joint lies in front of the palm, in a right hand and a left one alike."""
+    wrist = joints[names.index("wrist")]
     knuckles = np.cross(joints[names.index("index-finger-phalanx-proximal")] - wrist,
                         joints[names.index("pinky-finger-phalanx-proximal")] - wrist)
-    palm = knuckles if knuckles @ thumb > 0 else -knuckles
-    return "right" if np.cross(thumb, fingers) @ palm > 0 else "left"
+    knuckles /= np.linalg.norm(knuckles)
+    thumb = joints[names.index("thumb-phalanx-proximal")] - wrist
+    return knuckles if knuckles @ thumb > 0 else -knuckles
 
 
 def webxr_wrist(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
