@@ -105,11 +105,10 @@ def outer_surface(vertices: np.ndarray, faces: np.ndarray, offset: float = 2e-4
     outward.
     """
     import point_cloud_utils as pcu
+    import trimesh
 
-    corners = vertices[faces]
-    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-30)
-    probes = corners.mean(axis=1) + offset * normals
+    mesh = trimesh.Trimesh(vertices, faces, process=False)
+    probes = mesh.triangles_center + offset * mesh.face_normals
     winding = pcu.triangle_soup_fast_winding_number(
         np.ascontiguousarray(vertices, np.float64), np.ascontiguousarray(faces, np.int64),
         np.ascontiguousarray(probes, np.float64))
@@ -294,8 +293,8 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
             return (points - centre) @ rotation.T + 0.3 * np.array([0, 0, 1.0])
 
         for variant in wrists:
-            vertices, variant_faces = webxr_wrist_variant(posed, faces, wrist, forearm, variant)
-            vertices, variant_faces = outer_surface(vertices, variant_faces)
+            vertices, variant_faces = outer if variant == "as-is" else outer_surface(
+                *webxr_wrist_variant(posed, faces, wrist, forearm, variant))
             placed = place(vertices)
             for partial in (False, True):
                 scan_vertices, scan_faces = ((place(outer[0]), outer[1]) if variant == "cut"

@@ -98,15 +98,14 @@ def test_the_benchmark_fingers_curl_in_their_own_plane():
                          ("fist", ("index", "middle", "ring", "pinky"))):
         posed, _ = pose_webxr_hand(WEBXR / "right_hand.npz", pose)
         for finger in curled:
-            tip = names.index(f"{finger}-finger-tip")
             base = joints[f"{finger}-finger-phalanx-proximal"]
             # The plane of the finger's rest direction and the palm normal through its knuckle.
             direction = joints[f"{finger}-finger-tip"] - base
             plane = np.cross(direction, normal)
             plane /= np.linalg.norm(plane)
-            # Vertices of the fingertip (skinned to the tip's distal phalanx): their mean's
+            # Vertices of the fingertip (skinned to its distal phalanx): their mean's
             # offset from the plane, before and after posing, differs by under 2 mm.
-            distal = weights[:, tip - 1] > 0.9
+            distal = weights[:, names.index(f"{finger}-finger-phalanx-distal")] > 0.9
             before = (rest_vertices[distal].mean(0) - base) @ plane
             after = (posed[distal].mean(0) - base) @ plane
             assert abs(after - before) < 0.002, (pose, finger, after - before)
