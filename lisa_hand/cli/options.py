@@ -75,13 +75,14 @@ def image_fit_overrides(*, seed: int, threads: int, shape_fit: ShapeFit, guard: 
 
 FitModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model: exported file, run folder or checkpoint, or a shipped "
-                    "model's name: 'default' (LISA-full) or 'geometry' (the geometric prior) "
-                    "(default: 'default').")]
+                    "model's name: 'default' (LISA-full), 'geometry_v2' or 'geometry' (the "
+                    "geometric priors, hand model v2 / v1) (default: 'default').")]
 
 PointModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model: exported file, run folder or checkpoint, or a shipped "
-                    "model's name (default: 'geometry', the shipped geometric prior, no colour; "
-                    "'default' is LISA-full, whose mean colour the mesh then gets).")]
+                    "model's name (default: 'geometry_v2', the shipped geometric prior of hand "
+                    "model v2, no colour; 'geometry' is the v1 prior; 'default' is LISA-full, "
+                    "whose mean colour the mesh then gets).")]
 
 # The verbs over a fitted hand (lisa mesh, render, animate).
 ParamsArg = Annotated[Path, typer.Argument(
@@ -90,7 +91,8 @@ ParamsArg = Annotated[Path, typer.Argument(
          "'lisa blend'.")]
 ModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model (exported file, or a 'lisa train' / 'lisa train-prior' run); "
-                    "default: the one PARAMS names ('default' and 'geometry': the shipped ones).")]
+                    "default: the one PARAMS names ('default', 'geometry', 'geometry_v2': the "
+                    "shipped ones).")]
 DeviceOpt = Annotated[str, typer.Option(
     "--device", help="auto (CUDA when available), cpu, cuda or cuda:N.")]
 

@@ -201,7 +201,7 @@ def test_refine_writes_the_refined_model_that_params_json_names(lisa, files, cap
 
 
 def test_without_model_the_shipped_geometric_prior_fits(lisa, files, tmp_path, capsys):
-    """No --model: the point fit uses the shipped geometric prior ('geometry'), params.json
+    """No --model: the point fit uses the shipped geometric prior ('geometry_v2'), params.json
     names it, the mesh has skinning weights and no colours (the prior has none), and the verbs
     over a hand load it by that name."""
     from lisa_hand.inference.hand_field import load_hand
@@ -210,10 +210,10 @@ def test_without_model_the_shipped_geometric_prior_fits(lisa, files, tmp_path, c
     out = tmp_path / "fit"
     assert lisa(["fit-points", str(root / "scan.npz"), "--out", str(out), *FAST_ARGS]) == 0
     params = read_params(out / "params.json")
-    assert params.model == "geometry" and params.color_code is None
+    assert params.model == "geometry_v2" and params.color_code is None
     assert params.shape_code is not None and params.shape_code.shape == (128,)
     mesh = load_mesh(out / "mesh.ply")
     assert mesh.num_vertices > 100 and mesh.colors is None and mesh.skin_weights is not None
     model, hand = load_hand(out / "params.json")
-    assert not model.has_color and model.source.endswith("lisa_geometry.pt")
-    assert hand.model == "geometry"
+    assert not model.has_color and model.source.endswith("lisa_geometry_v2.pt")
+    assert hand.model == "geometry_v2"

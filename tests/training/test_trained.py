@@ -136,18 +136,21 @@ def test_headlight_shading_is_trained_exported_and_rendered(tiny_data, tmp_path,
 
 
 def test_shipped_models_by_name(tmp_path, monkeypatch):
-    """'default' and 'geometry' name the two shipped files (LISA-full with colour, the
-    geometric prior without); a file or folder of that name in the working directory wins;
-    params.json records the name, else the absolute path."""
+    """'default', 'geometry' and 'geometry_v2' name the three shipped files (LISA-full with
+    colour, the geometric priors of hand models v1 and v2 without); a file or folder of that
+    name in the working directory wins; params.json records the name, else the absolute path."""
     from lisa_hand.model.trained import SHIPPED_MODELS, model_label, shipped_model_path
 
-    assert set(SHIPPED_MODELS) == {"default", "geometry"}
-    full, geometry = load_trained("default"), load_trained("geometry")
+    assert set(SHIPPED_MODELS) == {"default", "geometry", "geometry_v2"}
+    full = load_trained("default")
     assert full.has_color and full.source == str(shipped_model_path("default"))
-    assert not geometry.has_color and geometry.color_codes is None
-    assert geometry.source == str(shipped_model_path("geometry"))
-    assert len(geometry.subject_ids) >= 200  # the issue's "at least 200 training subjects"
-    assert geometry.config.shape_dim == full.config.shape_dim == 128
+    priors = [load_trained(name) for name in ("geometry", "geometry_v2")]
+    for name, geometry in zip(("geometry", "geometry_v2"), priors, strict=True):
+        assert not geometry.has_color and geometry.color_codes is None
+        assert geometry.source == str(shipped_model_path(name))
+        assert len(geometry.subject_ids) >= 200  # the issue's "at least 200 training subjects"
+        assert geometry.config.shape_dim == full.config.shape_dim == 128
+    assert not torch.equal(priors[0].shape_codes, priors[1].shape_codes)  # two models
     torch.testing.assert_close(load_trained(None).shape_codes, full.shape_codes)
     assert model_label(None) == "default" and model_label("geometry") == "geometry"
     with pytest.raises(ValueError, match="no shipped model named 'colour'"):

@@ -273,13 +273,17 @@ class FitPointsReport:
 
 
 def default_point_model() -> str:
-    """The model of a point fit without ``--model``: the shipped geometric prior ("geometry":
-    geometry that image training has not blurred, 203 subjects) when it is installed, else the
-    shipped LISA-full ("default"). A point cloud has no colour, so the prior's lack of one costs
-    nothing but the mesh's vertex colours (``--model default`` keeps them)."""
+    """The model of a point fit without ``--model``: the first shipped one installed of
+    "geometry_v2" (the geometric prior on 203 subjects of the open hand model v2: geometry that
+    image training has not blurred, a rounded palm and a forearm stub), "geometry" (the same on
+    hand model v1) and "default" (LISA-full). A point cloud has no colour, so a prior's lack of
+    one costs nothing but the mesh's vertex colours (``--model default`` keeps them)."""
     from ...model.trained import shipped_model_path
 
-    return "geometry" if shipped_model_path("geometry").is_file() else "default"
+    for name in ("geometry_v2", "geometry"):
+        if shipped_model_path(name).is_file():
+            return name
+    return "default"
 
 
 def fit_point_file(
