@@ -19,6 +19,11 @@ def demo(
         "--fit-scale", help="Multiply the fits' iteration counts (e.g. 0.5: faster, rougher).")]
     = 1.0,
     device: Annotated[str, typer.Option(help="auto, cpu or cuda.")] = "auto",
+    hand_model: Annotated[str, typer.Option(
+        "--hand-model", metavar="v1|v2",
+        help="Version of the open hand model the unseen hand is drawn from: v1 (default; what "
+             "the shipped model was trained on) or v2 (for a model trained on v2 hands, e.g. "
+             "--model full_v2).")] = "v1",
 ) -> None:
     """Run the end-to-end demo: synthesize a hand the shipped model never saw, fit it from its
     point cloud, from 1 view and from 4 views, mesh the fits, render novel views and a
@@ -29,7 +34,7 @@ def demo(
     if not fit_scale > 0:
         raise ValueError(f"--fit-scale must be > 0, got {fit_scale}")
     config = DemoConfig(seed=seed, model=None if model is None else str(model),
-                        fit_scale=fit_scale, device=device)
+                        fit_scale=fit_scale, device=device, hand_model=hand_model)
     run_demo(out, config, log=typer.echo)
 
 

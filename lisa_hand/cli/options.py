@@ -75,8 +75,9 @@ def image_fit_overrides(*, seed: int, threads: int, shape_fit: ShapeFit, guard: 
 
 FitModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model: exported file, run folder or checkpoint, or a shipped "
-                    "model's name: 'default' (LISA-full), 'geometry_v2' or 'geometry' (the "
-                    "geometric priors, hand model v2 / v1) (default: 'default').")]
+                    "model's name: 'default' (LISA-full, hand model v1), 'full_v2' (LISA-full "
+                    "trained on hand model v2), 'geometry_v2' or 'geometry' (the geometric "
+                    "priors, hand model v2 / v1) (default: 'default').")]
 
 PointModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model: exported file, run folder or checkpoint, or a shipped "
@@ -91,8 +92,8 @@ ParamsArg = Annotated[Path, typer.Argument(
          "'lisa blend'.")]
 ModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model (exported file, or a 'lisa train' / 'lisa train-prior' run); "
-                    "default: the one PARAMS names ('default', 'geometry', 'geometry_v2': the "
-                    "shipped ones).")]
+                    "default: the one PARAMS names ('default', 'full_v2', 'geometry', "
+                    "'geometry_v2': the shipped ones).")]
 DeviceOpt = Annotated[str, typer.Option(
     "--device", help="auto (CUDA when available), cpu, cuda or cuda:N.")]
 

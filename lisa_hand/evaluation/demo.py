@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..handmodel import HAND_MODELS
+
 __all__ = ["DemoConfig", "DemoResult", "run_demo"]
 
 _METRICS = ("v2v_recon_to_scan_mm", "v2s_recon_to_scan_mm", "v2v_scan_to_recon_mm",
@@ -57,6 +59,10 @@ class DemoConfig:
     """Multiplies the fits' iteration counts (< 1: faster, less accurate)."""
     device: str = "auto"
     """"auto", "cpu" or "cuda"."""
+    hand_model: str = "v1"
+    """Version of the open hand model the unseen hand is drawn from (``lisa synth
+    --hand-model``): "v1", what the shipped LISA-full was trained on, or "v2" (for a model
+    trained on v2 hands, such as ``full_v2``)."""
 
 
 @dataclass
@@ -134,6 +140,9 @@ def run_demo(
     if config.num_views < 5:
         raise ValueError(f"num_views must be >= 5 (4 fitted + novel views), got "
                          f"{config.num_views}")
+    if config.hand_model not in HAND_MODELS:
+        raise ValueError(f"hand_model must be one of {', '.join(HAND_MODELS)}, got "
+                         f"{config.hand_model!r}")
     out_dir = Path(out_dir)
     start = time.perf_counter()
     device = resolve_device(config.device)
@@ -173,7 +182,8 @@ def _unseen_hand(data: Path, config: DemoConfig):
 
     synthesize(data, SynthConfig(num_subjects=1, num_poses=1, num_views=config.num_views,
                                  resolution=config.resolution,
-                                 seed=_DEMO_SEED_OFFSET + config.seed),
+                                 seed=_DEMO_SEED_OFFSET + config.seed,
+                                 hand_model=config.hand_model),
                progress=True, overwrite=True)
     frame = FramePaths(data / "s000" / "f000")
     names = [camera.name for camera in load_cameras(frame.cameras)]
@@ -273,8 +283,8 @@ def _write_report(path: Path, rows, pictures, gif: Path | None, input_image: np.
 table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px;text-align:right}}
 figure{{display:inline-block;margin:8px}}img{{max-width:100%}}</style></head><body>
 <h1>LISA-open demo</h1>
-<p>Model: {html.escape(source)}. An unseen hand of the open hand model (demo seed
-{config.seed}) fitted from its scan, from 1 view and from 4 views. Distances in mm against the
+<p>Model: {html.escape(source)}. An unseen hand of the open hand model
+{html.escape(config.hand_model)} (demo seed {config.seed}) fitted from its scan, from 1 view and from 4 views. Distances in mm against the
 ground-truth mesh (V2V: vertex to nearest vertex; V2S: vertex to surface), PSNR inside the mask
 in views that no fit used. Whole demo: {seconds:.0f} s.</p>
 <table>{header}{body}</table>

@@ -3,11 +3,12 @@
 What fitting, meshing, rendering and animation load. It comes from one of
 
 * a model shipped with the package, by name (:data:`SHIPPED_MODELS`): ``"default"``
-  (``lisa_hand/assets/lisa_pretrained.pt``, LISA-full: geometry and colour from images, what
-  ``load_trained(None)`` gives), ``"geometry_v2"`` (``lisa_hand/assets/lisa_geometry_v2.pt``, a
+  (``lisa_hand/assets/lisa_pretrained.pt``, LISA-full: geometry and colour from images of hand
+  model v1, what ``load_trained(None)`` gives), ``"geometry_v2"`` (``lisa_hand/assets/lisa_geometry_v2.pt``, a
   geometric prior on 203 subjects of the open hand model v2: no colour; the default of ``lisa
-  fit-points``) or ``"geometry"`` (``lisa_hand/assets/lisa_geometry.pt``, the same on hand model
-  v1: the prior LISA-full was trained from, and the point fits' model until 2026-12-04);
+  fit-points``), ``"geometry"`` (``lisa_hand/assets/lisa_geometry.pt``, the same on hand model
+  v1: the prior LISA-full was trained from, and the point fits' model until 2026-12-04) or
+  ``"full_v2"`` (``lisa_hand/assets/lisa_full_v2.pt``, LISA-full trained on hand model v2);
 * a file written by :func:`export_trained` (``python -m lisa_hand.model.trained RUN --out FILE``);
 * a training run: a ``lisa train`` run (geometry and colour) or a ``lisa train-prior`` run
   (geometry only), as its folder or its checkpoint file.
@@ -119,12 +120,14 @@ class TrainedModel:
 
 
 SHIPPED_MODELS = {"default": "lisa_pretrained.pt", "geometry": "lisa_geometry.pt",
-                  "geometry_v2": "lisa_geometry_v2.pt"}
+                  "geometry_v2": "lisa_geometry_v2.pt", "full_v2": "lisa_full_v2.pt"}
 """The models in ``lisa_hand/assets`` by the name ``--model`` and ``params.json`` give them:
-"default" is LISA-full (images: geometry and colour), "geometry" and "geometry_v2" geometric
-priors (``lisa train-prior`` on 203 subjects of the open hand model v1 and v2: the SDF and
-skinning networks only, no colour). A name always means the same weights (a ``params.json``
-holds a shape code of that model's space), so a retrained model ships under a new name."""
+"default" is LISA-full (images: geometry and colour) trained on the open hand model v1 from the
+"geometry" prior, "full_v2" the same recipe on v2 hands from the "geometry_v2" prior;
+"geometry" and "geometry_v2" are geometric priors (``lisa train-prior`` on 203 subjects of the
+open hand model v1 and v2: the SDF and skinning networks only, no colour). A name always means
+the same weights (a ``params.json`` holds a shape code of that model's space), so a retrained
+model ships under a new name."""
 
 
 def shipped_model_path(name: str = "default") -> Path:

@@ -114,6 +114,8 @@ def test_demo_rejects_bad_input_before_writing(model_file, tmp_path):
     out = tmp_path / "demo"
     with pytest.raises(ValueError, match="num_views must be >= 5"):
         run_demo(out, tiny_config(model_file, num_views=4), log=lambda line: None)
+    with pytest.raises(ValueError, match="hand_model must be one of v1, v2, got 'v3'"):
+        run_demo(out, tiny_config(model_file, hand_model="v3"), log=lambda line: None)
     with pytest.raises(FileNotFoundError, match="nothing.pt: no such model file"):
         run_demo(out, tiny_config(tmp_path / "nothing.pt"), log=lambda line: None)
     corrupt = tmp_path / "corrupt.pt"
