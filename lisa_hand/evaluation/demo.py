@@ -284,9 +284,10 @@ table{{border-collapse:collapse}}td,th{{border:1px solid #ccc;padding:4px 8px;te
 figure{{display:inline-block;margin:8px}}img{{max-width:100%}}</style></head><body>
 <h1>LISA-open demo</h1>
 <p>Model: {html.escape(source)}. An unseen hand of the open hand model
-{html.escape(config.hand_model)} (demo seed {config.seed}) fitted from its scan, from 1 view and from 4 views. Distances in mm against the
-ground-truth mesh (V2V: vertex to nearest vertex; V2S: vertex to surface), PSNR inside the mask
-in views that no fit used. Whole demo: {seconds:.0f} s.</p>
+{html.escape(config.hand_model)} (demo seed {config.seed}) fitted from its scan, from 1 view and
+from 4 views. Distances in mm against the ground-truth mesh (V2V: vertex to nearest vertex;
+V2S: vertex to surface), PSNR inside the mask in views that no fit used. Whole demo:
+{seconds:.0f} s.</p>
 <table>{header}{body}</table>
 <h2>Input (one of the fitted views)</h2>
 <figure><img src='{_png_data_uri(input_image)}'></figure>

@@ -4,11 +4,12 @@ What fitting, meshing, rendering and animation load. It comes from one of
 
 * a model shipped with the package, by name (:data:`SHIPPED_MODELS`): ``"default"``
   (``lisa_hand/assets/lisa_pretrained.pt``, LISA-full: geometry and colour from images of hand
-  model v1, what ``load_trained(None)`` gives), ``"geometry_v2"`` (``lisa_hand/assets/lisa_geometry_v2.pt``, a
-  geometric prior on 203 subjects of the open hand model v2: no colour; the default of ``lisa
-  fit-points``), ``"geometry"`` (``lisa_hand/assets/lisa_geometry.pt``, the same on hand model
-  v1: the prior LISA-full was trained from, and the point fits' model until 2026-12-04) or
-  ``"full_v2"`` (``lisa_hand/assets/lisa_full_v2.pt``, LISA-full trained on hand model v2);
+  model v1, what ``load_trained(None)`` gives), ``"geometry_v2"``
+  (``lisa_hand/assets/lisa_geometry_v2.pt``, a geometric prior on 203 subjects of the open hand
+  model v2: no colour; the default of ``lisa fit-points``), ``"geometry"``
+  (``lisa_hand/assets/lisa_geometry.pt``, the same on hand model v1: the prior LISA-full was
+  trained from, and the point fits' model until 2026-12-04) or ``"full_v2"``
+  (``lisa_hand/assets/lisa_full_v2.pt``, LISA-full trained on hand model v2);
 * a file written by :func:`export_trained` (``python -m lisa_hand.model.trained RUN --out FILE``);
 * a training run: a ``lisa train`` run (geometry and colour) or a ``lisa train-prior`` run
   (geometry only), as its folder or its checkpoint file.
