@@ -251,3 +251,36 @@ def test_the_second_pass_curls_a_finger_the_field_stage_left_straight():
     assert before > 1.0 and error < 0.35, (error, report.notes)
     assert report.stage == "second" and "index" in report.notes[0]
     assert math.isfinite(report.loss)
+
+
+def test_covered_fraction_counts_the_proxy_points_near_the_cloud():
+    """covered_fraction: the share of the posed proxy within the distance of the cloud. A proxy
+    of two blobs of random points 8 cm apart, bound to the root and posed by a random hand: a
+    cloud of all the posed points covers all of it, a cloud of one blob that blob's share, and
+    the whole cloud moved 20 cm off none, at 4 mm (the cloud's distance grid is good to about a
+    2 mm cell); fit_points records the share in the field stage's notes."""
+    from lisa_hand.fitting.points.proxy import SurfaceProxy, covered_fraction
+    from lisa_hand.skeleton import NUM_JOINTS
+
+    generator = torch.Generator().manual_seed(5)
+    hand = _hand(2)
+    blob = torch.tensor([0.04, 0.0, 0.0])
+    points = 0.01 * torch.randn(300, 3, generator=generator)
+    points[:120] += blob
+    points[120:] -= blob
+    weights = torch.zeros(300, NUM_JOINTS)
+    weights[:, 0] = 1.0
+    proxy = SurfaceProxy(points, weights, hand.rest_joints.float(), points.mean(0))
+    with torch.no_grad():
+        world = proxy.world(CandidateBatch.from_hands([hand], proxy.pivot))[0]
+    assert covered_fraction(proxy, target_cloud(world), hand, 0.004) == 1.0
+    assert covered_fraction(proxy, target_cloud(world[:120]), hand, 0.004) == pytest.approx(0.4)
+    moved = target_cloud(world + torch.tensor([0.0, 0.0, 0.2]))
+    assert covered_fraction(proxy, moved, hand, 0.004) == 0.0
+
+    model = tiny_model()
+    truth = true_hand(model, seed=0)
+    scan, normals, _ = scan_of(model, truth, ScanConfig(num_points=1000), seed=0)
+    result = fit_points(model, scan, normals, FitPointsConfig(**FAST))
+    assert any("of the hand within 4 mm: shape prior" in note
+               for note in result.reports["field"].notes)

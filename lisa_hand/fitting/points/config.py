@@ -88,6 +88,17 @@ class FitPointsConfig:
     """Weight of the shape code's norm (the paper's latent term) relative to the data term
     (metres): ``shape_weight * mean_k (beta+_k / s)^2``, ``s`` the training codes' root mean
     square entry, so a code of the training subjects' size costs about ``shape_weight``."""
+    covered_shape_weight: float = 3e-6
+    """``shape_weight`` of the surface stages when the scan covers the hand all round: at least
+    ``covered_fraction`` of the best candidate's proxy points within ``covered_mm`` of a scan
+    point after the per-finger restarts (a scan from all sides: 0.74-0.80 on the WebXR hand; one
+    side: 0.36-0.57). Where the scan shows the whole surface it, not the prior, should set the
+    shape; where it shows one side the prior is what guesses the other."""
+    covered_fraction: float = 2.0 / 3.0
+    """Share of the proxy within ``covered_mm`` of the scan above which the scan counts as
+    covering the hand (1 or more: never)."""
+    covered_mm: float = 4.0
+    """Distance, millimetres, within which a proxy point counts as covered by the scan."""
     pose_weight: float = 4.5e-4
     """Weight of the finger-pose prior (:func:`lisa_hand.fitting.priors.finger_pose_prior`:
     the mean over the 45 finger values of the squared difference from ``prior_pose``,
@@ -166,7 +177,8 @@ class FitPointsConfig:
         clip = self.wrist_clip_m
         if clip is not None and not (isinstance(clip, (int, float)) and math.isfinite(clip)):
             raise ValueError(f"wrist_clip_m must be a number of metres or None, got {clip!r}")
-        for name in ("shape_weight", "pose_weight", "limit_weight", "betas_weight",
+        for name in ("shape_weight", "covered_shape_weight", "covered_fraction", "covered_mm",
+                     "pose_weight", "limit_weight", "betas_weight",
                      "normal_weight", "free_space_weight", "coverage_weight", "wrist_margin_m",
                      "proxy_tangent_weight"):
             value = getattr(self, name)

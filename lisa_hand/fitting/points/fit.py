@@ -16,7 +16,8 @@ a function from hands (:class:`~lisa_hand.skeleton.params.HandParams`) to hands:
    combined replaces the last candidate when it fits better.
 3. **Surface** (:func:`.surface_stage.fit_surface`, 'field'): all unknowns on the LISA field
    (rotation, translation, finger pose, shape code, the template's betas), candidates pruned
-   to one (8 -> 3 -> 1).
+   to one (8 -> 3 -> 1); the shape prior is weaker (``covered_shape_weight``) when the scan
+   covers the hand all round (:func:`.proxy.covered_fraction`).
 4. **The fingers' second chance** (:func:`second_finger_pass`, 'second'): the per-finger
    restarts again, on a proxy of the fitted hand's own shape and skeleton, then a short field
    stage of the changed hand beside the fitted one, the better one kept.
@@ -54,7 +55,7 @@ from .finger_search import restart_fingers
 from .free_space import DepthImage, free_points_near, free_space_points
 from .global_pose import search_global_pose
 from .monitor import FitMonitor, FitStep
-from .proxy import build_surface_proxy, fit_proxy_pose
+from .proxy import build_surface_proxy, covered_fraction, fit_proxy_pose
 from .surface_stage import fit_surface, frozen_field, surface_residuals
 
 __all__ = ["FitPointsConfig", "FitStep", "FitResult", "fit_points", "start_hand"]
@@ -252,9 +253,15 @@ def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints,
                                                      monitor=monitor)
     since = monitor.lap("fingers", since)
     cloud = _clip_cloud(cloud, candidates[0], clip, config.min_points)
+    covered = covered_fraction(proxy, cloud, candidates[0], config.covered_mm * _MM)
+    if covered >= config.covered_fraction:  # a scan from all sides: the data sets the shape
+        config = dataclasses.replace(config, shape_weight=config.covered_shape_weight)
     hand, reports["field"] = fit_surface(model, _free_near(cloud, proxy, candidates, config),
                                          candidates, config, template=template,
                                          pivot=proxy.pivot, monitor=monitor)
+    reports["field"].notes.append(f"scan covers {covered:.0%} of the hand within "
+                                  f"{config.covered_mm:g} mm: shape prior "
+                                  f"{config.shape_weight:g}")
     since = monitor.lap("field", since)
     if config.second_pass_iters > 0:
         hand, reports["second"] = second_finger_pass(model, cloud, hand, config,

@@ -36,7 +36,8 @@ from .candidates import CandidateBatch, point_prior
 from .cloud import TargetCloud, nearest_distance
 from .monitor import FitMonitor
 
-__all__ = ["SurfaceProxy", "build_surface_proxy", "proxy_energy", "optimise_on_proxy",
+__all__ = ["SurfaceProxy", "build_surface_proxy", "covered_fraction", "proxy_energy",
+           "optimise_on_proxy",
            "fit_proxy_pose"]
 
 _MM = 1e-3
@@ -155,6 +156,17 @@ def build_surface_proxy(model, rest_joints: torch.Tensor, shape_code: torch.Tens
         excess = field_model.region_excess(state, vertices[None])[0]
         weights = torch.nn.functional.one_hot(excess.argmin(-1), NUM_JOINTS).to(dtype)
     return SurfaceProxy(vertices, weights, rest_joints, vertices.mean(dim=0), normals)
+
+
+@torch.no_grad()
+def covered_fraction(proxy: SurfaceProxy, cloud: TargetCloud, hand, distance: float) -> float:
+    """Share of the proxy's points, posed as ``hand`` (a right hand on the proxy's skeleton),
+    that lie within ``distance`` metres of the cloud (its distance grid,
+    :meth:`TargetCloud.distance_grid`: good to about a 2 mm cell): near 1 for a scan from all
+    sides, about a half for one side."""
+    batch = CandidateBatch.from_hands([hand], proxy.pivot)
+    gaps = cloud.distance_grid(proxy.world(batch))[0]
+    return float((gaps < distance).to(torch.float64).mean())
 
 
 def proxy_energy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, config,
