@@ -37,8 +37,7 @@ from .cloud import TargetCloud, nearest_distance
 from .monitor import FitMonitor
 
 __all__ = ["SurfaceProxy", "build_surface_proxy", "covered_fraction", "proxy_energy",
-           "optimise_on_proxy",
-           "fit_proxy_pose"]
+           "optimise_on_proxy", "fit_proxy_pose"]
 
 _MM = 1e-3
 _PROXY_STAGE_POINTS = 256  # cloud points per iteration of the proxy stages
