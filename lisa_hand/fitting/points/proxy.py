@@ -158,7 +158,8 @@ def build_surface_proxy(model, rest_joints: torch.Tensor, shape_code: torch.Tens
 
 
 @torch.no_grad()
-def covered_fraction(proxy: SurfaceProxy, cloud: TargetCloud, hand, distance: float) -> float:
+def covered_fraction(proxy: SurfaceProxy, cloud: TargetCloud, hand: HandParams,
+                     distance: float) -> float:
     """Share of the proxy's points, posed as ``hand`` (a right hand on the proxy's skeleton),
     that lie within ``distance`` metres of the cloud (its distance grid,
     :meth:`TargetCloud.distance_grid`: good to about a 2 mm cell): near 1 for a scan from all
