@@ -95,8 +95,9 @@ class PairStrategies:
         mlp, bias = self.mlp, self.bias
         enc, sizes = self.sorted_pairs()
         enc = F.pad(enc, (0, self.pad))
-        offsets = torch.tensor(sizes).cumsum(0).to(torch.int32)
-        group = torch.repeat_interleave(torch.arange(NUM_JOINTS), torch.tensor(sizes))
+        counts = torch.tensor(sizes, device=enc.device)
+        offsets = counts.cumsum(0).to(torch.int32)
+        group = torch.repeat_interleave(torch.arange(NUM_JOINTS, device=enc.device), counts)
         hidden = mlp.act(F.grouped_mm(enc, self.padded_first, offs=offsets) + bias[group])
         for index, (weight, layer_bias) in enumerate(self.padded_layers):
             hidden = F.grouped_mm(hidden, weight, offs=offsets) + layer_bias[group]
@@ -107,9 +108,11 @@ class PairStrategies:
     def padded_bmm(self) -> torch.Tensor:
         mlp, bias, layers = self.mlp, self.bias, self.layers
         enc, sizes = self.sorted_pairs()
-        group = torch.repeat_interleave(torch.arange(NUM_JOINTS), torch.tensor(sizes))
-        starts = torch.tensor([0] + sizes[:-1]).cumsum(0)
-        slot = torch.arange(enc.shape[0]) - starts[group]
+        device = enc.device
+        group = torch.repeat_interleave(torch.arange(NUM_JOINTS, device=device),
+                                        torch.tensor(sizes, device=device))
+        starts = torch.tensor([0] + sizes[:-1], device=device).cumsum(0)
+        slot = torch.arange(enc.shape[0], device=device) - starts[group]
         padded = enc.new_zeros(NUM_JOINTS, max(sizes), enc.shape[1])
         padded[group, slot] = enc
         hidden = mlp.act(torch.baddbmm(bias[:, None], padded, mlp.point_weight))
@@ -168,7 +171,8 @@ def time_pair_strategies(
 ) -> dict:
     """Time the ways of running the stacked SDF MLP on the culled (point, bone) pairs.
 
-    -> {strategy: {"ms", "gflops"}} (and ``compile_seconds`` with ``compile_mlp``).
+    -> {strategy: {"ms", "gflops"}, or {"error"} for a way this device does not run} (and
+    ``compile_seconds`` with ``compile_mlp``).
     """
     pairs_run = PairStrategies(model, state, points)
     compile_seconds = None
@@ -191,10 +195,19 @@ def time_pair_strategies(
         strategies["sorted_loop_compiled"] = pairs_run.loop_compiled
     pairs = pairs_run.num_pairs
     flops = mlp_flops(pairs_run.mlp, pairs, False)
+    timings: dict = {}
     with torch.no_grad():
+        for name, method in list(strategies.items()):
+            try:  # some ways do not exist on every device (grouped_mm in float32 on a GPU)
+                method()
+            except (RuntimeError, NotImplementedError) as exc:
+                reason = str(exc).strip().splitlines()[0] if str(exc).strip() else repr(exc)
+                timings[name] = {"error": reason}
+                del strategies[name]
         best = interleaved_best(strategies, repeats)
-    timings = {}
     log(f"SDF MLP on the {pairs} culled (point, bone) pairs, float32:")
+    for name, failure in timings.items():
+        log(f"  {name:22s}: unavailable here ({failure['error']})")
     for name, seconds in best.items():
         timings[name] = {"ms": seconds * 1e3, "gflops": flops / seconds / 1e9}
         log(f"  {name:22s}: {seconds * 1e3:8.1f} ms ({flops / seconds / 1e9:5.1f} GFLOP/s)")

@@ -223,10 +223,12 @@ def lisa_capsule_scene(width: int, height: int, seed: int = 0) -> BenchScene:
 
 
 def trained_scene(
-    width: int, height: int, seed: int = 0, model_path: str | None = None
+    width: int, height: int, seed: int = 0, model_path: str | None = None,
+    device: torch.device | str = "cpu",
 ) -> BenchScene:
     """A trained model (``model_path``, default the shipped one) as ``lisa render`` renders it:
-    the benchmark pose on the average skeleton, the model's mean codes, calibrated colours."""
+    the benchmark pose on the average skeleton, the model's mean codes, calibrated colours; the
+    field, camera and bound on ``device``."""
     from ..inference import hand_bounds, hand_field, hand_render_config
     from ..skeleton import forward_kinematics
     from .mesh import bench_hand
@@ -238,14 +240,15 @@ def trained_scene(
             raise FileNotFoundError(f"{default_model_path()}: no shipped model; pass --model")
         model_path = str(default_model_path())
     model, params, description = bench_hand(model_path, seed)
+    model = model.to(device)
     hand = hand_field(model, params)
     center, radius = hand_bounds(params, model.config)
     root = forward_kinematics(params.pose[None], params.rest_joints[None]).transforms[0, 0, :3, :3]
     return BenchScene(
         field_fn=hand.field_fn(),
         sdf_fn=hand.sdf_fn(),
-        camera=_palm_camera(center, root, width, height),
-        center=center,
+        camera=_palm_camera(center, root, width, height).to(device),
+        center=center.to(device),
         radius=radius,
         lipschitz=hand_render_config(model).lipschitz,
         description=description + " (lisa render's fields)",
@@ -257,16 +260,21 @@ SCENES = ("auto", "trained", "lisa-capsules", "lisa", "capsules")
 
 
 def make_scene(
-    kind: str, width: int, height: int, seed: int = 0, model_path: str | None = None
+    kind: str, width: int, height: int, seed: int = 0, model_path: str | None = None,
+    device: torch.device | str = "cpu",
 ) -> BenchScene:
-    """One of :data:`SCENES` (see the module docstring); ``model_path``: the trained model."""
+    """One of :data:`SCENES` (see the module docstring); ``model_path``: the trained model;
+    ``device``: where it renders (a GPU for the trained scene only)."""
     if kind == "auto":
         from ..model.trained import default_model_path
 
         trained = model_path is not None or default_model_path().is_file()
         kind = "trained" if trained else "lisa-capsules"
     if kind == "trained":
-        return trained_scene(width, height, seed, model_path)
+        return trained_scene(width, height, seed, model_path, device)
+    if torch.device(device).type != "cpu":
+        raise ValueError(f"the {kind!r} scene renders on the CPU only; a GPU renders the "
+                         "trained field (--field trained)")
     if kind == "lisa-capsules":
         return lisa_capsule_scene(width, height, seed)
     if kind == "lisa":

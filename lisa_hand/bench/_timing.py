@@ -13,10 +13,13 @@ from collections.abc import Callable, Iterator
 
 import torch
 
+from ..utils.device import synchronize
+
 __all__ = [
     "BACKWARD_FLOP_FACTOR",
     "EIKONAL_FLOP_FACTOR",
     "interleaved_best",
+    "large_matmul",
     "mlp_flops",
     "mlp_share",
     "time_training_steps",
@@ -41,7 +44,8 @@ def interleaved_best(
 ) -> dict[str, float]:
     """Best wall time of each function over ``rounds`` rounds (``slow_rounds`` for the names in
     ``slow``), the functions interleaved in each round, so that a burst of load from other
-    processes hits all of them alike. One warm-up call each first. -> {name: seconds}"""
+    processes hits all of them alike. One warm-up call each first. GPU work is waited for
+    (:func:`~lisa_hand.utils.device.synchronize`) before each clock read. -> {name: seconds}"""
     for fn in fns.values():
         fn()
     best = dict.fromkeys(fns, math.inf)
@@ -49,10 +53,23 @@ def interleaved_best(
         for name, fn in fns.items():
             if index >= (slow_rounds if name in slow else rounds):
                 continue
+            synchronize()
             start = time.perf_counter()
             fn()
+            synchronize()
             best[name] = min(best[name], time.perf_counter() - start)
     return best
+
+
+def large_matmul(device: torch.device) -> tuple[Callable[[], object], float, str]:
+    """The machine's reference pace: a float32 matmul large for ``device`` (2048^3 on a CPU,
+    8192^3 on a GPU, whose 2048^3 ends before its launch cost is paid back), on random data.
+    -> (a call that runs it, its FLOPs, its name for the logs)"""
+    size = 8192 if torch.device(device).type == "cuda" else 2048
+    generator = torch.Generator().manual_seed(0)
+    mat_a = torch.randn(size, size, generator=generator).to(device)
+    mat_b = torch.randn(size, size, generator=generator).to(device)
+    return (lambda: mat_a @ mat_b), 2.0 * size**3, f"{size}^3"
 
 
 def mlp_flops(mlp, rows: int, with_cond: bool) -> float:
@@ -71,10 +88,12 @@ def timed_methods(objects: list, name: str, totals: dict[str, float]) -> Iterato
 
     def wrap(bound: Callable) -> Callable:
         def timed(*args, **kwargs):
+            synchronize()
             start = time.perf_counter()
             try:
                 return bound(*args, **kwargs)
             finally:
+                synchronize()
                 totals[name] += time.perf_counter() - start
 
         return timed
@@ -96,8 +115,10 @@ def mlp_share(run: Callable[[], object], mlps: list, rounds: int) -> float:
         for _ in range(rounds):
             totals: dict[str, float] = {}
             with timed_methods(mlps, "forward_grouped", totals):
+                synchronize()
                 start = time.perf_counter()
                 run()
+                synchronize()
                 elapsed = time.perf_counter() - start
             best = min(best, (elapsed, totals["forward_grouped"]))
     return best[1] / best[0]
@@ -119,7 +140,7 @@ def time_training_steps(
 
     points: [1, N, 3] world metres; forward_flops: the culled geometry forward's MLP FLOPs.
     -> {"forward"|"backward"|"eikonal": {"ms", "points_per_s", "gflops_nominal",
-    "over_forward"}, "matmul_gflops" (a 2048^3 matmul timed in the same rounds), "flop_model"}
+    "over_forward"}, "matmul_gflops" (:func:`large_matmul`, timed in the same rounds), "flop_model"}
     """
     num = points.shape[1]
 
@@ -139,12 +160,12 @@ def time_training_steps(
         loss = out.sdf.square().mean() + (out.sdf_grad.norm(dim=-1) - 1.0).square().mean()
         loss.backward()
 
-    size = 2048  # a large matmul in the same rounds: the machine's pace while these ran
-    mat_a, mat_b = torch.randn(size, size), torch.randn(size, size)
+    # a large matmul in the same rounds: the machine's pace while these ran
+    matmul, matmul_flops, _ = large_matmul(points.device)
     best = interleaved_best({"forward": forward, "backward": backward, "eikonal": eikonal,
-                             "matmul": lambda: mat_a @ mat_b}, rounds)  # fmt: skip
+                             "matmul": matmul}, rounds)  # fmt: skip
     model.zero_grad(set_to_none=True)
-    matmul_gflops = 2.0 * size**3 / best.pop("matmul") / 1e9
+    matmul_gflops = matmul_flops / best.pop("matmul") / 1e9
     factors = {"forward": 1.0, "backward": BACKWARD_FLOP_FACTOR, "eikonal": EIKONAL_FLOP_FACTOR}
     result: dict = {
         name: {

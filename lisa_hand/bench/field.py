@@ -52,11 +52,13 @@ from ..fields.bones import SEGMENT_BONES
 from ..fields.fused import fused_inference, fused_stats
 from ..model.lisa import FieldOutput, FrameState, LisaModel
 from ..skeleton import NUM_JOINTS
+from ..utils.device import describe_device, resolve_device
 from ..utils.io import write_json
 from ._pairs import time_pair_strategies
 from ._reference import ReferenceField
 from ._timing import (
     interleaved_best,
+    large_matmul,
     mlp_flops,
     mlp_share,
     time_training_steps,
@@ -190,8 +192,10 @@ class _BenchHand:
         )
 
 
-def _bench_hand(config: FieldConfig, num_points: int, seed: int) -> _BenchHand:
-    """The model (weights perturbed as some way into training), pose, codes and points."""
+def _bench_hand(config: FieldConfig, num_points: int, seed: int,
+                device: torch.device | str = "cpu") -> _BenchHand:
+    """The model (weights perturbed as some way into training), pose, codes and points, drawn
+    on the CPU (the same numbers on every device) and moved to ``device``."""
     torch.manual_seed(seed)
     generator = torch.Generator().manual_seed(seed)
     rest_joints = torch.tensor(BENCH_REST_JOINTS)
@@ -206,6 +210,13 @@ def _bench_hand(config: FieldConfig, num_points: int, seed: int) -> _BenchHand:
     with torch.no_grad():
         state = model.prepare(pose, translation, rest_joints[None], shape_code, color_code)
         points = sample_bench_points(model, state, num_points, generator)
+    if torch.device(device).type != "cpu":
+        model = model.to(device)
+        pose, translation, rest_joints, shape_code, color_code, points = (
+            t.to(device) for t in (pose, translation, rest_joints, shape_code, color_code, points)
+        )
+        with torch.no_grad():
+            state = model.prepare(pose, translation, rest_joints[None], shape_code, color_code)
     return _BenchHand(
         model, state, pose, rest_joints, shape_code, color_code, points, translation
     )
@@ -224,7 +235,7 @@ def _region_counts(hand: _BenchHand, extra: dict, log: Callable[[str], None]) ->
     log(
         f"points: {num_points}, active bones per point {pairs / num_points:.2f}, in no region "
         f"{extra['points_in_no_region']:.1%}, in 2+ regions {multi / num_points:.1%}; "
-        f"torch threads: {torch.get_num_threads()}"
+        f"torch threads: {torch.get_num_threads()}; device: {extra['device']}"
     )
     return pairs, multi
 
@@ -273,9 +284,8 @@ def _time_steps(hand: _BenchHand, config: FieldConfig, repeats: int, steps: dict
             + ("" if compilation["compiled"] else
                f"; compilation unavailable, runs eagerly: {stats['disabled_reason']}"))
 
-    size = 2048
-    mat_a, mat_b = torch.randn(size, size), torch.randn(size, size)
-    fns: dict[str, Callable[[], object]] = {"matmul": lambda: mat_a @ mat_b}
+    matmul, matmul_flops, matmul_name = large_matmul(points.device)
+    fns: dict[str, Callable[[], object]] = {"matmul": matmul}
     for color in (False, True):
         suffix = "_color" if color else ""
         fns["reference" + suffix] = lambda c=color: run_reference(c)
@@ -286,8 +296,8 @@ def _time_steps(hand: _BenchHand, config: FieldConfig, repeats: int, steps: dict
         best = interleaved_best(fns, repeats, slow=slow, slow_rounds=max(1, min(repeats, 2)))
         ref_outputs = run_reference(False), run_reference(True)
         outputs = {name: (run_step(name, False), run_step(name, True)) for name in steps}
-    peak = 2.0 * size**3 / best["matmul"] / 1e9
-    return best, ref_outputs, outputs, peak, compilation, run_step
+    peak = matmul_flops / best["matmul"] / 1e9
+    return best, ref_outputs, outputs, (peak, matmul_name), compilation, run_step
 
 
 def _flop_counts(model: LisaModel, num_points: int, pairs: int, multi: int
@@ -399,6 +409,7 @@ def run_field_benchmark(
     compile_mlp: bool = False,
     fused: bool = True,
     backward: bool = True,
+    device: torch.device | str = "cpu",
     log: Callable[[str], None] = print,
 ) -> FieldBenchmark:
     """Measure the field and the reference on ``num_points`` points around a posed hand.
@@ -406,18 +417,23 @@ def run_field_benchmark(
     The headline (``points_per_s``, ``speedup``, ``gflops``) is the fastest step whose outputs
     stay within the tolerances (SDF and weights; with colour under ``*_color``). ``fused``: also
     the compiled step ``culled_fused``; ``backward``: also the training steps (``backward``).
+    ``device``: where the field runs ("cpu", "cuda", "cuda:N"; GPU work is waited for before
+    each clock read, and the large matmul is 8192^3 there).
     """
     config = FieldConfig() if config is None else config
     if config.composition != "lisa" or not config.use_color:
         raise ValueError("the field benchmark measures the 'lisa' composition with colour")
-    hand = _bench_hand(config, num_points, seed)
-    extra: dict = {"threads": torch.get_num_threads(), "config": config.to_dict()}
+    device = resolve_device(device)
+    hand = _bench_hand(config, num_points, seed, device)
+    extra: dict = {"threads": torch.get_num_threads(), "config": config.to_dict(),
+                   "device": describe_device(device)}
     pairs, multi = _region_counts(hand, extra, log)
     steps = {name: step for name, step in _STEPS.items() if fused or not step[2]}
-    best, ref_outputs, outputs, peak, compilation, run_step = _time_steps(
+    best, ref_outputs, outputs, (peak, matmul_name), compilation, run_step = _time_steps(
         hand, config, repeats, steps, log
     )
-    log(f"large fp32 matmul (2048^3): {peak:.1f} GFLOP/s")
+    extra["matmul"] = matmul_name
+    log(f"large fp32 matmul ({matmul_name}): {peak:.1f} GFLOP/s")
     flops = _flop_counts(hand.model, num_points, pairs, multi)
     results = _step_results(best, ref_outputs, outputs, flops, num_points, steps, log)
     if compilation is not None:
@@ -521,12 +537,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--no-backward", action="store_true", help="leave out the training (backward) steps"
     )
+    parser.add_argument(
+        "--device", default="cpu",
+        help="where the field runs: cpu (default), cuda or cuda:N (GPU work is waited for "
+        "before each clock read; the large matmul is 8192^3 there)",
+    )  # fmt: skip
     args = parser.parse_args(argv)
     if args.points < 1:
         raise ValueError(f"--points must be >= 1, got {args.points}")
     result = run_field_benchmark(
         args.points, repeats=args.repeats, seed=args.seed, compile_mlp=args.compile,
-        fused=not args.no_fused, backward=not args.no_backward,
+        fused=not args.no_fused, backward=not args.no_backward, device=args.device,
     )  # fmt: skip
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)

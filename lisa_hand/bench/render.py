@@ -55,6 +55,7 @@ import torch
 from ..render import LaplaceDensity, RenderConfig, ray_sphere_bounds, render_rays
 from ..render.image import ImageRenderConfig, render_image
 from ..render.saving import image_to_uint8
+from ..utils.device import describe_device, resolve_device, synchronize
 from ..utils.threads import cpu_threads
 from ._scenes import SCENES, BenchScene, make_scene
 
@@ -90,8 +91,10 @@ def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
 
 def _fast(scene: BenchScene, config: ImageRenderConfig, density: LaplaceDensity):
     field_fn, sdf_fn = _Counted(scene.field_fn), _Counted(scene.sdf_fn)
+    synchronize()
     start = time.perf_counter()
     out = render_image(field_fn, sdf_fn, scene.camera, scene.center, scene.radius, config, density)
+    synchronize()
     seconds = time.perf_counter() - start
     counts = {"field_points": field_fn.points, "sdf_points": sdf_fn.points}
     return out, seconds, counts
@@ -127,6 +130,7 @@ def _render_reference(scene: BenchScene, density: LaplaceDensity, samples: int,
     camera = scene.camera
     with torch.no_grad():
         field_ref = _Counted(scene.field_fn)
+        synchronize()
         start = time.perf_counter()
         origins, directions = pixel_rays(camera)
         near, far, hit = ray_sphere_bounds(origins, directions, scene.center, scene.radius)
@@ -136,6 +140,7 @@ def _render_reference(scene: BenchScene, density: LaplaceDensity, samples: int,
         reference = render_rays(
             field_ref, None, origins, directions, near, far, ref_config, density, hit=hit
         )
+        synchronize()
         seconds = time.perf_counter() - start
     log(
         f"reference (uniform, {samples} samples a ray, render_rays): "
@@ -246,22 +251,27 @@ def run_render_benchmark(
     seed: int = 0,
     save_dir: str | None = None,
     model_path: str | None = None,
+    device: torch.device | str = "cpu",
     log: Callable[[str], None] = print,
 ) -> dict:
     """Render the scene with the fast path and the uniform reference; return the numbers.
 
     beta: Laplace scale, metres (None: a trained model's own, else 1 mm).
     model_path: the trained model of the 'trained' and 'auto' fields.
+    device: where the trained field renders ("cpu", "cuda", "cuda:N"; GPU work is waited for
+        before each clock read).
     """
     torch.manual_seed(seed)
-    scene = make_scene(field, width, height, seed, model_path)
+    device = resolve_device(device)
+    scene = make_scene(field, width, height, seed, model_path, device)
     if beta is None:
         beta = scene.beta if scene.beta is not None else 1e-3
-    density = LaplaceDensity(beta_init=beta, beta_min=0.0)
+    density = LaplaceDensity(beta_init=beta, beta_min=0.0).to(device)
     background = (0.0, 0.0, 0.0)
     log(
         f"render benchmark: {width}x{height}, field: {scene.description}; beta {beta * 1e3:.2f} "
-        f"mm, bound radius {scene.radius * 100:.1f} cm, torch threads {torch.get_num_threads()}"
+        f"mm, bound radius {scene.radius * 100:.1f} cm, torch threads {torch.get_num_threads()}, "
+        f"device {describe_device(device)}"
     )
     results: dict = {
         "field": field,
@@ -270,6 +280,7 @@ def run_render_benchmark(
         "height": height,
         "resolution": f"{width}x{height}",
         "threads": torch.get_num_threads(),
+        "device": describe_device(device),
         "beta_m": beta,
         "target_seconds": TARGET_SECONDS,
         "paper_seconds_p100": PAPER_SECONDS_P100,
@@ -391,6 +402,10 @@ def main(argv: list[str] | None = None) -> dict:
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument(
+        "--device", default="cpu",
+        help="where the trained field renders: cpu (default), cuda or cuda:N",
+    )  # fmt: skip
+    parser.add_argument(
         "--save-images",
         default=None,
         metavar="DIR",
@@ -414,6 +429,7 @@ def main(argv: list[str] | None = None) -> dict:
             seed=args.seed,
             save_dir=args.save_images,
             model_path=args.model,
+            device=args.device,
         )
     if args.json is not None:
         from ..utils.io import write_json

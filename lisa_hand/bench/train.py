@@ -77,31 +77,34 @@ from ..training.images import (
 from ..training.prior import PriorModel
 from ..training.prior import prior_from_trained as prior_of_subjects
 from ..utils.config import apply_overrides
+from ..utils.device import describe_device, resolve_device, synchronize
 from ..utils.io import write_json
 from ..utils.threads import cpu_threads
 
 __all__ = ["reference_config", "fast_config", "prior_from_trained", "held_out_copy", "main"]
 
 
-def reference_config(steps: int, seed: int = 0) -> ImageTrainConfig:
-    """The image step of the first release (see the module docstring), ``steps`` steps."""
+def reference_config(steps: int, seed: int = 0, device: str = "auto") -> ImageTrainConfig:
+    """The image step of the first release (see the module docstring), ``steps`` steps on
+    ``device``."""
     render = RenderConfig(sampler="sphere_traced", num_samples=48, num_samples_extra=16,
                           stratified=True, sphere_num_steps=64, sphere_band_outside=8.0,
                           sphere_band_inside=16.0)
     return ImageTrainConfig(render=render, batched_step=False, eikonal_ray_points=256,
                             eikonal_uniform_points=256, skinning_points=512,
-                            trainer=_trainer(steps, seed))
+                            trainer=_trainer(steps, seed, device))
 
 
-def fast_config(steps: int, seed: int = 0) -> ImageTrainConfig:
-    """Today's default image step (``ImageTrainConfig()``'s render and step), ``steps`` steps."""
-    return ImageTrainConfig(trainer=_trainer(steps, seed))
+def fast_config(steps: int, seed: int = 0, device: str = "auto") -> ImageTrainConfig:
+    """Today's default image step (``ImageTrainConfig()``'s render and step), ``steps`` steps on
+    ``device``."""
+    return ImageTrainConfig(trainer=_trainer(steps, seed, device))
 
 
-def _trainer(steps: int, seed: int) -> TrainerConfig:
+def _trainer(steps: int, seed: int, device: str) -> TrainerConfig:
     base = ImageTrainConfig().trainer
     return dataclasses.replace(base, steps=steps, lr_schedule="constant", seed=seed,
-                               checkpoint_every=0, print_every=0, progress=False)
+                               checkpoint_every=0, print_every=0, progress=False, device=device)
 
 
 def prior_from_trained(model_path: str | Path | None = None) -> PriorModel:
@@ -156,9 +159,12 @@ def _synthesize(work: Path) -> Path:
     return data
 
 
-def measure_rates(data: Path, prior: PriorModel, rounds: int, steps: int) -> dict[str, float]:
-    """Seconds per step of both configurations, interleaved: ``rounds`` rounds of ``steps``
-    steps each; -> {"reference": s, "fast": s} (best of the rounds' medians)."""
+def measure_rates(data: Path, prior: PriorModel, rounds: int, steps: int,
+                  device: str = "cpu") -> dict[str, float]:
+    """Seconds per step of both configurations on ``device``, interleaved: ``rounds`` rounds of
+    ``steps`` steps each (GPU work waited for before each clock read); -> {"reference": s,
+    "fast": s} (best of the rounds' medians)."""
+    device = resolve_device(device)
     configs = {"reference": reference_config(1), "fast": fast_config(1)}
     runs = {}
     for name, config in configs.items():
@@ -166,20 +172,23 @@ def measure_rates(data: Path, prior: PriorModel, rounds: int, steps: int) -> dic
         rays, scans = load_image_data(data, config)
         torch.manual_seed(0)
         model, _ = build_image_model(rays, config, prior_model)
+        model = model.to(device)
         optimizer = torch.optim.Adam(model.parameters(), lr=config.trainer.lr)
         runs[name] = (config, rays, scans, model.train(), optimizer,
                       torch.Generator().manual_seed(0))
 
     def one_step(name: str) -> float:
         config, rays, scans, model, optimizer, generator = runs[name]
+        synchronize()
         start = time.perf_counter()
-        batch = sample_image_batch(rays, scans, config, generator)
+        batch = sample_image_batch(rays, scans, config, generator).to(device)
         terms = model(batch, render=config.render, batched=config.batched_step,
                       background=config.background)
         total = sum(weight * terms[key] for key, weight in config.loss_weights().items())
         optimizer.zero_grad(set_to_none=True)
         total.backward()
         optimizer.step()
+        synchronize()
         return time.perf_counter() - start
 
     for name in runs:  # warm-up
@@ -193,17 +202,18 @@ def measure_rates(data: Path, prior: PriorModel, rounds: int, steps: int) -> dic
 
 
 def evaluate(run: Path, data: Path, held_out: str, scale: float,
-             checkpoint: Path | None = None, surface_points: int = 4000) -> dict[str, float]:
+             checkpoint: Path | None = None, surface_points: int = 4000,
+             device: str = "cpu") -> dict[str, float]:
     """PSNR of the held-out camera of every training frame of ``data`` (the full dataset),
-    rendered by the run's model (its subject codes, mean calibration), and the geometry: the
-    mean |SDF| of the model at the frame's true surface points (``scan.npz`` points, the first
-    ``surface_points``), mm. -> {"psnr_mask", "psnr_image", "surface_error_mm", "frames",
-    "seconds"}"""
+    rendered by the run's model (its subject codes, mean calibration) on ``device``, and the
+    geometry: the mean |SDF| of the model at the frame's true surface points (``scan.npz``
+    points, the first ``surface_points``), mm. -> {"psnr_mask", "psnr_image",
+    "surface_error_mm", "frames", "seconds"}"""
     from ..model.checkpoint import load_checkpoint
 
     start = time.perf_counter()
     trained = (trained_from_checkpoint(load_checkpoint(checkpoint)) if checkpoint is not None
-               else load_trained(run))
+               else load_trained(run)).to(resolve_device(device))
     table = RayFrames(data, "train", max_band_px=0, background_per_view=0).table
     inside, whole, surface = [], [], []
     for frame, paths in enumerate(table.frames):
@@ -218,13 +228,14 @@ def evaluate(run: Path, data: Path, held_out: str, scale: float,
                             color_code=trained.color_codes[row].float())
         image = render_hand(trained, params, [small])[0]
         with np.load(paths.scan) as scan:
-            points = torch.as_tensor(scan["points"][:surface_points], dtype=torch.float32)
+            points = torch.as_tensor(scan["points"][:surface_points], dtype=torch.float32,
+                                     device=trained.field.device)
         with torch.no_grad():
             sdf = hand_field(trained, params).sdf_fn()(points)
         surface.append(1000.0 * float(sdf.abs().mean()))
         target = _resized(read_image(paths.image(held_out)), width, height)
         mask = _resized(read_mask(paths.mask(held_out)).astype(np.float32), width, height) > 0.5
-        predicted = image.rgb.numpy()
+        predicted = image.rgb.cpu().numpy()
         inside.append(psnr(predicted, target, mask))
         whole.append(psnr(predicted, target))
     return {"psnr_mask": float(np.mean(inside)), "psnr_image": float(np.mean(whole)),
@@ -269,6 +280,9 @@ def _parser() -> argparse.ArgumentParser:
                              "LISA-full; 'geometry': the shipped 203-subject prior)")
     parser.add_argument("--threads", type=int, default=None,
                         help="torch CPU threads (default: torch's; 1 on a shared machine)")
+    parser.add_argument("--device", default="cpu",
+                        help="where both configurations train and render: cpu (default), cuda "
+                             "or cuda:N (GPU work is waited for before each clock read)")
     parser.add_argument("--shaded", action="store_true",
                         help="also train the fast step with headlight shading "
                              "(shading=headlight) for the fast run's steps: PSNR 'psnr_shaded'")
@@ -285,16 +299,16 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def run_variant(train_data: Path, data: Path, work: Path, held_out: str, prior: PriorModel | None,
-                steps: int, overrides: list[str], scale: float) -> dict:
+                steps: int, overrides: list[str], scale: float, device: str = "cpu") -> dict:
     """``--steps``: the fast step with ``overrides`` trained ``steps`` steps (constant learning
     rate, from ``prior``) into ``work/run_<overrides>``, resumed if there, then evaluated. ->
     :func:`evaluate`'s numbers plus "steps", "overrides", "train_seconds"."""
-    config = apply_overrides(fast_config(steps), overrides)
+    config = apply_overrides(fast_config(steps, device=device), overrides)
     name = "_".join(o.replace("=", "-").replace(".", "") for o in overrides) or "default"
     run = work / f"run_{name}"
     start = time.perf_counter()
     train_images(train_data, run, config, prior=prior, resume=True)
-    result = evaluate(run, data, held_out, scale)
+    result = evaluate(run, data, held_out, scale, device=device)
     result.update(steps=steps, overrides=list(overrides),
                   train_seconds=round(time.perf_counter() - start, 1))
     print(f"{' '.join(overrides) or 'defaults'}: {steps} steps, PSNR held-out views "
@@ -314,18 +328,21 @@ def main(argv: list[str] | None = None) -> dict:
     held_out = args.held_out or load_cameras(first[0])[-1].name
     train_data = held_out_copy(data, args.work / "train_views", held_out)
     prior = prior_from_trained(args.model)
+    device = str(resolve_device(args.device))
     if args.steps is not None:
         result = run_variant(train_data, data, args.work, held_out, prior, args.steps,
-                             args.overrides, args.eval_scale)
+                             args.overrides, args.eval_scale, device)
         if args.json is not None:
             write_json(args.json, result)
         return result
     if args.overrides:
         raise SystemExit("--set needs --steps (one run with the overrides)")
 
-    rates = measure_rates(train_data, prior, args.rate_rounds, args.rate_steps)
+    rates = measure_rates(train_data, prior, args.rate_rounds, args.rate_steps, device)
     ref_rate, fast_rate = 1.0 / rates["reference"], 1.0 / rates["fast"]
-    print(f"steps per second (interleaved, {torch.get_num_threads()} threads): reference "
+    where = (describe_device(device) if device != "cpu"
+             else f"{torch.get_num_threads()} threads")
+    print(f"steps per second (interleaved, {where}): reference "
           f"{ref_rate:.2f}, fast {fast_rate:.2f} (x{fast_rate / ref_rate:.2f})", flush=True)
     ref_steps = max(1, round(args.budget_s * ref_rate))
     fast_steps = max(ref_steps, round(args.budget_s * fast_rate))
@@ -333,12 +350,13 @@ def main(argv: list[str] | None = None) -> dict:
     results: dict = {}
     run_ref, run_fast = args.work / "run_reference", args.work / "run_fast"
     timings = {}
-    runs = [("reference", run_ref, reference_config(ref_steps)),
-            ("fast_equal_steps", run_fast, fast_config(ref_steps)),
-            ("fast", run_fast, fast_config(fast_steps))]
+    runs = [("reference", run_ref, reference_config(ref_steps, device=device)),
+            ("fast_equal_steps", run_fast, fast_config(ref_steps, device=device)),
+            ("fast", run_fast, fast_config(fast_steps, device=device))]
     if args.shaded:
         runs.append(("fast_shaded", args.work / "run_fast_shaded",
-                     dataclasses.replace(fast_config(fast_steps), shading="headlight")))
+                     dataclasses.replace(fast_config(fast_steps, device=device),
+                                         shading="headlight")))
     for name, run, config in runs:
         start = time.perf_counter()
         resume = name == "fast"  # continues the equal-steps run up to its own budget
@@ -346,7 +364,7 @@ def main(argv: list[str] | None = None) -> dict:
             shutil.rmtree(run)
         train_images(train_data, run, config, prior=prior, resume=resume)
         timings[name] = round(time.perf_counter() - start, 1)
-        results[name] = evaluate(run, data, held_out, args.eval_scale)
+        results[name] = evaluate(run, data, held_out, args.eval_scale, device=device)
         results[name]["steps"] = config.trainer.steps
         print(f"{name:17s}: {config.trainer.steps:5d} steps, PSNR held-out views "
               f"{results[name]['psnr_mask']:.2f} dB in the mask, "
@@ -363,6 +381,7 @@ def main(argv: list[str] | None = None) -> dict:
         "surface_error_mm_equal_steps": results["fast_equal_steps"]["surface_error_mm"],
         "psnr_shaded": results["fast_shaded"]["psnr_mask"] if args.shaded else None,
         "budget_s": args.budget_s, "held_out_camera": held_out, "threads": torch.get_num_threads(),
+        "device": describe_device(device),
         "train_seconds": timings, "results": results,
         "reference_config": dataclasses.asdict(reference_config(ref_steps).render),
         "fast_config": dataclasses.asdict(fast_config(fast_steps).render),

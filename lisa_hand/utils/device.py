@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["resolve_device"]
+__all__ = ["describe_device", "resolve_device", "synchronize"]
 
 
 def resolve_device(name: str = "auto", local_rank: int = 0) -> torch.device:
@@ -32,3 +32,20 @@ def resolve_device(name: str = "auto", local_rank: int = 0) -> torch.device:
                              f"{torch.cuda.device_count()} CUDA device(s) are visible")
         device = torch.device("cuda", index)
     return device
+
+
+def synchronize() -> None:
+    """Wait for the work queued on every CUDA device of this process (nothing on a CPU-only
+    machine, or before CUDA was first used): call before reading a wall clock around GPU work,
+    which runs asynchronously."""
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        torch.cuda.synchronize()
+
+
+def describe_device(device: torch.device | str) -> str:
+    """``device`` and, for a GPU, its model name: what a measurement ran on (for logs and
+    benchmark JSON)."""
+    device = torch.device(device)
+    if device.type == "cuda":
+        return f"{device} ({torch.cuda.get_device_name(device)})"
+    return str(device)

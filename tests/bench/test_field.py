@@ -9,8 +9,15 @@ import time
 import pytest
 import torch
 
-from lisa_hand.bench._timing import mlp_share, timed_methods
-from lisa_hand.bench.field import SDF_TOLERANCE_M, _amortisation, run_field_benchmark
+from lisa_hand.bench._pairs import PairStrategies, time_pair_strategies
+from lisa_hand.bench._timing import large_matmul, mlp_share, timed_methods
+from lisa_hand.bench.field import (
+    SDF_TOLERANCE_M,
+    _amortisation,
+    _bench_hand,
+    run_field_benchmark,
+)
+from lisa_hand.fields import FieldConfig
 from lisa_hand.utils.threads import cpu_threads
 
 
@@ -34,6 +41,39 @@ def test_small_run_reports_forward_and_backward():
     assert values["backward_gflops"] == train["backward"]["gflops_nominal"]
     assert train["matmul_gflops"] > 0 and "x 6" in train["flop_model"]
     assert any(line.startswith("backward (loss of the SDF") for line in lines)
+    assert values["device"] == "cpu" and values["matmul"] == "2048^3"
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the error without CUDA")
+def test_cuda_without_cuda_is_one_clear_error():
+    with pytest.raises(ValueError, match="CUDA is not available"):
+        run_field_benchmark(64, repeats=1, fused=False, backward=False, device="cuda",
+                            log=lambda line: None)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="needs CUDA")
+def test_cuda_run_matches_the_reference():
+    result = run_field_benchmark(4096, repeats=1, fused=False, device="cuda",
+                                 log=lambda line: None).to_dict()
+    assert result["device"].startswith("cuda") and result["matmul"] == "8192^3"
+    for name in ("stacked", "culled"):
+        assert result["steps"][name]["within_tolerance"], name
+    assert result["backward"]["eikonal"]["ms"] > 0
+
+
+def test_a_pair_strategy_this_device_lacks_is_reported_not_fatal(monkeypatch):
+    def unavailable(self):
+        raise RuntimeError("grouped_mm: float32 is not supported here\nmore detail")
+
+    monkeypatch.setattr(PairStrategies, "grouped_mm", unavailable)
+    hand = _bench_hand(FieldConfig(), 512, 0)
+    lines: list[str] = []
+    with cpu_threads(1):
+        timings = time_pair_strategies(hand.model, hand.state, hand.points, 1, lines.append,
+                                       fused=False)
+    assert timings["grouped_mm"] == {"error": "grouped_mm: float32 is not supported here"}
+    assert timings["sorted_loop_chunked"]["ms"] > 0
+    assert any("grouped_mm" in line and "unavailable here" in line for line in lines)
 
 
 def test_amortisation():
@@ -69,3 +109,10 @@ def test_timed_methods_and_mlp_share():
     share = mlp_share(run, [sleeper], rounds=2)
     assert 0.5 < share < 0.9 and not math.isnan(share)
     assert torch.is_grad_enabled()
+
+
+def test_large_matmul_is_the_product_it_counts():
+    run, flops, name = large_matmul(torch.device("cpu"))
+    product = run()
+    assert name == "2048^3" and flops == 2.0 * 2048**3 and product.shape == (2048, 2048)
+    assert float(product.std()) == pytest.approx(2048**0.5, rel=0.05)  # unit-normal entries

@@ -4,6 +4,7 @@ trained model, the two configurations, and PSNR of a run's held-out views."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import torch
 
 from lisa_hand.bench.field import BENCH_REST_JOINTS
@@ -11,6 +12,7 @@ from lisa_hand.bench.train import (
     evaluate,
     fast_config,
     held_out_copy,
+    measure_rates,
     prior_from_trained,
     reference_config,
     run_variant,
@@ -103,3 +105,23 @@ def test_one_variant_run_trains_with_its_overrides(tmp_path):
     assert result["steps"] == 2 and result["overrides"] == ["lambda_surface=100",
                                                             "render.num_samples=6"]
     assert 0.0 < result["surface_error_mm"] < 100.0 and result["frames"] == 4
+
+
+@pytest.mark.parametrize("device", [
+    "cpu",
+    pytest.param("cuda", marks=pytest.mark.skipif(not torch.cuda.is_available(),
+                                                  reason="needs CUDA")),
+])
+def test_step_rates_of_both_configurations(tmp_path, device):
+    data = write_tiny_dataset(tmp_path / "data")
+    names = [c.name for c in load_cameras(next(data.glob("s*/f*/cameras.json")))]
+    copy = held_out_copy(data, tmp_path / "copy", names[-1])
+    rates = measure_rates(copy, None, rounds=1, steps=2, device=device)
+    assert set(rates) == {"reference", "fast"}
+    assert all(0.0 < seconds < 60.0 for seconds in rates.values())
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the error without CUDA")
+def test_step_rates_on_a_missing_gpu_say_so(tmp_path):
+    with pytest.raises(ValueError, match="CUDA is not available"):
+        measure_rates(tmp_path, None, rounds=1, steps=1, device="cuda")
