@@ -37,6 +37,14 @@ ACTIVATIONS = ("softplus", "relu")
 # over all rows at once ran at ~32 GFLOP/s, the same rows in 4096-row chunks at ~85 GFLOP/s.
 GROUP_CHUNK_ROWS = 4096
 
+# Rows (all groups together) up to which forward_grouped runs a GPU query as one padded batched
+# product a layer instead of its loop over the groups (and frames). A GPU's eager step is bound by
+# kernel launches: measured on an H200 (tools/gpu_bench.sh), the image-training step of 4 frames
+# ran ~15k kernels, most of them the loop's (16 bones x 4 frames x 9 per MLP call), at 2.6 steps
+# a second, no faster than 2 CPU cores. Past this many rows, padding every group to the largest
+# (the palm's) costs more than the launches it saves (1.5M pairs: padded 32.5 ms, the loop 7.3).
+GPU_PADDED_ROWS = 1 << 18
+
 
 class StackedMLP(nn.Module):
     """``G`` independent MLPs ``[point | cond] -> hidden^depth -> out`` with stacked weights.
@@ -200,7 +208,8 @@ class StackedMLP(nn.Module):
         *,
         bias_per_row: bool = False,
         low_precision: bool = False,
-        chunk_rows: int = GROUP_CHUNK_ROWS,
+        chunk_rows: int | None = None,
+        padded: bool | None = None,
     ) -> torch.Tensor:
         """Rows grouped by MLP: rows ``[o_g, o_g + group_sizes[g])`` go through MLP ``g``.
 
@@ -213,6 +222,11 @@ class StackedMLP(nn.Module):
             ``bias_per_row`` (gathered for each row's frame).
         low_precision: run the hidden layers' products in bfloat16 (inference only; the
             first layer and the output stay in the input dtype).
+        chunk_rows: rows per chunk of the loop; None: :data:`GROUP_CHUNK_ROWS` on a CPU (cache
+            locality), no chunks on a GPU (launches).
+        padded: run every group at once, each padded to the largest group's rows (one batched
+            product a layer, :meth:`_forward_padded`); None: on a GPU up to
+            :data:`GPU_PADDED_ROWS` rows, else the loop. The same function either way.
         -> [Q, out_dim]
 
         A short Python loop over the groups, each group in row chunks through all layers. It is
@@ -241,6 +255,14 @@ class StackedMLP(nn.Module):
             raise ValueError(
                 f"first_bias must have shape {list(expected)}, got {list(first_bias.shape)}"
             )
+        on_cpu = points.device.type == "cpu"
+        if padded is None:
+            padded = not on_cpu and 0 < points.shape[0] <= GPU_PADDED_ROWS
+        if padded:
+            return self._forward_padded(points, sizes, group_sizes, first_bias, per_frame,
+                                        bias_per_row, low_precision)
+        if chunk_rows is None:
+            chunk_rows = GROUP_CHUNK_ROWS if on_cpu else 1 << 62
         layers = self.layers()
         if low_precision:
             layers = [(w.to(torch.bfloat16), b.to(torch.bfloat16)) for w, b in layers[:-1]] + [
@@ -278,6 +300,72 @@ class StackedMLP(nn.Module):
         if not outputs:
             return points.new_zeros(0, self.out_dim)
         return torch.cat(outputs, dim=0)
+
+    def _forward_padded(
+        self,
+        points: torch.Tensor,
+        sizes: list[int],
+        group_sizes: list,
+        first_bias: torch.Tensor,
+        per_frame: bool,
+        bias_per_row: bool,
+        low_precision: bool,
+    ) -> torch.Tensor:
+        """:meth:`forward_grouped` as one batched product a layer: the rows of every group
+        copied into ``[G, M, in]`` (``M``: the largest group's rows; zeros elsewhere), run
+        through the stacked weights, and the real rows read back. A few launches a layer in
+        place of the loop's G (x B) each, which is what a GPU's eager step pays for.
+        Differentiable twice (index_copy / index_select / baddbmm).
+
+        points: [Q, point_dim]; sizes: G ints (rows of each group); the other arguments as in
+        :meth:`forward_grouped`. -> [Q, out_dim]
+        """
+        groups, rows = self.num_groups, points.shape[0]
+        if rows == 0:
+            return points.new_zeros(0, self.out_dim)
+        where, largest = _padded_rows(sizes, points.device)
+
+        def pad(values: torch.Tensor) -> torch.Tensor:  # [Q, C] -> [G, M, C]
+            out = values.new_zeros(groups * largest, values.shape[1])
+            return out.index_copy(0, where, values).view(groups, largest, values.shape[1])
+
+        if per_frame:  # each row's bias: its frame's, for its group
+            frames = first_bias.shape[0]
+            counts = torch.tensor([count for group in group_sizes for count in group],
+                                  device=points.device)
+            segment = torch.repeat_interleave(torch.arange(groups * frames, device=points.device),
+                                              counts, output_size=rows)
+            frame = segment % frames
+            group = torch.div(segment, frames, rounding_mode="floor")
+            bias = pad(first_bias[frame, group])
+        elif bias_per_row:
+            bias = pad(first_bias)
+        else:
+            bias = first_bias[:, None]
+        hidden = self.act(torch.baddbmm(bias, pad(points), self.point_weight))
+        layers = self.layers()
+        for index, (weight, layer_bias) in enumerate(layers):
+            last = index == len(layers) - 1
+            if low_precision and not last:
+                hidden = torch.baddbmm(layer_bias[:, None].to(torch.bfloat16),
+                                       hidden.to(torch.bfloat16), weight.to(torch.bfloat16))
+            else:
+                hidden = torch.baddbmm(layer_bias[:, None], hidden.to(points.dtype), weight)
+            if not last:
+                hidden = self.act(hidden)
+        return hidden.reshape(groups * largest, self.out_dim).index_select(0, where)
+
+
+def _padded_rows(sizes: list[int], device: torch.device) -> tuple[torch.Tensor, int]:
+    """Where each row of a group-sorted ``[Q, D]`` goes in a ``[G * M, D]`` padding (``M``: the
+    largest group's rows). -> (row index [Q] int64, M)"""
+    counts = torch.tensor(sizes, device=device)
+    largest = max(sizes)
+    starts = torch.cumsum(counts, 0) - counts
+    group = torch.repeat_interleave(torch.arange(len(sizes), device=device), counts,
+                                    output_size=sum(sizes))
+    slot = torch.arange(sum(sizes), device=device) - starts[group]
+    return group * largest + slot, largest
 
 
 def _chunk_segments(group_sizes: list, first_bias: torch.Tensor, per_frame: bool,

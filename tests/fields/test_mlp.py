@@ -64,6 +64,46 @@ def test_grouped_equals_dense(mlp, chunk_rows):
         torch.testing.assert_close(per_row[i], expected, rtol=0, atol=1e-12)
 
 
+@pytest.mark.parametrize("bias_kind", ["group", "per_frame", "per_row"])
+def test_padded_equals_the_loop_with_first_and_second_derivatives(mlp, bias_kind):
+    # The GPU's padded path (one batched product a layer) is the loop's function, its gradient
+    # and its gradient's gradient (Eikonal training) included; float64, to rounding.
+    gen = torch.Generator().manual_seed(5)
+    frame_sizes = [[3, 1], [0, 0], [2, 4]]  # group 1 empty; groups sorted by frame
+    sizes = [sum(group) for group in frame_sizes]
+    rows = torch.randn(sum(sizes), 5, generator=gen, dtype=torch.float64, requires_grad=True)
+    cond = torch.randn(2, 3, 4, generator=gen, dtype=torch.float64)
+    bias = mlp.condition(cond, 2)
+    if bias_kind == "group":
+        args, kwargs = (sizes, bias[0]), {}
+    elif bias_kind == "per_frame":
+        args, kwargs = (frame_sizes, bias), {}
+    else:
+        group = torch.repeat_interleave(torch.arange(3), torch.tensor(sizes))
+        frame = torch.tensor([0, 0, 0, 1, 0, 0, 1, 1, 1, 1])
+        args, kwargs = (sizes, bias[frame, group]), {"bias_per_row": True}
+    outputs = {}
+    for padded in (False, True):
+        out = mlp.forward_grouped(rows, *args, padded=padded, **kwargs)
+        (grad,) = torch.autograd.grad(out.square().sum(), rows, create_graph=True)
+        second = torch.autograd.grad(grad.square().sum(), [rows, mlp.point_weight,
+                                                            mlp.out_weight])
+        outputs[padded] = (out, grad, *second)
+    for loop, padded in zip(outputs[False], outputs[True], strict=True):
+        torch.testing.assert_close(padded, loop, rtol=1e-10, atol=1e-12)
+    assert outputs[True][2].abs().sum() > 0  # the second derivative is not trivially zero
+
+
+def test_padded_low_precision_matches_the_loop(mlp):
+    mlp = mlp.float()
+    rows = torch.randn(50, 5, generator=torch.Generator().manual_seed(6))
+    bias = mlp.condition(torch.randn(1, 3, 4), 1)[0]
+    loop = mlp.forward_grouped(rows, [20, 20, 10], bias, low_precision=True, padded=False)
+    padded = mlp.forward_grouped(rows, [20, 20, 10], bias, low_precision=True, padded=True)
+    assert padded.dtype == torch.float32
+    torch.testing.assert_close(padded, loop, rtol=0, atol=1e-6 * loop.abs().max().item() + 1e-6)
+
+
 def test_grouped_low_precision_is_close_and_keeps_dtype(mlp):
     mlp = mlp.float()
     rows = torch.randn(50, 5)
