@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# The benchmarks of issue 15 item 6 on a GPU, in one go (field, render, train, then the CUDA
-# tests), each bounded in time so that one failure leaves the others' numbers.
+# The benchmarks of issue 15 item 6 on a GPU, in one go (field, render, train, the padded MLP's
+# same-run comparison and its crossover, then the CUDA tests), each bounded in time so that one
+# failure leaves the others' numbers. About 7 minutes on an H200 (README, "On a GPU").
 #
 #   OUT=results/ DATA=path/to/bench_data tools/gpu_bench.sh
 #
@@ -29,10 +30,16 @@ data_args=()
 if [ -n "${DATA:-}" ]; then data_args=(--data "$DATA"); fi
 timeout 300 python3 -m lisa_hand.bench train --device "$DEVICE" "${data_args[@]}" \
     --work "$WORK/train" --budget-s "$BUDGET_S" --json "$OUT/train.json" 2>&1 | tee "$OUT/train.log"
+if [ -n "${DATA:-}" ]; then
+    timeout 120 python3 tools/padded_rates.py "$DATA" --device "$DEVICE" 2>&1 \
+        | tee "$OUT/padded_rates.log"
+fi
 if [ "$DEVICE" != cpu ]; then
+    timeout 120 python3 tools/padded_crossover.py --device "$DEVICE" 2>&1 \
+        | tee "$OUT/padded_crossover.log"
     timeout 120 python3 -m pytest -q -p no:cacheprovider -k "cuda" tests/bench tests/model \
         tests/fitting/test_images.py tests/training tests/render tests/geometry \
         tests/data/test_images.py 2>&1 | tail -n 30 | tee "$OUT/tests.log"
 fi
 echo "summary:"
-grep -h "^headline\|^backward (loss\|^fast (volume\|^steps per second" "$OUT"/*.log
+grep -h "^headline\|^backward (loss\|^fast (volume\|^steps per second\|over the loop" "$OUT"/*.log

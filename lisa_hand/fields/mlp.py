@@ -41,9 +41,12 @@ GROUP_CHUNK_ROWS = 4096
 # product a layer instead of its loop over the groups (and frames). A GPU's eager step is bound by
 # kernel launches: measured on an H200 (tools/gpu_bench.sh), the image-training step of 4 frames
 # ran ~15k kernels, most of them the loop's (16 bones x 4 frames x 9 per MLP call), at 2.6 steps
-# a second, no faster than 2 CPU cores. Past this many rows, padding every group to the largest
-# (the palm's) costs more than the launches it saves (1.5M pairs: padded 32.5 ms, the loop 7.3).
-GPU_PADDED_ROWS = 1 << 18
+# a second, no faster than 2 CPU cores. Past about this many rows, padding every group to the
+# largest (the palm's) costs more than the launches it saves: the SDF MLP on the benchmark hand's
+# culled pairs, H200, loop / padded, no gradient: 11,883 rows 2.75 / 0.85 ms, 96,466 rows 2.82 /
+# 2.33 ms, 192,629 rows 2.56 / 4.24 ms; forward and backward: 7.68 / 2.13, 10.45 / 7.26, 8.96 /
+# 13.61 ms (`python tools/padded_crossover.py --device cuda`).
+GPU_PADDED_ROWS = 1 << 17
 
 
 class StackedMLP(nn.Module):
