@@ -12,26 +12,12 @@ the launches it saves there); this script times it there too.
 import argparse
 import statistics
 import tempfile
-import time
 from pathlib import Path
 
-import torch
-
 import lisa_hand.fields.mlp as mlp_module
-from lisa_hand.bench.train import (
-    fast_config,
-    held_out_copy,
-    prior_from_trained,
-    reference_config,
-)
+from lisa_hand.bench.train import held_out_copy, prior_from_trained, step_runs
 from lisa_hand.geometry.cameras import load_cameras
-from lisa_hand.training.images import (
-    build_image_model,
-    load_image_data,
-    resolve_prior,
-    sample_image_batch,
-)
-from lisa_hand.utils.device import resolve_device, synchronize
+from lisa_hand.utils.device import resolve_device
 
 
 def main() -> None:
@@ -46,37 +32,17 @@ def main() -> None:
         raise SystemExit(f"{args.data}: no frame with cameras.json (not a dataset)")
     held_out = args.held_out or load_cameras(first[0])[-1].name
     data = held_out_copy(args.data, Path(tempfile.mkdtemp()) / "views", held_out)
-    prior = prior_from_trained(None)
-    runs = {}
-    for name, config in {"reference": reference_config(1), "fast": fast_config(1)}.items():
-        config, prior_model, _ = resolve_prior(config, prior)
-        rays, scans = load_image_data(data, config)
-        torch.manual_seed(0)
-        model = build_image_model(rays, config, prior_model)[0].to(device).train()
-        runs[name] = (config, rays, scans, model,
-                      torch.optim.Adam(model.parameters(), lr=1e-5),
-                      torch.Generator().manual_seed(0))
-    default_rows, on_cpu = mlp_module.GPU_PADDED_ROWS, device.type == "cpu"
+    runs = step_runs(data, prior_from_trained(None), args.device)
+    default_rows = mlp_module.GPU_PADDED_ROWS
 
     def step(name: str, padded: bool) -> float:
         mlp_module.GPU_PADDED_ROWS = default_rows if padded else 0
         original = mlp_module.StackedMLP.forward_grouped
-        if on_cpu and padded:  # the CPU never pads by default: ask for it
+        if device.type == "cpu" and padded:  # the CPU never pads by default: ask for it
             mlp_module.StackedMLP.forward_grouped = (
                 lambda self, *a, **k: original(self, *a, **{**k, "padded": True}))
         try:
-            config, rays, scans, model, optimizer, generator = runs[name]
-            synchronize()
-            start = time.perf_counter()
-            batch = sample_image_batch(rays, scans, config, generator).to(device)
-            terms = model(batch, render=config.render, batched=config.batched_step,
-                          background=config.background)
-            total = sum(w * terms[k] for k, w in config.loss_weights().items())
-            optimizer.zero_grad(set_to_none=True)
-            total.backward()
-            optimizer.step()
-            synchronize()
-            return time.perf_counter() - start
+            return runs[name].step()
         finally:
             mlp_module.StackedMLP.forward_grouped = original
             mlp_module.GPU_PADDED_ROWS = default_rows

@@ -56,7 +56,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..data.datasets import RayFrames
+from ..data.datasets import RayFrames, ScanFrames
 from ..data.layout import read_image, read_mask
 from ..geometry.cameras import load_cameras, save_cameras
 from ..inference.hand_field import hand_field
@@ -81,7 +81,8 @@ from ..utils.device import describe_device, resolve_device, synchronize
 from ..utils.io import write_json
 from ..utils.threads import cpu_threads
 
-__all__ = ["reference_config", "fast_config", "prior_from_trained", "held_out_copy", "main"]
+__all__ = ["reference_config", "fast_config", "prior_from_trained", "held_out_copy",
+           "StepRun", "step_runs", "measure_rates", "main"]
 
 
 def reference_config(steps: int, seed: int = 0, device: str = "auto") -> ImageTrainConfig:
@@ -159,45 +160,64 @@ def _synthesize(work: Path) -> Path:
     return data
 
 
-def measure_rates(data: Path, prior: PriorModel, rounds: int, steps: int,
-                  device: str = "cpu") -> dict[str, float]:
-    """Seconds per step of both configurations on ``device``, interleaved: ``rounds`` rounds of
-    ``steps`` steps each (GPU work waited for before each clock read); -> {"reference": s,
-    "fast": s} (best of the rounds' medians)."""
+@dataclasses.dataclass
+class StepRun:
+    """One configuration's image-training state, to time single steps (:func:`step_runs`)."""
+
+    config: ImageTrainConfig
+    rays: RayFrames
+    scans: ScanFrames | None
+    model: torch.nn.Module
+    optimizer: torch.optim.Optimizer
+    generator: torch.Generator
+    device: torch.device
+
+    def step(self) -> float:
+        """One training step (sample, render, losses, backward, Adam) -> its wall seconds,
+        GPU work waited for before each clock read."""
+        config = self.config
+        synchronize()
+        start = time.perf_counter()
+        batch = sample_image_batch(self.rays, self.scans, config, self.generator).to(self.device)
+        terms = self.model(batch, render=config.render, batched=config.batched_step,
+                           background=config.background)
+        total = sum(weight * terms[key] for key, weight in config.loss_weights().items())
+        self.optimizer.zero_grad(set_to_none=True)
+        total.backward()
+        self.optimizer.step()
+        synchronize()
+        return time.perf_counter() - start
+
+
+def step_runs(data: Path, prior: PriorModel | None, device: str = "cpu") -> dict[str, StepRun]:
+    """The reference and the fast configuration on ``data``, from ``prior``, on ``device``, each
+    ready to time steps: {"reference": run, "fast": run}."""
     device = resolve_device(device)
-    configs = {"reference": reference_config(1), "fast": fast_config(1)}
     runs = {}
-    for name, config in configs.items():
+    for name, config in {"reference": reference_config(1), "fast": fast_config(1)}.items():
         config, prior_model, _ = resolve_prior(config, prior)
         rays, scans = load_image_data(data, config)
         torch.manual_seed(0)
         model, _ = build_image_model(rays, config, prior_model)
-        model = model.to(device)
+        model = model.to(device).train()
         optimizer = torch.optim.Adam(model.parameters(), lr=config.trainer.lr)
-        runs[name] = (config, rays, scans, model.train(), optimizer,
-                      torch.Generator().manual_seed(0))
+        runs[name] = StepRun(config, rays, scans, model, optimizer,
+                             torch.Generator().manual_seed(0), device)
+    return runs
 
-    def one_step(name: str) -> float:
-        config, rays, scans, model, optimizer, generator = runs[name]
-        synchronize()
-        start = time.perf_counter()
-        batch = sample_image_batch(rays, scans, config, generator).to(device)
-        terms = model(batch, render=config.render, batched=config.batched_step,
-                      background=config.background)
-        total = sum(weight * terms[key] for key, weight in config.loss_weights().items())
-        optimizer.zero_grad(set_to_none=True)
-        total.backward()
-        optimizer.step()
-        synchronize()
-        return time.perf_counter() - start
 
-    for name in runs:  # warm-up
-        one_step(name)
+def measure_rates(data: Path, prior: PriorModel | None, rounds: int, steps: int,
+                  device: str = "cpu") -> dict[str, float]:
+    """Seconds per step of both configurations on ``device``, interleaved: ``rounds`` rounds of
+    ``steps`` steps each (GPU work waited for before each clock read); -> {"reference": s,
+    "fast": s} (best of the rounds' medians)."""
+    runs = step_runs(data, prior, device)
+    for run in runs.values():  # warm-up
+        run.step()
     best = dict.fromkeys(runs, float("inf"))
     for _ in range(rounds):
-        for name in runs:
-            best[name] = min(best[name],
-                             statistics.median(one_step(name) for _ in range(steps)))
+        for name, run in runs.items():
+            best[name] = min(best[name], statistics.median(run.step() for _ in range(steps)))
     return best
 
 
