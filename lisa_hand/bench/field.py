@@ -6,7 +6,8 @@ The reference is what one writes first: 16 separate ``nn.Sequential`` per-bone M
 Python loop, every point through every bone, the pose features and latent codes concatenated to
 every point's input, float32, ``torch.nn.Softplus``. It applies the same bone regions (masking)
 as the model, so both compute the same function; the weights are copied from the model and the
-outputs compared (max abs error printed).
+outputs compared (max abs error printed; points on a region's boundary, in the region for one
+and not for the other by rounding, are left out and counted: ``region_ties``).
 
 The optimised field is measured step by step, each step adding one idea to the previous:
 
@@ -333,17 +334,23 @@ def _step_results(best: dict[str, float], ref_outputs, outputs, flops, num_point
     )
     # Weights are compared where a point is in some region: elsewhere they are one-hot on the
     # nearest region, and equidistant regions (beyond a shared joint) tie, decided by rounding;
-    # the SDF is the same either way.
+    # the SDF is the same either way. A point on a region's boundary (|excess| ~1e-8 m) is in
+    # the region or not by rounding, and the field steps there (a bone joins the blend): such
+    # points are left out of the comparison and counted ("region_ties"; 4 of 2^20 bench points,
+    # 4 cm off the surface, on the CPU and on a GPU alike).
     inside = ref_geo.region_mask.any(-1)
     results = {}
     for name, (_, _, _, adds) in steps.items():
         geo, col = outputs[name]
+        agree = (geo.region_mask == ref_geo.region_mask).all(-1)
+        agree_color = (col.region_mask == ref_col.region_mask).all(-1)
+        inside_agree = inside & agree
         geo_time, col_time = best[name], best[name + "_color"]
         errors = {
-            "sdf_m": _max_error(geo.sdf, ref_geo.sdf),
-            "weights": _max_error(geo.weights[inside], ref_geo.weights[inside]),
-            "sdf_with_color_m": _max_error(col.sdf, ref_col.sdf),
-            "rgb": _max_error(col.rgb, ref_col.rgb),
+            "sdf_m": _max_error(geo.sdf[agree], ref_geo.sdf[agree]),
+            "weights": _max_error(geo.weights[inside_agree], ref_geo.weights[inside_agree]),
+            "sdf_with_color_m": _max_error(col.sdf[agree_color], ref_col.sdf[agree_color]),
+            "rgb": _max_error(col.rgb[agree_color], ref_col.rgb[agree_color]),
         }
         ok = errors["sdf_m"] <= SDF_TOLERANCE_M and errors["weights"] <= WEIGHT_TOLERANCE
         ok_color = (
@@ -358,6 +365,7 @@ def _step_results(best: dict[str, float], ref_outputs, outputs, flops, num_point
             "gflops": flops[name][0] / geo_time / 1e9,
             "gflops_color": flops[name][1] / col_time / 1e9,
             "max_abs_error": errors,
+            "region_ties": int((~agree).sum()),
             "within_tolerance": ok,
             "within_tolerance_color": ok_color,
         }
@@ -369,7 +377,8 @@ def _step_results(best: dict[str, float], ref_outputs, outputs, flops, num_point
         )
         log(
             f"{'':17s}  max abs error vs reference: sdf {errors['sdf_m']:.1e} m, weights "
-            f"{errors['weights']:.1e}, rgb {errors['rgb']:.1e}: geometry "
+            f"{errors['weights']:.1e}, rgb {errors['rgb']:.1e} ({int((~agree).sum())} region "
+            f"ties left out): geometry "
             f"{'within' if ok else 'OUTSIDE'} tolerance, colour "
             f"{'within' if ok_color else 'OUTSIDE'}"
         )

@@ -42,6 +42,7 @@ def test_small_run_reports_forward_and_backward():
     assert train["matmul_gflops"] > 0 and "x 6" in train["flop_model"]
     assert any(line.startswith("backward (loss of the SDF") for line in lines)
     assert values["device"] == "cpu" and values["matmul"] == "2048^3"
+    assert all(steps[name]["region_ties"] == 0 for name in steps)  # none in 1024 points
 
 
 @pytest.mark.skipif(torch.cuda.is_available(), reason="checks the error without CUDA")
