@@ -232,14 +232,15 @@ class StackedMLP(nn.Module):
             :data:`GPU_PADDED_ROWS` rows, else the loop. The same function either way.
         -> [Q, out_dim]
 
-        A short Python loop over the groups, each group in row chunks through all layers. It is
+        On a CPU, a short Python loop over the groups, each group in row chunks through all layers,
         the fastest way measured (``python -m lisa_hand.bench field``, 2-core AMD EPYC Zen 4,
         65536 points, 96466 culled pairs, default widths, float32, quiet machine): this loop
         88.7 ms (82 GFLOP/s); the same without row chunks 106.8 ms; per-bone index_select from
         the unsorted points and index_copy back 110.7 ms; ``torch.nn.functional.grouped_mm``
         338.8 ms (and its backward fails on expanded gradients); one padded bmm over the stacked
         weights 934 ms (padding every bone to the largest bone's count, the palm's, multiplies
-        the work). It also supports double backward (Eikonal loss).
+        the work). It also supports double backward (Eikonal loss). On a GPU, where each
+        product is a kernel launch, the padded bmm wins up to :data:`GPU_PADDED_ROWS` rows.
         """
         per_frame = first_bias.dim() == 3 and not bias_per_row
         sizes = [sum(size) for size in group_sizes] if per_frame else group_sizes
