@@ -225,11 +225,9 @@ class StackedMLP(nn.Module):
             ``bias_per_row`` (gathered for each row's frame).
         low_precision: run the hidden layers' products in bfloat16 (inference only; the
             first layer and the output stay in the input dtype).
-        chunk_rows: rows per chunk of the loop; None: :data:`GROUP_CHUNK_ROWS` on a CPU (cache
-            locality), no chunks on a GPU (launches).
-        padded: run every group at once, each padded to the largest group's rows (one batched
-            product a layer, :meth:`_forward_padded`); None: on a GPU up to
-            :data:`GPU_PADDED_ROWS` rows, else the loop. The same function either way.
+        chunk_rows: rows per chunk of the loop (None: :data:`GROUP_CHUNK_ROWS` on a CPU, none
+            on a GPU). padded: every group at once (:meth:`_forward_padded`; None: on a GPU up
+            to :data:`GPU_PADDED_ROWS` rows, else the loop). The same function either way.
         -> [Q, out_dim]
 
         On a CPU, a short Python loop over the groups, each group in row chunks through all layers,
@@ -239,26 +237,9 @@ class StackedMLP(nn.Module):
         the unsorted points and index_copy back 110.7 ms; ``torch.nn.functional.grouped_mm``
         338.8 ms (and its backward fails on expanded gradients); one padded bmm over the stacked
         weights 934 ms (padding every bone to the largest bone's count, the palm's, multiplies
-        the work). It also supports double backward (Eikonal loss). On a GPU, where each
-        product is a kernel launch, the padded bmm wins up to :data:`GPU_PADDED_ROWS` rows.
-        """
-        per_frame = first_bias.dim() == 3 and not bias_per_row
-        sizes = [sum(size) for size in group_sizes] if per_frame else group_sizes
-        if len(group_sizes) != self.num_groups or sum(sizes) != points.shape[0]:
-            raise ValueError(
-                f"group_sizes must be {self.num_groups} "
-                f"{'lists of ints' if per_frame else 'ints'} summing to {points.shape[0]}, "
-                f"got {group_sizes}"
-            )
-        if per_frame:
-            expected = (len(group_sizes[0]) if group_sizes else 0, self.num_groups, self.hidden)
-        else:
-            expected = (points.shape[0] if bias_per_row else self.num_groups, self.hidden)
-        if first_bias.shape != expected or (per_frame and any(len(size) != expected[0]
-                                                              for size in group_sizes)):
-            raise ValueError(
-                f"first_bias must have shape {list(expected)}, got {list(first_bias.shape)}"
-            )
+        the work). It also supports double backward (Eikonal loss). On a GPU (launch-bound)
+        the padded bmm wins up to :data:`GPU_PADDED_ROWS` rows."""
+        per_frame, sizes = self._check_grouped(points, group_sizes, first_bias, bias_per_row)
         on_cpu = points.device.type == "cpu"
         if padded is None:
             padded = not on_cpu and 0 < points.shape[0] <= GPU_PADDED_ROWS
@@ -304,6 +285,29 @@ class StackedMLP(nn.Module):
         if not outputs:
             return points.new_zeros(0, self.out_dim)
         return torch.cat(outputs, dim=0)
+
+    def _check_grouped(self, points: torch.Tensor, group_sizes: list, first_bias: torch.Tensor,
+                       bias_per_row: bool) -> tuple[bool, list[int]]:
+        """:meth:`forward_grouped`'s arguments checked. -> (per-frame biases, rows of each
+        group)"""
+        per_frame = first_bias.dim() == 3 and not bias_per_row
+        sizes = [sum(size) for size in group_sizes] if per_frame else group_sizes
+        if len(group_sizes) != self.num_groups or sum(sizes) != points.shape[0]:
+            raise ValueError(
+                f"group_sizes must be {self.num_groups} "
+                f"{'lists of ints' if per_frame else 'ints'} summing to {points.shape[0]}, "
+                f"got {group_sizes}"
+            )
+        if per_frame:
+            expected = (len(group_sizes[0]) if group_sizes else 0, self.num_groups, self.hidden)
+        else:
+            expected = (points.shape[0] if bias_per_row else self.num_groups, self.hidden)
+        if first_bias.shape != expected or (per_frame and any(len(size) != expected[0]
+                                                              for size in group_sizes)):
+            raise ValueError(
+                f"first_bias must have shape {list(expected)}, got {list(first_bias.shape)}"
+            )
+        return per_frame, sizes
 
     def _forward_padded(
         self,
