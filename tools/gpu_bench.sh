@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The benchmarks of issue 15 item 6 on a GPU, in one go (field, render, train, the padded MLP's
 # same-run comparison and its crossover, then the CUDA tests), each bounded in time so that one
-# failure leaves the others' numbers. About 7 minutes on an H200 (README, "On a GPU").
+# failure leaves the others' numbers. About 6 minutes on an H200 (README, "On a GPU").
 #
 #   OUT=results/ DATA=path/to/bench_data tools/gpu_bench.sh
 #
