@@ -64,6 +64,10 @@ class FitPointsConfig:
     near the cloud; robust, so the unseen side of a partial scan costs little); 0: off."""
     coverage_scale_mm: float = 10.0
     """Scale of the Geman-McClure penalty of the coverage term, millimetres."""
+    coverage_seen_only: bool = True
+    """For a one-view scan whose sensor position is known: ask coverage only of the proxy
+    points the sensor could have returned (facing it, not behind the scan's nearest return:
+    :meth:`.free_space.DepthImage.could_see`); False: of every proxy point."""
     lr_rotation: float = 0.02
     """Adam step of the global rotation, radians."""
     lr_translation: float = 0.002

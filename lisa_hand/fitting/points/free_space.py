@@ -63,6 +63,12 @@ class DepthImage:
         flat = cells[:, 0] * depth.shape[1] + cells[:, 1]
         depth = depth.flatten().scatter_reduce(0, flat, ranges, "amin").reshape(depth.shape)
         occupied = torch.isfinite(depth)
+        # the farthest return around each pixel (inf where there is none): what lies behind
+        # it was hidden from the sensor (:meth:`could_see`)
+        far = torch.nn.functional.max_pool2d(
+            depth.masked_fill(~occupied, -1e6)[None, None], 2 * dilate_px + 1, stride=1,
+            padding=dilate_px)[0, 0]
+        self.far = far.masked_fill(far < -1e5, float("inf"))
         if dilate_px > 0:
             grown = -torch.nn.functional.max_pool2d(
                 -depth.nan_to_num(posinf=1e6)[None, None], 2 * dilate_px + 1, stride=1,
@@ -106,6 +112,24 @@ class DepthImage:
                                               padding_mode="border", align_corners=True)
         across = gap.reshape(ranges.shape) * self.pixel * ranges.detach() + self.margin
         return torch.where(empty, across, front)
+
+
+    @torch.no_grad()
+    def could_see(self, points: torch.Tensor, normals: torch.Tensor | None,
+                  occluded_m: float = 0.005) -> torch.Tensor:
+        """[...] float, 1 or 0: whether the sensor could have returned each point [..., 3]
+        (world metres) with outward unit normals [..., 3] (None: every point faces it): it
+        faces the sensor and lies no more than ``occluded_m`` behind the farthest of the scan's
+        returns around its pixel (points where there are none count as seeable). A surface
+        point that fails either test is one a one-view scan cannot show, so no scan point need
+        be near it."""
+        plane, ranges = self.project(points)
+        cells = self.cells(plane)
+        far = self.far[cells[..., 0], cells[..., 1]]
+        seeable = ranges <= far + occluded_m  # inf (no return around): True
+        if normals is not None:
+            seeable = seeable & (((self.viewpoint - points) * normals).sum(-1) > 0)
+        return seeable.to(points.dtype)
 
 
 def _view_frame(rays: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:

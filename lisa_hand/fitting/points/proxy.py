@@ -181,13 +181,19 @@ def proxy_energy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch,
     proxy_points = proxy.world(batch, subset)
     points = cloud.points[cloud.sample(num_points)]
     tangent = config.proxy_tangent_weight
-    normals = proxy.world_normals(batch, subset) if tangent != 1.0 else None
-    distance = nearest_distance(points.expand(batch.count, -1, -1), proxy_points, normals,
-                                tangent)
+    seen_only = cloud.depth is not None and config.coverage_seen_only
+    normals = proxy.world_normals(batch, subset) if tangent != 1.0 or seen_only else None
+    distance = nearest_distance(points.expand(batch.count, -1, -1), proxy_points,
+                                normals if tangent != 1.0 else None, tangent)
     energy = robust_loss(distance, config.robust_loss, scale).mean(-1)
     if config.coverage_weight > 0:
         uncovered = cloud.distance_grid(proxy_points)
         coverage = robust_loss(uncovered, "geman_mcclure", config.coverage_scale_mm * _MM)
+        if cloud.depth is not None and config.coverage_seen_only:
+            # a one-view scan shows only what faces its sensor and is not hidden behind
+            # what it returned: the rest of the hand need not be near a scan point
+            coverage = coverage * cloud.depth.could_see(proxy_points.detach(), None if normals
+                                                        is None else normals.detach())
         energy = energy + config.coverage_weight * coverage.mean(-1)
     if free_space and cloud.depth is not None and config.free_space_weight > 0:
         # no proxy point where the sensor saw nothing (beyond the wrist joint it may stop)
