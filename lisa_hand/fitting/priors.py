@@ -7,6 +7,8 @@ MANO-like template).
 * :func:`finger_pose_prior`: mean over the 45 finger values of the squared difference from a
   named mean pose (radians^2): a weak pull of the fingers toward a natural pose where the data
   says little (occluded fingers, one view).
+* :func:`finger_coupling`: the squared difference of chosen fingers' flexion from their
+  neighbours' (radians^2): an unseen finger curls as the fingers beside it do.
 
 Both are differentiable and batched; the global rotation (pose[:, :3]) is never penalised.
 """
@@ -17,12 +19,17 @@ import torch
 
 from ..skeleton import POSE_DIM
 
-__all__ = ["PRIOR_POSES", "prior_mean_fingers", "joint_limit_excess", "finger_pose_prior"]
+__all__ = ["PRIOR_POSES", "COUPLED_FINGERS", "prior_mean_fingers", "joint_limit_excess",
+           "finger_pose_prior", "finger_coupling"]
 
 PRIOR_POSES = ("relaxed", "flat")
 """Named poses a finger-pose prior may pull toward (:func:`lisa_hand.handmodel.named_pose`)."""
 
 _FINGER_DIM = POSE_DIM - 3
+
+COUPLED_FINGERS = ("index", "middle", "ring", "pinky")
+"""The fingers :func:`finger_coupling` weighs, in the order of its weights; each one's
+neighbours are the fingers beside it in this order."""
 
 
 def prior_mean_fingers(name: str = "relaxed", device: torch.device | str = "cpu",
@@ -68,3 +75,29 @@ def finger_pose_prior(pose: torch.Tensor, mean_fingers: torch.Tensor) -> torch.T
         raise ValueError(f"mean_fingers must have shape [{_FINGER_DIM}], got "
                          f"{list(mean_fingers.shape)}")
     return (fingers - mean_fingers.to(fingers)).square().mean(-1)
+
+
+def finger_coupling(pose: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
+    """Flexion of fingers pulled toward their neighbours'.
+
+    For each finger ``f`` of :data:`COUPLED_FINGERS` with weight ``w_f`` (weights: [4], 0-1),
+    ``w_f`` times the mean over its three joints of the squared difference between its flexion
+    (the joint's axis-angle about the local z axis, the curl of :func:`lisa_hand.handmodel.
+    named_pose`'s poses) and the mean flexion of the fingers beside it at the same joint, the
+    neighbours taken as they are (no gradient flows into them: an unseen finger follows the seen
+    ones, not the reverse).
+
+    pose: [B, 48] or [B, 45] radians (a right hand's) -> [B] radians^2.
+    """
+    from ..skeleton import FINGER_JOINTS
+
+    if weights.shape != (len(COUPLED_FINGERS),):
+        raise ValueError(f"weights must have shape [{len(COUPLED_FINGERS)}], got "
+                         f"{list(weights.shape)}")
+    flexion = _full_pose(pose).reshape(pose.shape[0], -1, 3)[..., 2]  # [B, 16]
+    chains = torch.stack([flexion[:, list(FINGER_JOINTS[name])] for name in COUPLED_FINGERS],
+                         dim=1)  # [B, 4, 3]
+    held = chains.detach()
+    beside = torch.stack([held[:, [j for j in (i - 1, i + 1) if 0 <= j < len(COUPLED_FINGERS)]]
+                          .mean(1) for i in range(len(COUPLED_FINGERS))], dim=1)
+    return ((chains - beside).square().mean(-1) * weights.to(chains)).sum(-1)

@@ -117,16 +117,18 @@ def test_a_viewpoint_inside_the_scan_is_refused(sphere_scan):
         DepthImage(points, points.mean(0))
 
 
-def test_a_straight_finger_where_the_sensor_saw_nothing_costs_the_fit():
-    """A one-view scan of the shipped geometry's own hand with the index curled away: in the
-    sensor's free space the true hand has no surface, the same hand with the index straight
-    has (its finger sticks out where the sensor saw nothing), and the proxy energy's free-space
-    term costs the straight finger and not the truth."""
-    from lisa_hand.fitting.points.candidates import CandidateBatch
+@pytest.fixture(scope="module")
+def curled_index():
+    """A one-view scan of the shipped geometry's own hand with the index curled under the palm,
+    seen from above the back of the hand: the true hand, the same hand with the index straight,
+    the sensor position, the cloud without and with its free space, the fit's config and the
+    proxy of the model's mean hand."""
+    from types import SimpleNamespace
+
     from lisa_hand.fitting.points.cloud import target_cloud
     from lisa_hand.fitting.points.config import FitPointsConfig
     from lisa_hand.fitting.points.fit import start_hand, with_free_space
-    from lisa_hand.fitting.points.proxy import build_surface_proxy, proxy_energy
+    from lisa_hand.fitting.points.proxy import build_surface_proxy
     from lisa_hand.inference import MeshConfig, mesh_hand
     from lisa_hand.model.trained import load_trained
 
@@ -148,13 +150,28 @@ def test_a_straight_finger_where_the_sensor_saw_nothing_costs_the_fit():
     config = FitPointsConfig(seed=0)
     plain = target_cloud(scan.points, None, seed=0)
     cloud = with_free_space(plain, viewpoint, "right", config)
+    proxy = build_surface_proxy(model, rest, code, color, 1000, torch.Generator().manual_seed(0))
+    return SimpleNamespace(model=model, truth=truth, straight=straight, viewpoint=viewpoint,
+                           plain=plain, cloud=cloud, config=config, proxy=proxy)
+
+
+def test_a_straight_finger_where_the_sensor_saw_nothing_costs_the_fit(curled_index):
+    """In the sensor's free space the true hand has no surface, the same hand with the index
+    straight has (its finger sticks out where the sensor saw nothing), and the proxy energy's
+    free-space term costs the straight finger and not the truth."""
+    from lisa_hand.fitting.points.candidates import CandidateBatch
+    from lisa_hand.fitting.points.proxy import proxy_energy
+    from lisa_hand.inference import MeshConfig, mesh_hand
+
+    model, truth, straight = curled_index.model, curled_index.truth, curled_index.straight
+    plain, cloud, config = curled_index.plain, curled_index.cloud, curled_index.config
+    proxy = curled_index.proxy
     assert cloud.free.shape == (config.free_space_points, 3) and cloud.depth is not None
     for name, hand, expected in (("truth", truth, 0.0), ("straight", straight, 0.01)):
         other = mesh_hand(model, hand, 64, MeshConfig(colors=False, skin_weights=False))
         seen = cloud.depth.violation(torch.from_numpy(np.asarray(other.vertices)).float())
         fraction = float((seen > 1e-3).float().mean())
         assert (fraction < 0.002) if expected == 0.0 else (fraction > expected), (name, fraction)
-    proxy = build_surface_proxy(model, rest, code, color, 1000, torch.Generator().manual_seed(0))
     batch = CandidateBatch.from_hands([truth, straight], proxy.pivot)
 
     def energies(target, seen_only=False):
@@ -177,6 +194,30 @@ def test_a_straight_finger_where_the_sensor_saw_nothing_costs_the_fit():
     assert float(seen_only[0]) < 0.5 * float(with_free[0]), (seen_only, with_free)
     assert float(seen_only[1] - seen_only[0]) > margin, (seen_only, with_free)
     assert float(seen_only[1]) > 2.0 * float(seen_only[0]), seen_only
+
+
+def test_the_curled_index_hidden_from_the_sensor_is_unseen(curled_index):
+    """unseen_fingers: the true hand's index, curled under the palm away from a sensor above
+    the back of the hand, could hardly be seen (weight > 0); the other fingers' backs face the
+    sensor (weight 0); the same hand with the index straight shows it (it sticks out where the
+    sensor saw nothing: the free-space term's business, not the coupling's)."""
+    from lisa_hand.fitting.points.proxy import unseen_fingers
+
+    proxy, cloud = curled_index.proxy, curled_index.cloud
+    truth = unseen_fingers(proxy, cloud, curled_index.truth, 0.2)
+    straight = unseen_fingers(proxy, cloud, curled_index.straight, 0.2)
+    assert truth.shape == (4,)
+    # measured 0.40: its knuckle shows (12% of its surface could be seen, against 20%)
+    assert float(truth[0]) > 0.3 and float(truth[1:].max()) == 0.0, truth.tolist()
+    assert float(straight.max()) == 0.0, straight.tolist()
+    assert unseen_fingers(proxy, curled_index.plain, curled_index.truth, 0.2) is None
+    # the cloud carries the weights through a copy, its distance grid kept
+    grid = cloud.distance_grid
+    coupled = cloud.replace(coupling=truth)
+    assert coupled.coupling is truth and coupled.depth is cloud.depth
+    assert coupled.distance_grid is grid and coupled.generator is cloud.generator
+    with pytest.raises(TypeError, match="no colour"):
+        cloud.replace(colour=None)
 
 
 def test_a_left_hands_viewpoint_is_mirrored_with_its_cloud(sphere_scan):

@@ -6,11 +6,14 @@ import pytest
 import torch
 
 from lisa_hand.fitting.priors import (
+    COUPLED_FINGERS,
+    finger_coupling,
     finger_pose_prior,
     joint_limit_excess,
     prior_mean_fingers,
 )
 from lisa_hand.handmodel.poses import JOINT_LIMITS, named_pose, pose_to_angles
+from lisa_hand.skeleton import FINGER_JOINTS
 
 
 def test_named_poses_are_inside_the_limits():
@@ -66,6 +69,38 @@ def test_finger_prior_is_zero_at_its_mean_and_a_mean_of_squares_elsewhere():
     assert math.isfinite(finger_pose_prior(pose, flat).item())
 
 
+def _flexions(values: dict[str, tuple[float, float, float]]) -> torch.Tensor:
+    """[1, 48] a pose with the given fingers' three flexions (local z), the rest zero."""
+    pose = torch.zeros(16, 3, dtype=torch.float64)
+    for name, chain in values.items():
+        pose[list(FINGER_JOINTS[name]), 2] = torch.tensor(chain, dtype=torch.float64)
+    return pose.reshape(1, 48)
+
+
+def test_finger_coupling_pulls_an_unseen_finger_to_its_neighbours_curl():
+    assert COUPLED_FINGERS == ("index", "middle", "ring", "pinky")
+    pose = _flexions({"index": (0.1, 0.2, 0.0), "middle": (1.3, 1.5, 0.9),
+                      "ring": (1.1, 1.7, 0.7), "pinky": (1.0, 1.0, 1.0)})
+    pose.requires_grad_(True)
+    # the index alone, fully weighted: its neighbour is the middle finger
+    index_only = torch.tensor([1.0, 0.0, 0.0, 0.0], dtype=torch.float64)
+    value = finger_coupling(pose, index_only)
+    assert value.item() == pytest.approx(((1.2 ** 2) + (1.3 ** 2) + (0.9 ** 2)) / 3)
+    value.sum().backward()
+    grad = pose.grad.reshape(16, 3)
+    # gradient 2 w (flexion - neighbour) / 3 on the index's flexions, none on the neighbours
+    expected = 2.0 * torch.tensor([0.1 - 1.3, 0.2 - 1.5, 0.0 - 0.9], dtype=torch.float64) / 3
+    assert torch.allclose(grad[list(FINGER_JOINTS["index"]), 2], expected)
+    others = [j for name in ("middle", "ring", "pinky") for j in FINGER_JOINTS[name]]
+    assert float(grad[others].abs().max()) == 0.0
+    # the ring finger at half weight: its neighbours are the middle and the pinky (their mean)
+    ring_half = torch.tensor([0.0, 0.0, 0.5, 0.0], dtype=torch.float64)
+    beside = [(1.3 + 1.0) / 2, (1.5 + 1.0) / 2, (0.9 + 1.0) / 2]
+    ring = (1.1, 1.7, 0.7)
+    assert finger_coupling(pose, ring_half).item() == pytest.approx(
+        0.5 * sum((r - b) ** 2 for r, b in zip(ring, beside, strict=True)) / 3)
+
+
 def test_bad_inputs_are_refused():
     with pytest.raises(ValueError, match="prior pose"):
         prior_mean_fingers("fist")
@@ -73,6 +108,8 @@ def test_bad_inputs_are_refused():
         joint_limit_excess(torch.zeros(48))
     with pytest.raises(ValueError, match="mean_fingers"):
         finger_pose_prior(torch.zeros(1, 48), torch.zeros(48))
+    with pytest.raises(ValueError, match="weights"):
+        finger_coupling(torch.zeros(1, 48), torch.zeros(5))
 
 
 def test_limit_term_has_gradients_outside_the_limits_only():

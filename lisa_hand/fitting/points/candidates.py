@@ -16,7 +16,7 @@ import torch
 
 from ...geometry import axis_angle_to_matrix, matrix_to_axis_angle
 from ...skeleton.params import HandParams
-from ..priors import finger_pose_prior, joint_limit_excess
+from ..priors import finger_coupling, finger_pose_prior, joint_limit_excess
 
 __all__ = ["CandidateBatch", "point_prior"]
 
@@ -136,15 +136,21 @@ class CandidateBatch:
 
 
 def point_prior(config, batch: CandidateBatch, mean_fingers: torch.Tensor,
-                shape_scale: float | None) -> torch.Tensor:
+                shape_scale: float | None, coupling: torch.Tensor | None = None
+                ) -> torch.Tensor:
     """[K] the point fit's regulariser: ``pose_weight`` times the finger-pose prior toward
     ``mean_fingers`` [45] (:func:`~lisa_hand.fitting.priors.finger_pose_prior`),
     ``limit_weight`` times the joint-limit excess, the shape code's term (with its scale, when
     given: ``shape_weight * mean (code / scale)^2``) and ``betas_weight * |betas|^2`` (when the
-    batch has betas). config: a :class:`~lisa_hand.fitting.points.config.FitPointsConfig`.
+    batch has betas); with ``coupling`` ([4] weights of the unseen fingers, :func:`~lisa_hand.
+    fitting.points.free_space.unseen_fingers`), ``coupling_weight`` times
+    :func:`~lisa_hand.fitting.priors.finger_coupling`. config: a
+    :class:`~lisa_hand.fitting.points.config.FitPointsConfig`.
     """
     finger = batch.finger_pose
     prior = config.pose_weight * finger_pose_prior(finger, mean_fingers)
+    if coupling is not None and config.coupling_weight > 0:
+        prior = prior + config.coupling_weight * finger_coupling(finger, coupling)
     if config.limit_weight > 0:
         prior = prior + config.limit_weight * joint_limit_excess(finger)
     if shape_scale is not None:

@@ -23,17 +23,34 @@ class TargetCloud:
     points: [N, 3] world metres; normals: [N, 3] unit outward normals or None (same device and
     dtype); generator: a CPU ``torch.Generator``. For a one-view scan whose sensor position is
     known (:mod:`.free_space`): free, [M, 3] world metres, points the sensor saw to be empty,
-    and depth, its :class:`~.free_space.DepthImage`; None otherwise.
+    and depth, its :class:`~.free_space.DepthImage`; None otherwise. coupling: [4] weights of
+    the fingers the sensor could not see (:func:`~.free_space.unseen_fingers`), set by the fit
+    once it has a hand, or None.
     """
 
     def __init__(self, points: torch.Tensor, normals: torch.Tensor | None,
                  generator: torch.Generator, free: torch.Tensor | None = None,
-                 depth=None) -> None:
+                 depth=None, coupling: torch.Tensor | None = None) -> None:
         self.points = points
         self.normals = normals
         self.generator = generator
         self.free = free
         self.depth = depth
+        self.coupling = coupling
+
+    def replace(self, **changes) -> TargetCloud:
+        """A copy with the named attributes (``points``, ``normals``, ``free``, ``depth``,
+        ``coupling``) changed; the same generator."""
+        fields = dict(points=self.points, normals=self.normals, free=self.free,
+                      depth=self.depth, coupling=self.coupling)
+        unknown = set(changes) - set(fields)
+        if unknown:
+            raise TypeError(f"TargetCloud has no {', '.join(sorted(unknown))}")
+        fields.update(changes)
+        copy = TargetCloud(generator=self.generator, **fields)
+        if "points" not in changes and "distance_grid" in self.__dict__:  # same points
+            copy.__dict__["distance_grid"] = self.__dict__["distance_grid"]
+        return copy
 
     @property
     def num_points(self) -> int:

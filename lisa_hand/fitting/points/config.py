@@ -29,8 +29,8 @@ class FitPointsConfig:
     """Adam steps of the articulated proxy stage (pose and translation; no network)."""
     finger_iters: int = 30
     """Per-finger restarts after the articulated stage (:mod:`.finger_search`): proxy steps of
-    the best candidate's copies with one finger restarted from flat, relaxed and fist (the thumb
-    also from the opposed pinch and ok thumbs); 0 turns them off."""
+    the best candidate's copies with one finger restarted from flat, relaxed, pinch and fist
+    (the thumb also from the opposed ok thumb); 0 turns them off."""
     field_iters: int = 200
     """Adam steps of the field stage (all unknowns, the LISA field)."""
     second_pass_iters: int = 100
@@ -107,6 +107,13 @@ class FitPointsConfig:
     """Weight of the finger-pose prior (:func:`lisa_hand.fitting.priors.finger_pose_prior`:
     the mean over the 45 finger values of the squared difference from ``prior_pose``,
     radians^2): keeps unseen fingers near that pose."""
+    coupling_weight: float = 1e-3
+    """For a one-view scan whose sensor position is known: weight of the flexion coupling of
+    the fingers the sensor could not see to their neighbours' (:func:`lisa_hand.fitting.priors.
+    finger_coupling`, weighted by :func:`.proxy.unseen_fingers`), radians^2; 0: off."""
+    unseen_share: float = 0.2
+    """A finger of which less than this share of the surface could have been seen by the sensor
+    counts as unseen (linearly: none seen, fully)."""
     prior_pose: str = "flat"
     """The pose the finger-pose prior pulls toward ('flat' or 'relaxed')."""
     limit_weight: float = 1e-2
@@ -174,7 +181,7 @@ class FitPointsConfig:
             raise ValueError(f"prior_pose must be one of {PRIOR_POSES}, got {self.prior_pose!r}")
         for name in ("lr_rotation", "lr_translation", "lr_pose", "lr_shape", "lr_betas",
                      "robust_scale_mm", "robust_scale_start_mm", "normal_offset_mm",
-                     "coverage_scale_mm"):
+                     "coverage_scale_mm", "unseen_share"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"{name} must be a positive number, got {value!r}")
@@ -184,6 +191,7 @@ class FitPointsConfig:
         for name in ("shape_weight", "covered_shape_weight", "covered_fraction", "covered_mm",
                      "pose_weight", "limit_weight", "betas_weight",
                      "normal_weight", "free_space_weight", "coverage_weight", "wrist_margin_m",
+                     "coupling_weight",
                      "proxy_tangent_weight"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):

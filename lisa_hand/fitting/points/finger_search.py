@@ -5,8 +5,8 @@ left bent, a thumb in the wrong pose).
 
 After the articulated proxy stage (:func:`lisa_hand.fitting.points.proxy.fit_proxy_pose`), the
 best candidate is copied once per finger and start of :data:`FINGER_STARTS` with that finger's
-three joints set to the start's (the thumb, whose base has the widest range, also from the
-opposed thumbs of "pinch" and "ok"); the copies and the candidate itself are optimised together
+three joints set to the start's (straight, slightly bent, half curled, curled; the thumb, whose
+base has the widest range, also from the opposed thumb of "ok"); the copies and the candidate itself are optimised together
 on the proxy (rotation, translation and finger pose, ``config.finger_iters`` steps), then scored
 on one common subset of the cloud at the final robust scale, prior included. Each finger then
 takes its chain from the lowest-scoring of its copies (or keeps the candidate's), and the hand so
@@ -32,9 +32,13 @@ from .proxy import SurfaceProxy, optimise_on_proxy, proxy_energy
 
 __all__ = ["FINGER_STARTS", "THUMB_STARTS", "restart_fingers"]
 
-FINGER_STARTS = ("flat", "relaxed", "fist")
-"""Named poses (:func:`lisa_hand.handmodel.poses.named_pose`) each finger restarts from."""
-THUMB_STARTS = FINGER_STARTS + ("pinch", "ok")
+FINGER_STARTS = ("flat", "relaxed", "pinch", "fist")
+"""Named poses (:func:`lisa_hand.handmodel.poses.named_pose`) each finger restarts from.
+"pinch" (the fingers half curled, about 0.6 / 0.95 / 0.8 rad) was added on 2026-12-04 because of
+the WebXR hand's bent index (0.9 / 1.2 / 0.7 rad), which neither "relaxed" nor "fist" reached on
+the proxy from one side; checked on held-out generator subjects too (module
+:mod:`lisa_hand.bench.fit`, README "One-view scans")."""
+THUMB_STARTS = FINGER_STARTS + ("ok",)
 """The thumb's starts."""
 _MM = 1e-3
 _SCORE_POINTS = 2048  # cloud points of the final comparison (the iterations use 256)
@@ -69,7 +73,7 @@ def _scores(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, conf
     mean_fingers = prior_mean_fingers(config.prior_pose, batch.pivot.device, batch.pivot.dtype)
     energy = proxy_energy(proxy, cloud, batch, config, config.robust_scale_mm * _MM,
                           num_points=_SCORE_POINTS)
-    return energy + point_prior(config, batch, mean_fingers, None)
+    return energy + point_prior(config, batch, mean_fingers, None, cloud.coupling)
 
 
 def restart_fingers(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequence[HandParams],

@@ -55,7 +55,7 @@ from .finger_search import restart_fingers
 from .free_space import DepthImage, free_points_near, free_space_points
 from .global_pose import search_global_pose
 from .monitor import FitMonitor, FitStep
-from .proxy import build_surface_proxy, covered_fraction, fit_proxy_pose
+from .proxy import build_surface_proxy, covered_fraction, fit_proxy_pose, unseen_fingers
 from .surface_stage import fit_surface, frozen_field, surface_residuals
 
 __all__ = ["FitPointsConfig", "FitStep", "FitResult", "fit_points", "start_hand"]
@@ -179,7 +179,7 @@ def with_free_space(cloud: TargetCloud, viewpoint, side: str, config: FitPointsC
         view = mirror_cloud(view[None], side)[0]
     image = DepthImage(cloud.points, view)
     free = free_space_points(image, cloud.points, config.free_space_points, cloud.generator)
-    return TargetCloud(cloud.points, cloud.normals, cloud.generator, free, image)
+    return cloud.replace(free=free, depth=image)
 
 
 def _free_near(cloud: TargetCloud, proxy, hands: list[HandParams], config: FitPointsConfig
@@ -194,7 +194,7 @@ def _free_near(cloud: TargetCloud, proxy, hands: list[HandParams], config: FitPo
         surface = proxy.world(batch).reshape(-1, 3)
     near = free_points_near(cloud.depth, surface, config.free_space_points, cloud.generator)
     free = near if cloud.free is None else torch.cat([cloud.free, near])
-    return TargetCloud(cloud.points, cloud.normals, cloud.generator, free, cloud.depth)
+    return cloud.replace(free=free)
 
 
 def _clip_cloud(cloud: TargetCloud, hand: HandParams, offset: float | None, min_points: int
@@ -212,10 +212,26 @@ def _clip_cloud(cloud: TargetCloud, hand: HandParams, offset: float | None, min_
     keep = torch.from_numpy(wrist_plane(hand, offset).keeps(
         cloud.points.detach().cpu().double().numpy()))
     if int(keep.sum()) < min_points or bool(keep.all()):
-        return TargetCloud(cloud.points, cloud.normals, cloud.generator, free, cloud.depth)
+        return cloud.replace(free=free)
     keep = keep.to(cloud.points.device)
-    return TargetCloud(cloud.points[keep], None if cloud.normals is None else
-                       cloud.normals[keep], cloud.generator, free, cloud.depth)
+    return cloud.replace(points=cloud.points[keep], free=free,
+                         normals=None if cloud.normals is None else cloud.normals[keep])
+
+
+def _with_coupling(cloud: TargetCloud, proxy, hand: HandParams, config: FitPointsConfig,
+                   report: StageReport) -> TargetCloud:
+    """``cloud`` with the weights of the fingers its sensor could not see on ``hand``
+    (:func:`.proxy.unseen_fingers`; none without a sensor position or with
+    ``coupling_weight`` 0), named in ``report``'s notes."""
+    from ..priors import COUPLED_FINGERS
+
+    if cloud.depth is None or config.coupling_weight <= 0:
+        return cloud
+    coupling = unseen_fingers(proxy, cloud, hand, config.unseen_share)
+    unseen = [f"{name} {float(w):.2f}" for name, w in zip(COUPLED_FINGERS, coupling,
+                                                           strict=True) if float(w) > 0]
+    report.notes.append(f"unseen fingers: {', '.join(unseen) or 'none'}")
+    return cloud.replace(coupling=coupling)
 
 
 def _cut_offset(hand: HandParams, cloud: TargetCloud, clip: float | None) -> float | None:
@@ -248,6 +264,7 @@ def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints,
                         clip + config.wrist_margin_m, config.min_points)
     candidates, reports["pose"] = fit_proxy_pose(proxy, cloud, candidates, config,
                                                  monitor=monitor)
+    cloud = _with_coupling(cloud, proxy, candidates[0], config, reports["pose"])
     since = monitor.lap("pose", since)
     candidates, reports["fingers"] = restart_fingers(proxy, cloud, candidates, config,
                                                      monitor=monitor)

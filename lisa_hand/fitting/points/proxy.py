@@ -36,7 +36,8 @@ from .candidates import CandidateBatch, point_prior
 from .cloud import TargetCloud, nearest_distance
 from .monitor import FitMonitor
 
-__all__ = ["SurfaceProxy", "build_surface_proxy", "covered_fraction", "proxy_energy",
+__all__ = ["SurfaceProxy", "build_surface_proxy", "covered_fraction", "unseen_fingers",
+           "proxy_energy",
            "optimise_on_proxy", "fit_proxy_pose"]
 
 _MM = 1e-3
@@ -169,6 +170,36 @@ def covered_fraction(proxy: SurfaceProxy, cloud: TargetCloud, hand: HandParams,
     return float((gaps < distance).to(torch.float64).mean())
 
 
+@torch.no_grad()
+def unseen_fingers(proxy: SurfaceProxy, cloud: TargetCloud, hand: HandParams,
+                   seen_share: float) -> torch.Tensor | None:
+    """[4] weights (0-1) of the fingers of :data:`~lisa_hand.fitting.priors.COUPLED_FINGERS`
+    that a one-view scan's sensor could not see on ``hand`` (a right hand on the proxy's
+    skeleton): 1 minus the share of the finger's proxy points the sensor could have returned
+    (:meth:`.free_space.DepthImage.could_see`; each point counted for its dominant bone) over
+    ``seen_share``, clamped to 0-1. None when the cloud has no sensor position.
+
+    A finger that is hidden where the hand puts it tells the scan nothing, so its pose is the
+    prior's: its neighbours' curl (:func:`~lisa_hand.fitting.priors.finger_coupling`) is a
+    better guess than the mean pose (in a one-view fist, an unseen index left straight)."""
+    from ...skeleton import FINGER_JOINTS
+    from ..priors import COUPLED_FINGERS
+
+    if cloud.depth is None:
+        return None
+    batch = CandidateBatch.from_hands([hand], proxy.pivot)
+    normals = proxy.world_normals(batch)
+    seeable = cloud.depth.could_see(proxy.world(batch)[0],
+                                    None if normals is None else normals[0])
+    bones = proxy.weights.argmax(-1)
+    weights = []
+    for name in COUPLED_FINGERS:
+        mine = torch.isin(bones, torch.tensor(FINGER_JOINTS[name], device=bones.device))
+        share = float(seeable[mine].mean()) if bool(mine.any()) else 0.0
+        weights.append(min(max(1.0 - share / seen_share, 0.0), 1.0))
+    return torch.tensor(weights, device=proxy.points_rest.device, dtype=proxy.points_rest.dtype)
+
+
 def proxy_energy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, config,
                  scale: float, subset: torch.Tensor | None = None,
                  num_points: int = _PROXY_STAGE_POINTS, free_space: bool = True
@@ -229,7 +260,7 @@ def optimise_on_proxy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateB
                               proxy_subset, free_space=stage != "align")
         loss = energy
         if stage != "align":
-            loss = loss + point_prior(config, batch, mean_fingers, None)
+            loss = loss + point_prior(config, batch, mean_fingers, None, cloud.coupling)
         batch.clear_grads()
         loss.sum().backward()
         optimizer.step()

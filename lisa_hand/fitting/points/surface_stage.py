@@ -146,7 +146,8 @@ class _FieldEnergy:
               free_index: torch.Tensor | None = None) -> torch.Tensor:
         """[K] data term at the final robust scale plus the prior."""
         data = self.data(batch, index, self.config.robust_scale_mm * _MM, free_index)
-        return data + point_prior(self.config, batch, self.mean_fingers, self.shape_scale)
+        return data + point_prior(self.config, batch, self.mean_fingers, self.shape_scale,
+                                  self.cloud.coupling)
 
     @torch.no_grad()
     def evaluate(self, batch: CandidateBatch) -> torch.Tensor:
