@@ -107,7 +107,7 @@ class FitPointsConfig:
     """Weight of the finger-pose prior (:func:`lisa_hand.fitting.priors.finger_pose_prior`:
     the mean over the 45 finger values of the squared difference from ``prior_pose``,
     radians^2): keeps unseen fingers near that pose."""
-    coupling_weight: float = 1e-3
+    coupling_weight: float = 3e-4
     """For a one-view scan whose sensor position is known: weight of the flexion coupling of
     the fingers the sensor could not see to their neighbours' (:func:`lisa_hand.fitting.priors.
     finger_coupling`, weighted by :func:`.proxy.unseen_fingers`), radians^2; 0: off."""
