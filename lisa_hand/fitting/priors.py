@@ -10,7 +10,7 @@ MANO-like template).
 * :func:`finger_coupling`: the squared difference of chosen fingers' flexion from their
   neighbours' (radians^2): an unseen finger curls as the fingers beside it do.
 
-Both are differentiable and batched; the global rotation (pose[:, :3]) is never penalised.
+All are differentiable and batched; the global rotation (pose[:, :3]) is never penalised.
 """
 
 from __future__ import annotations

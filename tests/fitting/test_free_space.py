@@ -4,6 +4,7 @@ sphere scanned from one side against its closed-form distances."""
 from __future__ import annotations
 
 import dataclasses
+
 import numpy as np
 import pytest
 import torch

@@ -349,8 +349,9 @@ def test_a_one_view_scan_fits_closer_with_its_sensor_position():
     the mesh's share of vertices in the free space falls from 31% to 0% and V2S scan->recon /
     recon->scan from 5.28 / 9.27 to 2.08 / 1.93 mm (without the sensor a finger pose fails
     here; before the coverage of what the sensor could see, the half-curled restart and the
-    unseen fingers' coupling, 2026-12-04: 3.2%, 4.75 / 4.12 mm; the v1 prior: 7.2% -> 0.7%, 3.06 / 3.33 -> 2.95 / 2.75 mm; with the rig's former
-    askew curl: 10% -> 2%, 3.26 -> 2.92 mm, recon->scan 4.68 -> 6.34)."""
+    unseen fingers' coupling, 2026-12-04: 3.2%, 4.75 / 4.12 mm; the v1 prior: 7.2% -> 0.7%,
+    3.06 / 3.33 -> 2.95 / 2.75 mm; with the rig's former askew curl: 10% -> 2%, 3.26 -> 2.92
+    mm, recon->scan 4.68 -> 6.34)."""
     import torch
 
     from lisa_hand.data.scans import ScanConfig, simulate_scan

@@ -143,7 +143,7 @@ def point_prior(config, batch: CandidateBatch, mean_fingers: torch.Tensor,
     ``limit_weight`` times the joint-limit excess, the shape code's term (with its scale, when
     given: ``shape_weight * mean (code / scale)^2``) and ``betas_weight * |betas|^2`` (when the
     batch has betas); with ``coupling`` ([4] weights of the unseen fingers, :func:`~lisa_hand.
-    fitting.points.free_space.unseen_fingers`), ``coupling_weight`` times
+    fitting.points.proxy.unseen_fingers`), ``coupling_weight`` times
     :func:`~lisa_hand.fitting.priors.finger_coupling`. config: a
     :class:`~lisa_hand.fitting.points.config.FitPointsConfig`.
     """

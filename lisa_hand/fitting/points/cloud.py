@@ -24,7 +24,7 @@ class TargetCloud:
     dtype); generator: a CPU ``torch.Generator``. For a one-view scan whose sensor position is
     known (:mod:`.free_space`): free, [M, 3] world metres, points the sensor saw to be empty,
     and depth, its :class:`~.free_space.DepthImage`; None otherwise. coupling: [4] weights of
-    the fingers the sensor could not see (:func:`~.free_space.unseen_fingers`), set by the fit
+    the fingers the sensor could not see (:func:`~.proxy.unseen_fingers`), set by the fit
     once it has a hand, or None.
     """
 

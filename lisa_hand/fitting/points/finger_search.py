@@ -6,8 +6,9 @@ left bent, a thumb in the wrong pose).
 After the articulated proxy stage (:func:`lisa_hand.fitting.points.proxy.fit_proxy_pose`), the
 best candidate is copied once per finger and start of :data:`FINGER_STARTS` with that finger's
 three joints set to the start's (straight, slightly bent, half curled, curled; the thumb, whose
-base has the widest range, also from the opposed thumb of "ok"); the copies and the candidate itself are optimised together
-on the proxy (rotation, translation and finger pose, ``config.finger_iters`` steps), then scored
+base has the widest range, also from the opposed thumb of "ok"); the copies and the candidate
+itself are optimised together on the proxy (rotation, translation and finger pose,
+``config.finger_iters`` steps), then scored
 on one common subset of the cloud at the final robust scale, prior included. Each finger then
 takes its chain from the lowest-scoring of its copies (or keeps the candidate's), and the hand so
 combined replaces the last of the candidates when it scores lower than the best one did.

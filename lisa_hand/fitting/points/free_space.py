@@ -15,6 +15,9 @@ seen it. A full (many-view) scan has no single viewpoint and gets none of this.
   point, ``margin_m`` to ``depth_m`` before it) and *beside* (on rays through empty pixels,
   between ``depth_m`` before the nearest return and beyond the farthest);
   :func:`free_points_near`: empty points near a candidate hand's surface, where a wrong hand is.
+* :meth:`DepthImage.could_see`: whether the sensor could have returned a surface point (facing
+  it, not hidden behind what it returned): the proxy stages ask coverage only of those, and a
+  finger with little such surface counts as unseen (:func:`.proxy.unseen_fingers`).
   The surface stage asks the field to be outside at both (:mod:`.surface_stage`).
 
 ``FitPointsConfig.free_space_weight`` weighs the terms; ``fit_points(viewpoint=...)`` (``lisa
@@ -112,7 +115,6 @@ class DepthImage:
                                               padding_mode="border", align_corners=True)
         across = gap.reshape(ranges.shape) * self.pixel * ranges.detach() + self.margin
         return torch.where(empty, across, front)
-
 
     @torch.no_grad()
     def could_see(self, points: torch.Tensor, normals: torch.Tensor | None,

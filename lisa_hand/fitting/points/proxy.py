@@ -9,9 +9,10 @@ distance), plus ``coverage_weight`` times a robust distance from each proxy poin
 (the cloud's distance grid). The first term alone lets extra model surface go unpunished (a flat
 finger beside the curled finger of a fist scan); the second is a bounded Geman-McClure term
 (scale ``coverage_scale_mm``), so the unseen side of a partial scan costs little and pulls
-weakly. ``sigma`` goes down geometrically from ``robust_scale_start_mm`` to
-``robust_scale_mm`` over each stage (coarse to fine). For a one-view scan whose sensor
-position is known, a third term, ``free_space_weight`` times the bounded penalty (same scale) of
+weakly; with a one-view scan's sensor position it is asked only of the proxy points the sensor
+could have returned (``coverage_seen_only``). ``sigma`` goes down geometrically from
+``robust_scale_start_mm`` to ``robust_scale_mm`` over each stage (coarse to fine). For a
+one-view scan whose sensor position is known, a third term, ``free_space_weight`` times the bounded penalty (same scale) of
 how far each proxy point lies in the space the sensor saw to be empty
 (:class:`~.free_space.DepthImage`; points beyond the wrist joint are not asked, a scan may stop
 there), in every stage but the global search ('align', where a hand still turned the wrong way
@@ -37,8 +38,7 @@ from .cloud import TargetCloud, nearest_distance
 from .monitor import FitMonitor
 
 __all__ = ["SurfaceProxy", "build_surface_proxy", "covered_fraction", "unseen_fingers",
-           "proxy_energy",
-           "optimise_on_proxy", "fit_proxy_pose"]
+           "proxy_energy", "optimise_on_proxy", "fit_proxy_pose"]
 
 _MM = 1e-3
 _PROXY_STAGE_POINTS = 256  # cloud points per iteration of the proxy stages
