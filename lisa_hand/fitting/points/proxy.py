@@ -12,10 +12,10 @@ finger beside the curled finger of a fist scan); the second is a bounded Geman-M
 weakly; with a one-view scan's sensor position it is asked only of the proxy points the sensor
 could have returned (``coverage_seen_only``). ``sigma`` goes down geometrically from
 ``robust_scale_start_mm`` to ``robust_scale_mm`` over each stage (coarse to fine). For a
-one-view scan whose sensor position is known, a third term, ``free_space_weight`` times the bounded penalty (same scale) of
-how far each proxy point lies in the space the sensor saw to be empty
-(:class:`~.free_space.DepthImage`; points beyond the wrist joint are not asked, a scan may stop
-there), in every stage but the global search ('align', where a hand still turned the wrong way
+one-view scan whose sensor position is known, a third term, ``free_space_weight`` times the
+bounded penalty (same scale) of how far each proxy point lies in the space the sensor saw to be
+empty (:class:`~.free_space.DepthImage`; points beyond the wrist joint are not asked, a scan may
+stop there), in every stage but the global search ('align', where a hand still turned the wrong way
 would be pushed sideways rather than turned).
 """
 
