@@ -168,6 +168,32 @@ def test_viewpoint_is_read_in_the_clouds_units_and_recorded(lisa, files, capsys)
         assert "\n" not in error and not failed.exists()
 
 
+def test_a_one_sided_scan_without_its_sensor_position_gets_a_hint(lisa, files, capsys):
+    """A scan that covers little of the fitted hand (here a one-view scan and a toy model) is
+    fitted as it is, with one line on --viewpoint; params.json records the coverage; given the
+    sensor position, no hint."""
+    root, _ = files
+    with cpu_threads(1):
+        model = tiny_model(color=True)
+        truth = true_hand(model, seed=2)
+        sensor = (0.0, 0.0, 0.5)
+        points, normals, _ = scan_of(model, truth, ScanConfig(
+            num_points=600, partial=True, viewpoint=sensor), seed=2)
+    np.savez(root / "one_view.npz", points=points, normals=normals)
+    for name, extra in (("hinted", []), ("quiet", ["--viewpoint", "0,0,0.5"])):
+        out = root / name
+        assert lisa(["fit-points", str(root / "one_view.npz"), "--out", str(out), "--model",
+                     str(root / "tiny.pt"), *extra, *FAST_ARGS]) == 0
+        captured = capsys.readouterr()
+        said = captured.out + captured.err
+        coverage = read_params(out / "params.json").extra["fit"]["coverage"]
+        assert 0.0 <= coverage < 2.0 / 3.0, coverage
+        hinted = "--viewpoint X,Y,Z" in said
+        assert hinted == (name == "hinted"), said
+        if hinted:
+            assert f"shows {coverage:.0%} of the hand" in said
+
+
 def test_refine_writes_the_refined_model_that_params_json_names(lisa, files, capsys):
     """``--refine``: the per-bone SDF MLPs fine-tuned on the scan (a tiny model: few steps) and
     written as OUT/model.pt; params.json names it, so the verbs over a hand load it; the

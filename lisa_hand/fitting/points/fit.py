@@ -89,6 +89,9 @@ class FitResult:
     reports: each stage's :class:`lisa_hand.fitting.stages.StageReport` ({"align", "pose",
         "fingers", "field", "second"}; no "second" with ``config.second_pass_iters`` 0), as the
         image fit's ``reports``.
+    coverage: share of the hand's surface (its proxy, after the finger restarts) within
+        ``config.covered_mm`` of the scan (:func:`.proxy.covered_fraction`): near 1 for a scan
+        from all sides, about a half or less for one view.
     """
 
     params: HandParams
@@ -104,6 +107,7 @@ class FitResult:
     reports: dict[str, StageReport] = field(default_factory=dict)
     beyond_wrist_points: int = 0
     wrist_plane: Plane | None = None
+    coverage: float = float("nan")
 
     def summary(self) -> dict[str, Any]:
         """The scalar results as a JSON-able dict (what ``params.extra["fit"]`` holds)."""
@@ -117,6 +121,7 @@ class FitResult:
             "num_points": self.num_points,
             "beyond_wrist_points": self.beyond_wrist_points,
             "wrist_plane": None if self.wrist_plane is None else self.wrist_plane.to_dict(),
+            "coverage": self.coverage,
         }
 
 
@@ -245,9 +250,10 @@ def _cut_offset(hand: HandParams, cloud: TargetCloud, clip: float | None) -> flo
 
 
 def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints, monitor
-                ) -> tuple[HandParams, dict[str, StageReport], TargetCloud]:
+                ) -> tuple[HandParams, dict[str, StageReport], TargetCloud, float]:
     """The three stages on a right hand's cloud -> (hand, {stage: its report}, the cloud the
-    last stage fitted: without what lies beyond the wrist, ``config.wrist_clip_m``)."""
+    last stage fitted: without what lies beyond the wrist, ``config.wrist_clip_m``; the scan's
+    coverage of the hand, :attr:`FitResult.coverage`)."""
     since = monitor.start
     template, start, (rest, shape_code, color) = start_hand(model, cloud, rest_joints)
     proxy = build_surface_proxy(model, rest, shape_code, color, config.proxy_points,
@@ -285,7 +291,7 @@ def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints,
                                                      reports["field"].loss, template=template,
                                                      monitor=monitor)
         monitor.lap("second", since)
-    return hand, reports, cloud
+    return hand, reports, cloud, covered
 
 
 def second_finger_pass(model, cloud: TargetCloud, hand: HandParams, config, energy: float, *,
@@ -393,7 +399,8 @@ def fit_points(
     try:
         with cpu_threads(threads), frozen_field(model):
             total_points = cloud.num_points
-            hand, reports, cloud = _run_stages(model, cloud, config, rest_joints, monitor)
+            hand, reports, cloud, covered = _run_stages(model, cloud, config, rest_joints,
+                                                        monitor)
             cut = _cut_offset(hand, cloud, config.wrist_clip_m)
             since = time.perf_counter()
             residual = surface_residuals(model, hand, cloud.points)
@@ -415,6 +422,7 @@ def fit_points(
         candidate_energies=reports["align"].screened_energies,
         history=monitor.history,
         reports=reports,
+        coverage=covered,
     )
     params.extra["fit"] = result.summary()
     return result

@@ -354,6 +354,10 @@ def fit_point_file(
                              "num_input_points": cloud.num_input, "notes": cloud.notes}
     if view is not None:
         params.extra["input"]["viewpoint_m"] = [float(v) for v in view]
+    if view is None and fit.coverage < config.covered_fraction:
+        log(f"{points_path}: the scan shows {fit.coverage:.0%} of the hand, one side of it; if it "
+            "is one depth-camera view, --viewpoint X,Y,Z (the sensor's position, 0,0,0 in the "
+            "camera's own frame) keeps the hand out of the space the sensor saw empty")
     if fit.beyond_wrist_points:
         log(f"{points_path}: {fit.beyond_wrist_points} points lie beyond the wrist cut "
             f"({1000 * config.wrist_clip_m:g} mm past the fitted wrist joint) and were left "
