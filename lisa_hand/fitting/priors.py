@@ -30,6 +30,11 @@ _FINGER_DIM = POSE_DIM - 3
 COUPLED_FINGERS = ("index", "middle", "ring", "pinky")
 """The fingers :func:`finger_coupling` weighs, in the order of its weights; each one's
 neighbours are the fingers beside it in this order."""
+_NEIGHBOUR_MEAN = torch.tensor([[0.0, 1.0, 0.0, 0.0],
+                                [0.5, 0.0, 0.5, 0.0],
+                                [0.0, 0.5, 0.0, 0.5],
+                                [0.0, 0.0, 1.0, 0.0]])
+"""[4, 4] row f: the mean over finger f's neighbours in :data:`COUPLED_FINGERS`."""
 
 
 def prior_mean_fingers(name: str = "relaxed", device: torch.device | str = "cpu",
@@ -97,7 +102,5 @@ def finger_coupling(pose: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
     flexion = _full_pose(pose).reshape(pose.shape[0], -1, 3)[..., 2]  # [B, 16]
     chains = torch.stack([flexion[:, list(FINGER_JOINTS[name])] for name in COUPLED_FINGERS],
                          dim=1)  # [B, 4, 3]
-    held = chains.detach()
-    beside = torch.stack([held[:, [j for j in (i - 1, i + 1) if 0 <= j < len(COUPLED_FINGERS)]]
-                          .mean(1) for i in range(len(COUPLED_FINGERS))], dim=1)
+    beside = torch.einsum("fg,bgj->bfj", _NEIGHBOUR_MEAN.to(chains), chains.detach())
     return ((chains - beside).square().mean(-1) * weights.to(chains)).sum(-1)
