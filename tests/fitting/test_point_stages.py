@@ -284,3 +284,78 @@ def test_covered_fraction_counts_the_proxy_points_near_the_cloud():
     result = fit_points(model, scan, normals, FitPointsConfig(**FAST))
     assert any("of the hand within 4 mm: shape prior" in note
                for note in result.reports["field"].notes)
+
+
+def test_each_candidate_keeps_the_points_on_its_own_side_of_its_wrist():
+    # hand_side against a second implementation: the numpy wrist plane of each candidate.
+    from lisa_hand.fitting.points.surface_stage import _FieldEnergy
+    from lisa_hand.skeleton.wrist import wrist_plane
+
+    model = tiny_model()
+    hands = [true_hand(model, seed=0), true_hand(model, seed=3)]
+    cloud = target_cloud(torch.randn(600, 3) * 0.08 + hands[0].translation, None, seed=0)
+    config = FitPointsConfig(**FAST)
+    energy = _FieldEnergy(model, cloud, config, hands, None)
+    batch = CandidateBatch.from_hands(hands, torch.tensor([0.01, -0.02, 0.03]))
+    for offset in (0.0, 0.01):
+        keep = energy.hand_side(batch, cloud.points, offset)
+        assert keep.shape == (2, 600)
+        for index, hand in enumerate(hands):
+            expected = wrist_plane(hand, offset).keeps(cloud.points.double().numpy())
+            assert 50 < expected.sum() < 550  # both sides hold points
+            assert torch.equal(keep[index].bool(), torch.from_numpy(expected))
+    assert _FieldEnergy(model, cloud, FitPointsConfig(**FAST, wrist_clip_m=None), hands,
+                        None).hand_side(batch, cloud.points, 0.0) is None
+
+
+def test_a_forearm_in_the_scan_weighs_on_no_candidate():
+    # Points beyond a candidate's wrist cut leave its data term as it is without them, while a
+    # fit with no cut (wrist_clip_m None) pays for them.
+    from lisa_hand.fitting.points.surface_stage import _FieldEnergy
+    from lisa_hand.skeleton.wrist import wrist_plane
+
+    model = tiny_model()
+    truth = true_hand(model, seed=0)
+    points, _, _ = scan_of(model, truth, ScanConfig(num_points=800), seed=0)
+    points = torch.as_tensor(points, dtype=torch.float32)
+    plane = wrist_plane(truth, 0.01)
+    hand = points[torch.from_numpy(plane.keeps(points.double().numpy()))]
+    normal = torch.as_tensor(plane.normal, dtype=torch.float32)
+    base = torch.as_tensor(plane.point, dtype=torch.float32)
+    generator = torch.Generator().manual_seed(1)
+    spread = 0.02 * torch.randn(300, 3, generator=generator)
+    spread = spread - (spread @ normal)[:, None] * normal  # across the forearm's axis
+    forearm = base - normal * (0.005 + 0.05 * torch.rand(300, 1, generator=generator)) + spread
+    for clip, same in ((0.01, True), (None, False)):
+        config = FitPointsConfig(**FAST, wrist_clip_m=clip)
+        values = []
+        for cloud_points in (hand, torch.cat([hand, forearm])):
+            cloud = target_cloud(cloud_points, None, seed=0)
+            energy = _FieldEnergy(model, cloud, config, [truth], None)
+            batch = CandidateBatch.from_hands([truth], truth.rest_joints.mean(0))
+            with torch.no_grad():
+                values.append(float(energy.data(batch, torch.arange(cloud.num_points), 0.004)))
+        assert (values[0] == pytest.approx(values[1], rel=1e-5)) == same
+    assert values[1] > 2.0 * values[0]
+
+
+def test_the_surface_stage_draws_free_points_near_its_candidates_again():
+    from lisa_hand.fitting.points.free_space import DepthImage
+
+    model = tiny_model()
+    truth = true_hand(model, seed=0)
+    points, _, _ = scan_of(model, truth, ScanConfig(num_points=500), seed=0)
+    cloud = target_cloud(points, None, seed=0)
+    cloud = cloud.replace(depth=DepthImage(cloud.points, cloud.points.mean(0) +
+                                           torch.tensor([0.0, 0.0, -0.4])))
+    config = FitPointsConfig(**{**FAST, "field_iters": 20}, free_near_every=8,
+                             prune_after=(0.25, 0.5))
+    calls = []
+
+    def near(batch):
+        calls.append(batch.count)
+        return cloud.points[:4] + 0.05
+
+    fit_surface(model, cloud, [truth, truth], config, free_near=near)
+    # steps 0, 8, 16 and the prunings at 5 and 10 (2 -> 1 candidate at the first)
+    assert calls == [2, 2, 1, 1, 1]

@@ -114,8 +114,10 @@ class FitPointsConfig:
     unseen_share: float = 0.2
     """A finger of which less than this share of the surface could have been seen by the sensor
     counts as unseen (linearly: none seen, fully)."""
-    prior_pose: str = "flat"
-    """The pose the finger-pose prior pulls toward ('flat' or 'relaxed')."""
+    prior_pose: str = "relaxed"
+    """The pose the finger-pose prior pulls toward ('relaxed' or 'flat'): what a finger the
+    scan does not show is guessed to be. Relaxed since 2026-12-04 (flat before): a finger hidden
+    in a one-view scan is more often half bent than straight."""
     limit_weight: float = 1e-2
     """Weight of the squared excess of the finger joints' anatomical angles over their limits
     (:func:`lisa_hand.fitting.priors.joint_limit_excess`), radians^2."""
@@ -129,7 +131,11 @@ class FitPointsConfig:
     robust penalty of the field being inside at points the sensor saw to be empty
     (:mod:`.free_space`); 0: off."""
     free_space_points: int = 4096
-    """Free-space points drawn once per fit (``points_per_iteration`` of them each iteration)."""
+    """Free-space points drawn once per fit over the whole view, and as many near the surface
+    stage's candidates (``points_per_iteration`` of all of them each iteration)."""
+    free_near_every: int = 25
+    """Surface-stage steps between two draws of the free-space points near the candidates'
+    surfaces (also drawn at each pruning), so that they follow a finger that moves."""
     normal_offset_mm: float = 3.0
     """Offset ``eps`` of the normal term's points along the normals, millimetres."""
     fit_shape: bool = True
@@ -167,9 +173,9 @@ class FitPointsConfig:
 
         check_int_fields(self, ("align_iters", "pose_iters", "finger_iters", "field_iters",
                                 "second_pass_iters"), 0)
-        check_int_fields(self, ("free_space_points", "align_keep", "num_restarts",
-                                "points_per_iteration", "proxy_points", "max_points",
-                                "min_points"), 1)
+        check_int_fields(self, ("free_space_points", "free_near_every", "align_keep",
+                                "num_restarts", "points_per_iteration", "proxy_points",
+                                "max_points", "min_points"), 1)
         if not self.init_poses:
             raise ValueError("init_poses must name at least one pose")
         for name in self.init_poses:

@@ -187,39 +187,38 @@ def with_free_space(cloud: TargetCloud, viewpoint, side: str, config: FitPointsC
     return cloud.replace(free=free, depth=image)
 
 
-def _free_near(cloud: TargetCloud, proxy, hands: list[HandParams], config: FitPointsConfig
-               ) -> TargetCloud:
-    """``cloud`` with free-space points added near the surfaces of ``hands`` (the proxy posed
-    by each, :func:`.free_space.free_points_near`), where the surface stage needs them; the
-    cloud itself when it has no depth image."""
+def _free_near(cloud: TargetCloud, proxy, config: FitPointsConfig
+               ) -> Callable[[CandidateBatch], torch.Tensor] | None:
+    """The surface stage's source of free-space points near its candidates' surfaces: batch
+    -> [M, 3] world metres (the proxy posed by each candidate,
+    :func:`.free_space.free_points_near`), refreshed as the candidates move; None when the
+    cloud has no depth image."""
     if cloud.depth is None or config.free_space_weight <= 0:
-        return cloud
-    batch = CandidateBatch.from_hands(hands, proxy.pivot)
-    with torch.no_grad():
-        surface = proxy.world(batch).reshape(-1, 3)
-    near = free_points_near(cloud.depth, surface, config.free_space_points, cloud.generator)
-    free = near if cloud.free is None else torch.cat([cloud.free, near])
-    return cloud.replace(free=free)
+        return None
+
+    def near(batch: CandidateBatch) -> torch.Tensor:
+        with torch.no_grad():
+            surface = proxy.world(batch).reshape(-1, 3)
+        return free_points_near(cloud.depth, surface, config.free_space_points,
+                                cloud.generator)
+
+    return near
 
 
 def _clip_cloud(cloud: TargetCloud, hand: HandParams, offset: float | None, min_points: int
                 ) -> TargetCloud:
     """``cloud`` without its points beyond ``hand``'s wrist cut at ``offset`` metres
-    (:func:`lisa_hand.skeleton.wrist.wrist_plane`) and without its free-space points beyond
-    the wrist joint (a scan may stop anywhere there); unchanged when ``offset`` is None, and
-    its points all kept when fewer than ``min_points`` would be left."""
+    (:func:`lisa_hand.skeleton.wrist.wrist_plane`); unchanged when ``offset`` is None, and
+    its points all kept when fewer than ``min_points`` would be left. (Its free-space points
+    stay: the surface stage cuts them, and the points, at each candidate's own wrist.)"""
     if offset is None:
         return cloud
-    free = cloud.free
-    if free is not None:
-        inside = wrist_plane(hand, 0.0).keeps(free.detach().cpu().double().numpy())
-        free = free[torch.from_numpy(inside).to(free.device)]
     keep = torch.from_numpy(wrist_plane(hand, offset).keeps(
         cloud.points.detach().cpu().double().numpy()))
     if int(keep.sum()) < min_points or bool(keep.all()):
-        return cloud.replace(free=free)
+        return cloud
     keep = keep.to(cloud.points.device)
-    return cloud.replace(points=cloud.points[keep], free=free,
+    return cloud.replace(points=cloud.points[keep],
                          normals=None if cloud.normals is None else cloud.normals[keep])
 
 
@@ -266,31 +265,32 @@ def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints,
     candidates, reports["align"] = search_global_pose(proxy, cloud, config, start,
                                                       monitor=monitor)
     since = monitor.lap("align", since)
-    cloud = _clip_cloud(cloud, candidates[0], None if clip is None else
+    loose = _clip_cloud(cloud, candidates[0], None if clip is None else
                         clip + config.wrist_margin_m, config.min_points)
-    candidates, reports["pose"] = fit_proxy_pose(proxy, cloud, candidates, config,
+    candidates, reports["pose"] = fit_proxy_pose(proxy, loose, candidates, config,
                                                  monitor=monitor)
-    cloud = _with_coupling(cloud, proxy, candidates[0], config, reports["pose"])
+    loose = _with_coupling(loose, proxy, candidates[0], config, reports["pose"])
     since = monitor.lap("pose", since)
-    candidates, reports["fingers"] = restart_fingers(proxy, cloud, candidates, config,
+    candidates, reports["fingers"] = restart_fingers(proxy, loose, candidates, config,
                                                      monitor=monitor)
     since = monitor.lap("fingers", since)
-    cloud = _clip_cloud(cloud, candidates[0], clip, config.min_points)
-    covered = covered_fraction(proxy, cloud, candidates[0], config.covered_mm * _MM)
+    covered = covered_fraction(proxy, _clip_cloud(loose, candidates[0], clip, config.min_points),
+                               candidates[0], config.covered_mm * _MM)
     if covered >= config.covered_fraction:  # a scan from all sides: the data sets the shape
         config = dataclasses.replace(config, shape_weight=config.covered_shape_weight)
-    hand, reports["field"] = fit_surface(model, _free_near(cloud, proxy, candidates, config),
-                                         candidates, config, template=template,
-                                         pivot=proxy.pivot, monitor=monitor)
+    hand, reports["field"] = fit_surface(model, loose, candidates, config, template=template,
+                                         pivot=proxy.pivot, monitor=monitor,
+                                         free_near=_free_near(loose, proxy, config))
     reports["field"].notes.append(f"scan covers {covered:.0%} of the hand within "
                                   f"{config.covered_mm:g} mm: shape prior "
                                   f"{config.shape_weight:g}")
     since = monitor.lap("field", since)
     if config.second_pass_iters > 0:
-        hand, reports["second"] = second_finger_pass(model, cloud, hand, config,
+        hand, reports["second"] = second_finger_pass(model, loose, hand, config,
                                                      reports["field"].loss, template=template,
                                                      monitor=monitor)
         monitor.lap("second", since)
+    cloud = _clip_cloud(loose, hand, clip, config.min_points)
     return hand, reports, cloud, covered
 
 
@@ -313,7 +313,8 @@ def second_finger_pass(model, cloud: TargetCloud, hand: HandParams, config, ener
     their field energy instead of the new proxy's: 2.33 mm scan->recon, the bent index full
     scan left straight, a finger of the one-sided fist thrown out, recon->scan 10.2 mm.)
 
-    hand: the field stage's right hand; cloud: the cloud it was fitted to; energy: the field
+    hand: the field stage's right hand; cloud: the cloud it was fitted to (the restarts see it
+    cut at ``hand``'s wrist, the field steps each candidate at its own); energy: the field
     stage's energy of ``hand`` (:func:`.surface_stage.fit_surface`'s ``loss``). -> (the hand,
     the :class:`StageReport` ('second'): ``loss`` the hand's field energy, ``notes`` which
     fingers the restarts changed).
@@ -327,15 +328,17 @@ def second_finger_pass(model, cloud: TargetCloud, hand: HandParams, config, ener
                                 color.to(**like), config.proxy_points, cloud.generator)
     if config.wrist_clip_m is not None:
         proxy = proxy.without_forearm(config.wrist_clip_m)
-    moved, fingers = restart_fingers(proxy, cloud, [hand], config, monitor=monitor,
+    moved, fingers = restart_fingers(proxy, _clip_cloud(cloud, hand, config.wrist_clip_m,
+                                                        config.min_points),
+                                     [hand], config, monitor=monitor,
                                      moved_base=cloud.depth is not None)
     notes = list(fingers.notes)
     loss = energy
     if moved[0] is not hand:
         iters = dataclasses.replace(config, field_iters=config.second_pass_iters)
-        cloud = _free_near(cloud, proxy, [moved[0], hand], config)
         hand, field = fit_surface(model, cloud, [moved[0], hand], iters, template=template,
-                                  pivot=proxy.pivot, monitor=monitor)
+                                  pivot=proxy.pivot, monitor=monitor,
+                                  free_near=_free_near(cloud, proxy, config))
         loss = field.loss
     history = monitor.history[began:] if monitor is not None else []
     return hand, StageReport(stage="second", seconds=time.perf_counter() - start, loss=loss,

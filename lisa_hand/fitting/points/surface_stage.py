@@ -12,8 +12,14 @@ Field energy (lengths in metres), per candidate::
 :mod:`.free_space`) asks the field to be outside at points ``f_j`` the sensor saw to be empty: some
 spread over the view, the rest near the candidates' surfaces. The normal term (only with normals)
 asks the field to grow outwards along the normals, which fixes the side of the surface the points
-are on. Far from the hand ``G`` does not vanish: outside every bone region the field is the
-distance to the regions plus a margin, so far points still pull the hand towards them. The data
+are on. With a wrist cut (``config.wrist_clip_m``) each candidate's means run over the points
+on its own hand's side of its own cut (scan points) and of its wrist joint (free points): a
+scan's forearm, or the space beyond where a scan stops, weighs on no candidate, whatever their
+wrists (one cut for all, the best proxy candidate's, made a forearm that the model's stub does
+not match cost the right hand more than a flat one that covered it with its palm: the WebXR
+fist seen from its little finger). Far from the hand ``G`` does not vanish: outside every bone
+region the field is the distance to the regions plus a margin, so far points still pull the hand
+towards them. The data
 term only asks every scan point to be on the surface, never every surface point to be seen, so
 partial scans work; what the scan does not see stays near the prior (shape code near the mean,
 fingers near ``prior_pose`` and within the joint limits).
@@ -30,7 +36,7 @@ from __future__ import annotations
 
 import contextlib
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import replace
 
 import torch
@@ -104,13 +110,31 @@ class _FieldEnergy:
         color = None if self.color_code is None else self.color_code.expand(batch.count, -1)
         return self.field.prepare(pose, translation, rest_joints, batch.shape_code, color)
 
+    @torch.no_grad()
+    def hand_side(self, batch: CandidateBatch, points: torch.Tensor, offset: float
+                  ) -> torch.Tensor | None:
+        """[K, N] 1 where each candidate keeps a point [N, 3] (on its hand's side of its own
+        wrist cut ``offset`` metres beyond the wrist joint), else 0; None without a cut
+        (``config.wrist_clip_m`` None)."""
+        if self.config.wrist_clip_m is None:
+            return None
+        pose, translation = batch.mano(self.rest_joints(batch))
+        wrist = self.rest_joints(batch)[:, 0] + translation  # [K, 3]
+        forearm = batch.rotation()[:, :, 0]  # [K, 3] a right hand's forearm axis
+        beyond = ((points[None] - wrist[:, None]) * forearm[:, None]).sum(-1)  # [K, N]
+        return (beyond <= offset).to(points.dtype)
+
     def data(self, batch: CandidateBatch, index: torch.Tensor, scale: float,
              free_index: torch.Tensor | None = None) -> torch.Tensor:
         """[K] mean robust penalty of the field at the cloud points ``index`` (and offsets),
-        plus the free-space term at the cloud's free points ``free_index`` (when it has any)."""
+        plus the free-space term at the cloud's free points ``free_index`` (when it has any).
+        With a wrist cut, each candidate counts only the points on its own hand's side of it
+        (the means over those: :meth:`hand_side`), so that a scan's forearm, or the model's
+        stub where a scan stops short, weighs on no candidate."""
         config, cloud = self.config, self.cloud
         points = cloud.points[index]
         num = points.shape[0]
+        keep = self.hand_side(batch, points, config.wrist_clip_m or 0.0)
         use_normals = cloud.normals is not None and config.normal_weight > 0
         if use_normals:
             offset = config.normal_offset_mm * _MM * cloud.normals[index]
@@ -120,16 +144,18 @@ class _FieldEnergy:
             points = torch.cat([points, cloud.free[free_index]])
         sdf = self.field.field(self.state(batch), points.expand(batch.count, -1, -1).contiguous(),
                                with_color=False).sdf
-        data = robust_loss(sdf[:, :num], config.robust_loss, scale).mean(-1)
+        data = _mean(robust_loss(sdf[:, :num], config.robust_loss, scale), keep)
         if use_normals:
             eps = config.normal_offset_mm * _MM
             outside = robust_loss(sdf[:, num:2 * num] - eps, config.robust_loss, scale)
             inside = robust_loss(sdf[:, 2 * num:3 * num] + eps, config.robust_loss, scale)
-            data = data + config.normal_weight * 0.5 * (outside.mean(-1) + inside.mean(-1))
+            data = data + config.normal_weight * 0.5 * (_mean(outside, keep) +
+                                                        _mean(inside, keep))
         if use_free:  # the field must be outside (>= 0) where the sensor saw nothing
             inside = sdf[:, sdf.shape[1] - free_index.numel():].clamp(max=0.0)
-            data = data + config.free_space_weight * robust_loss(
-                inside, config.robust_loss, scale).mean(-1)
+            free_keep = self.hand_side(batch, cloud.free[free_index], 0.0)
+            data = data + config.free_space_weight * _mean(
+                robust_loss(inside, config.robust_loss, scale), free_keep)
         return data
 
     def free_sample(self, count: int) -> torch.Tensor | None:
@@ -164,6 +190,13 @@ class _FieldEnergy:
         return self.total(batch, index.to(self.cloud.points.device), free)
 
 
+def _mean(values: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
+    """[K] the mean of values [K, N] over the entries ``keep`` [K, N] (0/1; None: all)."""
+    if keep is None:
+        return values.mean(-1)
+    return (values * keep).sum(-1) / keep.sum(-1).clamp(min=1.0)
+
+
 def _prune_schedule(config, count: int) -> dict[int, int]:
     """Iteration -> candidates left: ``K -> K^(1 - i/n) -> ... -> 1`` at the fractions
     ``prune_after`` of the field iterations."""
@@ -175,7 +208,9 @@ def _prune_schedule(config, count: int) -> dict[int, int]:
 
 def fit_surface(model, cloud: TargetCloud, candidates: Sequence[HandParams], config, *,
                 template=None, pivot: torch.Tensor | None = None,
-                monitor: FitMonitor | None = None) -> tuple[HandParams, StageReport]:
+                monitor: FitMonitor | None = None,
+                free_near: Callable[[CandidateBatch], torch.Tensor] | None = None
+                ) -> tuple[HandParams, StageReport]:
     """The surface stage (see the module docstring): ``config.field_iters`` Adam steps of all
     candidates on the LISA field, pruned to the best one.
 
@@ -188,6 +223,11 @@ def fit_surface(model, cloud: TargetCloud, candidates: Sequence[HandParams], con
     pivot: [3] metres in the rest frame, the point the candidates rotate about while they are
         optimised (default: the first hand's mean rest joint); it changes the steps, not the
         energy.
+    free_near: batch -> [M, 3] world metres, free-space points near the batch's surfaces
+        (:func:`lisa_hand.fitting.points.fit._free_near`), added to the cloud's own at the start
+        and drawn again every ``config.free_near_every`` steps and at each pruning, so that a
+        part of a candidate that moves (an unseen finger straightening) still meets the space
+        the sensor saw empty; None: the cloud's free points only.
     -> (the best hand; the :class:`StageReport` ('field'): its energy on a fixed subset of the
     cloud, ``loss`` and ``energies[0]``).
     """
@@ -204,7 +244,7 @@ def fit_surface(model, cloud: TargetCloud, candidates: Sequence[HandParams], con
     with frozen_field(model):
         energy = _FieldEnergy(model, cloud, config, candidates, template)
         batch = CandidateBatch.from_hands(candidates, pivot, with_betas=fit_betas)
-        batch = _optimise(energy, batch, candidates[0], monitor)
+        batch = _optimise(energy, batch, candidates[0], monitor, free_near)
         if batch.count > 1:
             batch = batch.select(torch.argmin(energy.evaluate(batch)).reshape(1))
         scores = energy.evaluate(batch)
@@ -216,9 +256,12 @@ def fit_surface(model, cloud: TargetCloud, candidates: Sequence[HandParams], con
 
 
 def _optimise(energy: _FieldEnergy, batch: CandidateBatch, like: HandParams,
-              monitor: FitMonitor | None) -> CandidateBatch:
-    """The surface stage's Adam loop, with the pruning of :func:`_prune_schedule`."""
-    config, cloud = energy.config, energy.cloud
+              monitor: FitMonitor | None,
+              free_near: Callable[[CandidateBatch], torch.Tensor] | None = None
+              ) -> CandidateBatch:
+    """The surface stage's Adam loop, with the pruning of :func:`_prune_schedule` and the
+    free points near the candidates drawn again (``free_near``, see :func:`fit_surface`)."""
+    config, base = energy.config, energy.cloud
     iterations = config.field_iters
     prunes = _prune_schedule(config, batch.count)
     rates = (config.lr_rotation, config.lr_translation, config.lr_pose,
@@ -227,6 +270,11 @@ def _optimise(energy: _FieldEnergy, batch: CandidateBatch, like: HandParams,
               if t is not None]
     optimizer = Adam(groups)
     for step in range(iterations):
+        if free_near is not None and (step in prunes or step % config.free_near_every == 0):
+            near = free_near(batch)
+            energy.cloud = base.replace(free=near if base.free is None else
+                                        torch.cat([base.free, near]))
+        cloud = energy.cloud
         if step in prunes and batch.count > prunes[step]:
             best = torch.argsort(energy.evaluate(batch))[: prunes[step]]
             batch = batch.select(best)
