@@ -223,10 +223,10 @@ def _clip_cloud(cloud: TargetCloud, hand: HandParams, offset: float | None, min_
 
 
 def _with_coupling(cloud: TargetCloud, proxy, hand: HandParams, config: FitPointsConfig,
-                   report: StageReport) -> TargetCloud:
+                   notes: list[str]) -> TargetCloud:
     """``cloud`` with the weights of the fingers its sensor could not see on ``hand``
     (:func:`.proxy.unseen_fingers`; none without a sensor position or with
-    ``coupling_weight`` 0), named in ``report``'s notes."""
+    ``coupling_weight`` 0), named in ``notes``."""
     from ..priors import COUPLED_FINGERS
 
     if cloud.depth is None or config.coupling_weight <= 0:
@@ -234,7 +234,7 @@ def _with_coupling(cloud: TargetCloud, proxy, hand: HandParams, config: FitPoint
     coupling = unseen_fingers(proxy, cloud, hand, config.unseen_share)
     unseen = [f"{name} {float(w):.2f}" for name, w in zip(COUPLED_FINGERS, coupling,
                                                            strict=True) if float(w) > 0]
-    report.notes.append(f"unseen fingers: {', '.join(unseen) or 'none'}")
+    notes.append(f"unseen fingers: {', '.join(unseen) or 'none'}")
     return cloud.replace(coupling=coupling)
 
 
@@ -269,7 +269,7 @@ def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints,
                         clip + config.wrist_margin_m, config.min_points)
     candidates, reports["pose"] = fit_proxy_pose(proxy, loose, candidates, config,
                                                  monitor=monitor)
-    loose = _with_coupling(loose, proxy, candidates[0], config, reports["pose"])
+    loose = _with_coupling(loose, proxy, candidates[0], config, reports["pose"].notes)
     since = monitor.lap("pose", since)
     candidates, reports["fingers"] = restart_fingers(proxy, loose, candidates, config,
                                                      monitor=monitor)
@@ -328,11 +328,13 @@ def second_finger_pass(model, cloud: TargetCloud, hand: HandParams, config, ener
                                 color.to(**like), config.proxy_points, cloud.generator)
     if config.wrist_clip_m is not None:
         proxy = proxy.without_forearm(config.wrist_clip_m)
+    notes: list[str] = []
+    cloud = _with_coupling(cloud, proxy, hand, config, notes)  # unseen where this hand is
     moved, fingers = restart_fingers(proxy, _clip_cloud(cloud, hand, config.wrist_clip_m,
                                                         config.min_points),
                                      [hand], config, monitor=monitor,
                                      moved_base=cloud.depth is not None)
-    notes = list(fingers.notes)
+    notes = list(fingers.notes) + notes
     loss = energy
     if moved[0] is not hand:
         iters = dataclasses.replace(config, field_iters=config.second_pass_iters)
