@@ -239,3 +239,21 @@ def test_a_left_hands_viewpoint_is_mirrored_with_its_cloud(sphere_scan):
     with pytest.raises(ValueError, match="viewpoint must be 3 finite numbers"):
         with_free_space(target_cloud(points, None, seed=0), np.array([0.0, np.nan, 0.0]),
                         "right", config)
+
+
+def test_the_second_pass_weighs_the_unseen_fingers_of_the_hand_it_is_given(curled_index):
+    """second_finger_pass judges which fingers the sensor could not see on the field stage's
+    hand (not on the proxy stages' best candidate): the curled index of the truth is unseen,
+    nothing of the straight hand is."""
+    from lisa_hand.fitting.points.config import FitPointsConfig
+    from lisa_hand.fitting.points.fit import second_finger_pass
+
+    config = FitPointsConfig(seed=0, finger_iters=2, second_pass_iters=2, proxy_points=300)
+    lines = {}
+    for name in ("truth", "straight"):
+        hand = getattr(curled_index, name)
+        _, report = second_finger_pass(curled_index.model, curled_index.cloud, hand, config,
+                                       1.0)
+        lines[name] = [line for line in report.notes if line.startswith("unseen fingers")]
+    assert len(lines["truth"]) == 1 and lines["truth"][0].startswith("unseen fingers: index")
+    assert lines["straight"] == ["unseen fingers: none"]
