@@ -19,10 +19,9 @@ wrists (one cut for all, the best proxy candidate's, made a forearm that the mod
 not match cost the right hand more than a flat one that covered it with its palm: the WebXR
 fist seen from its little finger). Far from the hand ``G`` does not vanish: outside every bone
 region the field is the distance to the regions plus a margin, so far points still pull the hand
-towards them. The data
-term only asks every scan point to be on the surface, never every surface point to be seen, so
-partial scans work; what the scan does not see stays near the prior (shape code near the mean,
-fingers near ``prior_pose`` and within the joint limits).
+towards them. The data term only asks every scan point to be on the surface, never every surface
+point to be seen, so partial scans work; what the scan does not see stays near the prior (shape
+code near the mean, fingers near ``prior_pose`` and within the joint limits).
 
 The unknowns: the global rotation, the translation, the finger pose, the shape code and the
 template's betas (whose joint regressor gives the skeleton LISA is conditioned on), on
@@ -118,8 +117,9 @@ class _FieldEnergy:
         (``config.wrist_clip_m`` None)."""
         if self.config.wrist_clip_m is None:
             return None
-        pose, translation = batch.mano(self.rest_joints(batch))
-        wrist = self.rest_joints(batch)[:, 0] + translation  # [K, 3]
+        rest_joints = self.rest_joints(batch)
+        _, translation = batch.mano(rest_joints)
+        wrist = rest_joints[:, 0] + translation  # [K, 3]
         forearm = batch.rotation()[:, :, 0]  # [K, 3] a right hand's forearm axis
         beyond = ((points[None] - wrist[:, None]) * forearm[:, None]).sum(-1)  # [K, N]
         return (beyond <= offset).to(points.dtype)
