@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import torch
 
-from ..skeleton import POSE_DIM
+from ..skeleton import FINGER_JOINTS, POSE_DIM
 
 __all__ = ["PRIOR_POSES", "COUPLED_FINGERS", "prior_mean_fingers", "joint_limit_excess",
            "finger_pose_prior", "finger_coupling"]
@@ -35,6 +35,8 @@ _NEIGHBOUR_MEAN = torch.tensor([[0.0, 1.0, 0.0, 0.0],
                                 [0.0, 0.5, 0.0, 0.5],
                                 [0.0, 0.0, 1.0, 0.0]])
 """[4, 4] row f: the mean over finger f's neighbours in :data:`COUPLED_FINGERS`."""
+_COUPLED_JOINTS = [joint for name in COUPLED_FINGERS for joint in FINGER_JOINTS[name]]
+"""The 12 joints of :data:`COUPLED_FINGERS`, three a finger, in that order."""
 
 
 def prior_mean_fingers(name: str = "relaxed", device: torch.device | str = "cpu",
@@ -94,13 +96,10 @@ def finger_coupling(pose: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
 
     pose: [B, 48] or [B, 45] radians (a right hand's) -> [B] radians^2.
     """
-    from ..skeleton import FINGER_JOINTS
-
     if weights.shape != (len(COUPLED_FINGERS),):
         raise ValueError(f"weights must have shape [{len(COUPLED_FINGERS)}], got "
                          f"{list(weights.shape)}")
     flexion = _full_pose(pose).reshape(pose.shape[0], -1, 3)[..., 2]  # [B, 16]
-    chains = torch.stack([flexion[:, list(FINGER_JOINTS[name])] for name in COUPLED_FINGERS],
-                         dim=1)  # [B, 4, 3]
+    chains = flexion[:, _COUPLED_JOINTS].reshape(pose.shape[0], len(COUPLED_FINGERS), 3)
     beside = torch.einsum("fg,bgj->bfj", _NEIGHBOUR_MEAN.to(chains), chains.detach())
     return ((chains - beside).square().mean(-1) * weights.to(chains)).sum(-1)
