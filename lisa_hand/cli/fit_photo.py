@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-from enum import Enum
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from .options import (
+    AutoSide,
     DeviceOpt,
     FitModelOpt,
     GuardOpt,
@@ -18,14 +18,6 @@ from .options import (
     ViewCalibrationOpt,
     image_fit_overrides,
 )
-
-
-class PhotoSide(str, Enum):
-    """``--side`` of ``lisa fit-photo``: the detector's (or the keypoint file's) side, or given."""
-
-    auto = "auto"
-    right = "right"
-    left = "left"
 
 
 def fit_photo(
@@ -38,9 +30,9 @@ def fit_photo(
         "--out", help="Output folder: params.json, mesh.ply, keypoints.json, camera.json, "
                       "mask.png, overlay.png, report.html, metrics.json (DIR/handN/ per hand "
                       "when a photo holds several).")],
-    side: Annotated[PhotoSide, typer.Option(
+    side: Annotated[AutoSide, typer.Option(
         "--side", help="auto (the detector's side; else both are tried), right or left.")
-    ] = PhotoSide.auto,
+    ] = AutoSide.auto,
     camera: Annotated[list[Path] | None, typer.Option(
         "--camera", metavar="CAM.json",
         help="Calibrated camera (cameras.json convention: K, width, height): once for all "

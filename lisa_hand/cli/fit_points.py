@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from .options import DeviceOpt, PointModelOpt, Side, Units
+from .options import AutoSide, DeviceOpt, PointModelOpt, Units
 
 
 def fit_points(
@@ -32,9 +32,10 @@ def fit_points(
         "--restarts", min=1, help="Candidate poses fitted with the field (default: the config's).")
     ] = None,
     device: DeviceOpt = "auto",
-    side: Annotated[Side, typer.Option(
-        "--side", help="right or left hand (a left one is fitted as the mirrored right hand).")
-    ] = Side.right,
+    side: Annotated[AutoSide, typer.Option(
+        "--side", help="auto (fitted as both, the one nearer the scan kept: twice the time), "
+                       "right or left hand (a left one is fitted as the mirrored right hand).")
+    ] = AutoSide.auto,
     seed: Annotated[int, typer.Option(help="Seed of the random point subsets.")] = 0,
     refine: Annotated[bool, typer.Option(
         "--refine", help="After the fit, fine-tune the model's per-bone SDF networks on this "

@@ -29,6 +29,15 @@ class Side(str, Enum):
     left = "left"
 
 
+class AutoSide(str, Enum):
+    """``--side`` of ``lisa fit-photo`` and ``lisa fit-points``: given, or ``auto`` (found from
+    the input: the detector's side, or both fitted and the better one kept)."""
+
+    auto = "auto"
+    right = "right"
+    left = "left"
+
+
 class ShapeFit(str, Enum):
     """How the image fits treat the shape code in the colour stage
     (:attr:`lisa_hand.fitting.images.config.FitImagesConfig.shape_fit`)."""

@@ -16,7 +16,8 @@ from lisa_hand.skeleton.params import read_params
 from lisa_hand.utils.threads import cpu_threads
 from tests.fitting.test_points import scan_of, surface, tiny_model, true_hand
 
-FAST_ARGS = ["--iterations", "15", "--restarts", "1", "--res", "40", "--no-progress"]
+FAST_ARGS = ["--iterations", "15", "--restarts", "1", "--res", "40", "--no-progress",
+             "--side", "right"]  # one fit, not both sides (--side auto, the default)
 
 
 @pytest.fixture(scope="module")
@@ -99,8 +100,7 @@ def test_side_left_fits_a_left_hand(lisa, files, capsys):
     np.save(root / "left.npy", left)
     out = root / "out_left"
     assert lisa(["fit-points", str(root / "left.npy"), "--out", str(out), "--model",
-                 str(root / "tiny.pt"), "--side", "left", "--field-iters", "15", "--restarts",
-                 "1", "--res", "40", "--no-progress"]) == 0
+                 str(root / "tiny.pt"), *FAST_ARGS, "--side", "left"]) == 0
     assert "fitted" in capsys.readouterr().out
     params = read_params(out / "params.json")
     assert params.side == "left"
@@ -108,8 +108,50 @@ def test_side_left_fits_a_left_hand(lisa, files, capsys):
     vertices = load_mesh(out / "mesh.ply").vertices
     assert np.linalg.norm(vertices.mean(0) - left.mean(0)) < 0.02
     assert lisa(["fit-points", str(root / "left.npy"), "--out", str(root / "bad_side"),
-                 "--side", "middle", *FAST_ARGS]) == 2
+                 *FAST_ARGS, "--side", "middle"]) == 2
     assert not (root / "bad_side").exists()
+
+
+def test_side_auto_fits_both_and_says_which_it_kept(lisa, files, capsys):
+    root, _ = files
+    out = root / "out_auto"
+    assert lisa(["fit-points", str(root / "scan.npz"), "--out", str(out), "--model",
+                 str(root / "tiny.pt"), *FAST_ARGS, "--side", "auto"]) == 0
+    printed = capsys.readouterr().out
+    params = read_params(out / "params.json")
+    distances = params.extra["fit"]["side_distances_mm"]
+    other = "left" if params.side == "right" else "right"
+    assert distances[params.side] <= distances[other]
+    assert (f"fitted as a right and as a left hand; kept the {params.side} hand, "
+            f"{distances[params.side]:.2f} mm from the scan against {distances[other]:.2f} mm"
+            in printed)
+    one_sided = params.extra["fit"]["coverage"] < 2.0 / 3.0
+    close = distances[other] < 1.15 * distances[params.side]
+    assert ("the scan shows one side of the hand" in printed) == one_sided
+    assert ("(close: pass --side" in printed) == (close and not one_sided)
+
+
+def test_the_side_choice_asks_for_side_when_it_cannot_be_trusted():
+    from types import SimpleNamespace
+
+    from lisa_hand.fitting.points.config import FitPointsConfig
+    from lisa_hand.fitting.points.io import _side_choice
+    from lisa_hand.skeleton.params import HandParams
+
+    def fit(side, right, left, coverage):
+        params = HandParams(pose=np.zeros(48), translation=np.zeros(3),
+                            rest_joints=np.zeros((16, 3)), shape_code=np.zeros(8), side=side)
+        return SimpleNamespace(params=params, side_distances_mm={"right": right, "left": left},
+                               coverage=coverage)
+
+    config = FitPointsConfig()
+    clear = _side_choice("scan.ply", fit("left", 1.6, 1.0, 0.95), config)
+    assert clear == ("scan.ply: fitted as a right and as a left hand; kept the left hand, "
+                     "1.00 mm from the scan against 1.60 mm")
+    close = _side_choice("scan.ply", fit("right", 1.1, 1.2, 0.95), config)
+    assert close.endswith("(close: pass --side if you know which hand it is)")
+    one_sided = _side_choice("scan.ply", fit("right", 1.0, 1.6, 0.45), config)
+    assert "the scan shows one side of the hand, 45%" in one_sided and "close" not in one_sided
 
 
 def test_bad_inputs_give_one_line_errors(lisa, files, capsys):

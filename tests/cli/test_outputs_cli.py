@@ -14,7 +14,8 @@ from lisa_hand.handmodel.poses import POSE_NAMES
 from lisa_hand.skeleton.params import HandParams, read_params, write_params
 from lisa_hand.utils.threads import cpu_threads
 
-FAST_ARGS = ["--iterations", "15", "--restarts", "1", "--res", "40", "--no-progress"]
+FAST_ARGS = ["--iterations", "15", "--restarts", "1", "--res", "40", "--no-progress",
+             "--side", "right"]  # one fit, not both sides (--side auto, the default)
 
 
 def lisa(argv: list[str], capsys) -> tuple[int, str, str]:

@@ -359,3 +359,37 @@ def test_the_surface_stage_draws_free_points_near_its_candidates_again():
     fit_surface(model, cloud, [truth, truth], config, free_near=near)
     # steps 0, 8, 16 and the prunings at 5 and 10 (2 -> 1 candidate at the first)
     assert calls == [2, 2, 1, 1, 1]
+
+
+def test_side_auto_keeps_the_side_the_scan_shows():
+    """``side="auto"`` fits both sides and keeps the one nearer the scan: the shipped v2 prior's
+    own hand (a natural pose) is kept as a right hand, its mirror image as a left one, each by
+    a clear margin; the distances are the mean capped ``|G|`` at the points both fits keep
+    (checked through ``hand_field``, which mirrors a left hand itself)."""
+    from lisa_hand.data.scans import simulate_scan
+    from lisa_hand.fitting.points.fit import start_hand
+    from lisa_hand.inference import MeshConfig, mesh_hand
+    from lisa_hand.model.trained import load_trained
+
+    model = load_trained("geometry_v2", "cpu")
+    config = FitPointsConfig(**FAST)
+    _, rest_hand, _ = start_hand(model, target_cloud(torch.zeros(30, 3), None), None)
+    pose = torch.zeros(16, 3)
+    pose[0] = torch.tensor([1.2, 0.3, -0.6])
+    pose[1:16, 2] = 0.25  # every finger joint a little bent
+    truth = rest_hand.with_pose(pose.reshape(48), torch.tensor([0.01, 0.02, 0.3]))
+    mesh = mesh_hand(model, truth, 64, MeshConfig(colors=False, skin_weights=False))
+    points = simulate_scan(mesh.vertices, mesh.faces, ScanConfig(num_points=2000), seed=1).points
+    for side, cloud in (("right", points), ("left", mirror_points(torch.as_tensor(points)))):
+        fit = fit_points(model, cloud, None, config, side="auto")
+        other = "left" if side == "right" else "right"
+        distances = fit.side_distances_mm
+        assert fit.params.side == side, distances
+        assert distances[other] > 1.2 * distances[side], distances
+        assert fit.params.extra["fit"]["side_distances_mm"] == distances
+        cloud = torch.as_tensor(cloud, dtype=torch.float32)
+        keep = torch.from_numpy(fit.wrist_plane.keeps(cloud.double().numpy()))
+        with torch.no_grad():
+            sdf = hand_field(model, fit.params).sdf_fn()(cloud)
+        own = float(sdf.abs().clamp_max(0.01)[keep].mean()) * 1e3  # this fit's cut only
+        assert own == pytest.approx(distances[side], rel=0.05, abs=0.02)
