@@ -365,7 +365,8 @@ def test_side_auto_keeps_the_side_the_scan_shows():
     """``side="auto"`` fits both sides and keeps the one nearer the scan: the shipped v2 prior's
     own hand (a natural pose) is kept as a right hand, its mirror image as a left one, each by
     a clear margin; the distances are the mean capped ``|G|`` at the points both fits keep
-    (checked through ``hand_field``, which mirrors a left hand itself)."""
+    (checked through ``hand_field``, which mirrors a left hand itself); the kept fit is the
+    one-side fit exactly, though the two sides ran side by side in two threads."""
     from lisa_hand.data.scans import simulate_scan
     from lisa_hand.fitting.points.fit import start_hand
     from lisa_hand.inference import MeshConfig, mesh_hand
@@ -380,8 +381,12 @@ def test_side_auto_keeps_the_side_the_scan_shows():
     truth = rest_hand.with_pose(pose.reshape(48), torch.tensor([0.01, 0.02, 0.3]))
     mesh = mesh_hand(model, truth, 64, MeshConfig(colors=False, skin_weights=False))
     points = simulate_scan(mesh.vertices, mesh.faces, ScanConfig(num_points=2000), seed=1).points
+    threads = torch.get_num_threads()
     for side, cloud in (("right", points), ("left", mirror_points(torch.as_tensor(points)))):
-        fit = fit_points(model, cloud, None, config, side="auto")
+        fit = fit_points(model, cloud, None, config, side="auto")  # both sides in two threads
+        assert torch.get_num_threads() == threads
+        alone = fit_points(model, cloud, None, config, side=side)  # the same fit, on its own
+        assert alone.energy == fit.energy and torch.equal(alone.params.pose, fit.params.pose)
         other = "left" if side == "right" else "right"
         distances = fit.side_distances_mm
         assert fit.params.side == side, distances

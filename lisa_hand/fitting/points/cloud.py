@@ -140,6 +140,18 @@ def dense_points(points: torch.Tensor, neighbours: int = 8, factor: float = 3.0)
     return points[torch.from_numpy(keep).to(points.device)]
 
 
+def point_spacing(points: torch.Tensor) -> float:
+    """The median distance (metres) from a point of the cloud points [N, 3] to its nearest
+    neighbour: about the side of the surface patch each point stands for (0 for fewer than two
+    points)."""
+    from scipy.spatial import cKDTree
+
+    if points.shape[0] < 2:
+        return 0.0
+    array = points.detach().cpu().double().numpy()
+    return float(np.median(cKDTree(array).query(array, k=2)[0][:, 1]))
+
+
 def nearest_distance(cloud: torch.Tensor, proxy: torch.Tensor,
                      normals: torch.Tensor | None = None, tangent_weight: float = 1.0
                      ) -> torch.Tensor:

@@ -43,10 +43,12 @@ class FitMonitor:
     (:data:`~lisa_hand.fitting.stages.HistoryRecord` ``{"stage", "iteration", "energy" (best
     live candidate), "seconds" (since the monitor started)}``), the stages' timings
     (``stage_seconds``, seconds), an optional progress bar (``progress_total`` iterations) and
-    callback."""
+    callback; ``bar``: the progress bar's label and line (None: tqdm's choice; two fits side by
+    side take lines 0 and 1)."""
 
     def __init__(self, *, progress_total: int | None = None,
-                 callback: Callable[[FitStep], None] | None = None) -> None:
+                 callback: Callable[[FitStep], None] | None = None,
+                 bar: tuple[str, int | None] = ("fit", None)) -> None:
         self.start = time.perf_counter()
         self.history: list[HistoryRecord] = []
         self.stage_seconds: dict[str, float] = {}
@@ -55,7 +57,8 @@ class FitMonitor:
         if progress_total is not None:
             from tqdm import tqdm
 
-            self.bar = tqdm(total=progress_total, desc="fit", unit="it", leave=False)
+            self.bar = tqdm(total=progress_total, desc=bar[0], position=bar[1], unit="it",
+                            leave=False)
 
     def record(self, stage: str, iteration: int, total: int, energies: torch.Tensor,
                make_params: Callable[[int], HandParams]) -> None:
