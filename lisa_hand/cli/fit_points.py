@@ -33,7 +33,8 @@ def fit_points(
     ] = None,
     device: DeviceOpt = "auto",
     side: Annotated[AutoSide, typer.Option(
-        "--side", help="auto (fitted as both, the one nearer the scan kept: twice the time), "
+        "--side", help="auto (fitted as both, side by side on two cores, the one nearer the "
+                       "scan kept), "
                        "right or left hand (a left one is fitted as the mirrored right hand).")
     ] = AutoSide.auto,
     seed: Annotated[int, typer.Option(help="Seed of the random point subsets.")] = 0,

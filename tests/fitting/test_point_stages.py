@@ -398,3 +398,23 @@ def test_side_auto_keeps_the_side_the_scan_shows():
             sdf = hand_field(model, fit.params).sdf_fn()(cloud)
         own = float(sdf.abs().clamp_max(0.01)[keep].mean()) * 1e3  # this fit's cut only
         assert own == pytest.approx(distances[side], rel=0.05, abs=0.02)
+
+
+def test_a_sparse_cloud_counts_coverage_within_its_point_spacing():
+    """point_spacing of a square grid is its step (closed form); the coverage distance is
+    ``covered_mm`` for a dense cloud and 1.5 steps for a sparse one."""
+    from lisa_hand.fitting.points.cloud import point_spacing
+    from lisa_hand.fitting.points.fit import _covered_distance
+
+    def grid(step: float) -> torch.Tensor:  # 12 x 12 points in the z = 0 plane
+        axis = torch.arange(12, dtype=torch.float64) * step
+        x, y = torch.meshgrid(axis, axis, indexing="ij")
+        return torch.stack([x, y, torch.zeros_like(x)], dim=-1).reshape(-1, 3)
+
+    config = FitPointsConfig()
+    for step, expected in ((0.005, 0.0075), (0.001, 0.004)):
+        points = grid(step)
+        assert point_spacing(points) == pytest.approx(step, rel=1e-9)
+        cloud = target_cloud(points + 0.1, None)
+        assert _covered_distance(cloud, config) == pytest.approx(expected, rel=1e-5)
+    assert point_spacing(torch.zeros(1, 3)) == 0.0

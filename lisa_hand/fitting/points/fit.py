@@ -389,7 +389,7 @@ def fit_points(
     rest_joints: [16, 3] metres, a fixed skeleton (of the ``side`` hand); None: the template's
         (:func:`lisa_hand.handmodel.template.load_template`), whose betas are fitted.
     side: 'right' or 'left': the hand the cloud shows (a left one is fitted mirrored); 'auto':
-        both fitted, the nearer one kept (:func:`_either_side`; twice the time).
+        both fitted, the nearer one kept (:func:`_either_side`; side by side in two threads).
     viewpoint: [3] world metres, the sensor position of a one-view scan (a depth camera's
         points in its own frame: the origin), or None; with it the proxy and surface stages keep
         the hand out of what the sensor saw to be empty (:mod:`.free_space`,
