@@ -295,14 +295,15 @@ def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints,
                                                      monitor=monitor)
     since = monitor.lap("fingers", since)
     near = _clip_cloud(loose, candidates[0], clip, config.min_points)
-    covered = covered_fraction(proxy, near, candidates[0], _covered_distance(near, config))
+    cover = _covered_distance(near, config)
+    covered = covered_fraction(proxy, near, candidates[0], cover)
     if covered >= config.covered_fraction:  # a scan from all sides: the data sets the shape
         config = dataclasses.replace(config, shape_weight=config.covered_shape_weight)
     hand, reports["field"] = fit_surface(model, loose, candidates, config, template=template,
                                          pivot=proxy.pivot, monitor=monitor,
                                          free_near=_free_near(loose, proxy, config))
     reports["field"].notes.append(f"scan covers {covered:.0%} of the hand within "
-                                  f"{_covered_distance(near, config) / _MM:.3g} mm: shape prior "
+                                  f"{cover / _MM:.3g} mm: shape prior "
                                   f"{config.shape_weight:g}")
     since = monitor.lap("field", since)
     if config.second_pass_iters > 0:
