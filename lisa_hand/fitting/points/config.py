@@ -102,8 +102,8 @@ class FitPointsConfig:
     """Share of the proxy within ``covered_mm`` of the scan above which the scan counts as
     covering the hand (1 or more: never)."""
     covered_mm: float = 4.0
-    """Distance, millimetres, within which a proxy point counts as covered by the scan (or 1.5
-    times the cloud's median point spacing where that is larger: a sparse cloud)."""
+    """Distance, millimetres, within which a proxy point counts as covered by the scan (or twice
+    the cloud's median point spacing where that is larger: a sparse cloud)."""
     pose_weight: float = 4.5e-4
     """Weight of the finger-pose prior (:func:`lisa_hand.fitting.priors.finger_pose_prior`:
     the mean over the 45 finger values of the squared difference from ``prior_pose``,
