@@ -409,7 +409,6 @@ def test_side_auto_keeps_the_side_the_scan_shows():
 def test_a_sparse_cloud_counts_coverage_within_its_point_spacing():
     """point_spacing of a square grid is its step (closed form); the coverage distance is
     ``covered_mm`` for a dense cloud and 2 steps for a sparse one."""
-    from lisa_hand.fitting.points.cloud import point_spacing
     from lisa_hand.fitting.points.fit import _covered_distance
 
     def grid(step: float) -> torch.Tensor:  # 12 x 12 points in the z = 0 plane
