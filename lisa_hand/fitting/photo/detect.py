@@ -48,6 +48,14 @@ mirror image, fingers to the right, thumb up: a left hand (or a mirrored photo o
 MediaPipe's labels agree with that geometry once swapped, so :attr:`DetectedHand.side` is
 ``"right"`` for the label "Left" and ``"left"`` for "Right".
 
+**Greyscale photos.** MediaPipe looks for skin: in ``thumbs-up.png`` turned greyscale it finds
+no hand at any level (nor after autocontrast, histogram equalisation or a gamma), in
+``hand_thumb_up.jpg`` greyscale it does. A greyscale photo (an infrared camera's, an old print's)
+in which nothing is found is searched again with skin-coloured channels (gains
+:data:`_SKIN_TINT`): the grey ``thumbs-up.png`` is then found. The side MediaPipe gives a tinted
+photo is not to be trusted (with gains 1, 0.85, 0.75 it called the same hand left with score
+1.0), so such a hand's score is 0.5 and ``lisa fit-photo --side auto`` fits it as both sides.
+
 **Keypoint order.** MediaPipe's 21 landmarks (wrist, thumb CMC, MCP, IP, tip, then index, middle,
 ring and pinky MCP, PIP, DIP, tip) are exactly :data:`lisa_hand.skeleton.KEYPOINT_NAMES`, so no
 reordering is needed (checked against ``mediapipe.solutions.hands.HandLandmark`` in the tests).
@@ -83,7 +91,7 @@ import tempfile
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -249,7 +257,8 @@ class DetectedHand:
     """(x0, y0, x1, y1) pixels: the keypoints' bounding box."""
     found_by: str = ""
     """The search level that found it: "whole image" (as it is or zoomed out), "2x2 crops",
-    "3x3 crops", "4x4 crops"."""
+    "3x3 crops", "4x4 crops"; in a greyscale photo found only once tinted, followed by ", greyscale
+    photo tinted skin-coloured, side unknown" (its :attr:`score` then 0.5)."""
     side_votes: tuple[int, int] = (0, 0)
     """(right, left): how many of the agreeing estimates (plain and mirrored windows) call it
     each side; a split vote means MediaPipe's side changed with the window or the mirroring."""
@@ -435,6 +444,38 @@ def _consensus(estimates: list[_Found], agreement: float) -> tuple[_Found, int]:
         int(agree.size)
 
 
+_SKIN_TINT = (1.0, 0.78, 0.66)
+"""RGB gains that give a greyscale photo a skin's colour before a second search."""
+_TINTED = "greyscale photo tinted skin-coloured, side unknown"
+_GREY_TOLERANCE = 2  # uint8 levels: channels this close everywhere make a greyscale photo
+
+
+def _greyscale(pixels: np.ndarray) -> bool:
+    """Whether the uint8 RGB image [H, W, 3] has (nearly) equal channels everywhere."""
+    wide = pixels.astype(np.int16)
+    return bool(np.abs(wide - wide[..., :1]).max() <= _GREY_TOLERANCE)
+
+
+def _search(hands: Any, pixels: np.ndarray, config: DetectConfig) -> list[tuple[_Found, str]]:
+    """The coarse-to-fine search (the module docstring) with MediaPipe's ``hands`` -> the hands
+    of the first level that finds any, each with that level's name."""
+    height, width = pixels.shape[:2]
+    border = np.concatenate([pixels[0], pixels[-1], pixels[:, 0], pixels[:, -1]])
+    fill = np.median(border, axis=0).astype(np.uint8)
+    hands_found: list[tuple[_Found, str]] = []
+    for level, windows in _levels(width, height, config):
+        candidates = [found for window in windows
+                      for found in _run(hands, pixels, window, config.window_side_px, fill)]
+        for candidate in _merge(candidates, config.duplicate_iou):
+            refined, support = _refine(hands, pixels, candidate, fill, config)
+            if support < 2 and level != _WHOLE:
+                continue  # seen in one crop only, not found again with more context
+            hands_found.append((refined, level))
+        if hands_found:
+            break
+    return hands_found
+
+
 def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | None = None,
                  hands_factory: Callable[..., Any] | None = None) -> list[DetectedHand]:
     """Find the hands in a photo (see the module docstring for the search).
@@ -456,26 +497,18 @@ def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | N
             hands_factory = _mediapipe_hands().Hands
         except (ImportError, AttributeError):
             raise ImportError(PHOTO_EXTRA_HINT) from None
-    height, width = pixels.shape[:2]
-    border = np.concatenate([pixels[0], pixels[-1], pixels[:, 0], pixels[:, -1]])
-    fill = np.median(border, axis=0).astype(np.uint8)
-    hands_found: list[tuple[_Found, str]] = []
     # The start-up lines come from MediaPipe's threads while the graph starts: hold them back
     # for the whole search.
     with _native_stderr_captured(), hands_factory(
             static_image_mode=True, max_num_hands=max_hands,
             model_complexity=config.model_complexity,
             min_detection_confidence=config.min_detection_confidence) as hands:
-        for level, windows in _levels(width, height, config):
-            candidates = [found for window in windows
-                          for found in _run(hands, pixels, window, config.window_side_px, fill)]
-            for candidate in _merge(candidates, config.duplicate_iou):
-                refined, support = _refine(hands, pixels, candidate, fill, config)
-                if support < 2 and level != _WHOLE:
-                    continue  # seen in one crop only, not found again with more context
-                hands_found.append((refined, level))
-            if hands_found:
-                break
+        hands_found = _search(hands, pixels, config)
+        if not hands_found and _greyscale(pixels):  # no skin colour to go by: lend it one
+            tinted = np.round(pixels * np.asarray(_SKIN_TINT)).astype(np.uint8)
+            hands_found = [(replace(found, p_right=0.5, votes=(0, 0)),
+                            f"{level}, {_TINTED}")
+                           for found, level in _search(hands, tinted, config)]
     unique: list[tuple[_Found, str]] = []
     for found, level in sorted(hands_found, key=lambda pair: -abs(pair[0].p_right - 0.5)):
         if all(_iou(found.box, other.box) <= config.duplicate_iou for other, _ in unique):

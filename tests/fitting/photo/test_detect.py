@@ -262,10 +262,52 @@ def test_unconfirmed_crop_detection_dropped():
 
 def test_blank_searches_every_level():
     detector = FakeHands()
-    assert detect_hands(canvas(), hands_factory=lambda **_: detector) == []
+    coloured = canvas() * np.array([1.0, 1.05, 0.95], np.float32)  # not greyscale
+    assert detect_hands(coloured, hands_factory=lambda **_: detector) == []
     # whole + zoomed out, then 2x2, 3x3, 4x4 crops; each window resized to a 640 px long side.
     assert len(detector.inputs) == 2 + 4 + 9 + 16
     assert {max(size) for size in detector.inputs} == {640}
+    # a greyscale photo with no hand is searched twice: as it is, then tinted skin-coloured
+    grey = FakeHands()
+    assert detect_hands(canvas(), hands_factory=lambda **_: grey) == []
+    assert len(grey.inputs) == 2 * (2 + 4 + 9 + 16)
+
+
+class SkinHands(FakeHands):
+    """A stand-in that, like MediaPipe, needs skin colour: a "hand" is a region whose red
+    exceeds its blue by 40 levels (none in a greyscale image); every label "Left", score 0.9."""
+
+    def process(self, rgb: np.ndarray):
+        height, width = rgb.shape[:2]
+        self.inputs.append((width, height))
+        skin = rgb[..., 0].astype(int) - rgb[..., 2].astype(int) > 40
+        labels, count = ndimage.label(skin)
+        landmarks, handedness = [], []
+        grid = np.stack(np.meshgrid(np.linspace(0, 1, 3), np.linspace(0, 1, 7)), -1).reshape(-1, 2)
+        for index in range(1, count + 1):
+            rows, cols = np.nonzero(labels == index)
+            x0, x1, y0, y1 = cols.min(), cols.max() + 1, rows.min(), rows.max() + 1
+            if not 0.1 <= max(x1 - x0, y1 - y0) / max(width, height) <= 0.7:
+                continue
+            points = [SimpleNamespace(x=(x0 + u * (x1 - x0)) / width,
+                                      y=(y0 + v * (y1 - y0)) / height) for u, v in grid]
+            landmarks.append(SimpleNamespace(landmark=points))
+            handedness.append(SimpleNamespace(
+                classification=[SimpleNamespace(label="Left", score=0.9)]))
+        return SimpleNamespace(multi_hand_landmarks=landmarks or None,
+                               multi_handedness=handedness or None)
+
+
+def test_a_greyscale_photo_is_searched_again_tinted_with_its_side_unknown():
+    image = np.full((800, 1000, 3), 0.2, np.float32)
+    image[200:500, 300:550] = 0.9  # a bright grey "hand" on a dark grey background
+    (hand,) = detect_hands(image, hands_factory=lambda **options: SkinHands(**options))
+    assert hand.score == 0.5 and hand.side_votes == (0, 0)
+    assert hand.found_by.endswith("greyscale photo tinted skin-coloured, side unknown")
+    assert np.allclose(hand.box, (300, 200, 550, 500), atol=2)
+    coloured = image * np.array([1.0, 0.78, 0.66], np.float32)  # the same hand, in colour
+    (plain,) = detect_hands(coloured, hands_factory=lambda **options: SkinHands(**options))
+    assert plain.side == "right" and plain.score > 0.8 and "tinted" not in plain.found_by
 
 
 def test_uint8_input_and_bad_input():
@@ -373,3 +415,15 @@ def test_two_mirrored_hands(mediapipe, shared_photos):
 
 def test_blank_photo_no_hand(mediapipe):
     assert detect_hands(np.full((480, 640, 3), 0.5, np.float32)) == []
+
+
+def test_a_greyscale_real_photo_is_found_tinted(mediapipe, shared_photos):
+    """thumbs-up.png in greyscale: MediaPipe finds no hand as it is, and the hand once tinted
+    (its keypoints near the colour photo's), its side left unknown."""
+    image = read_rgb(shared_photos / "thumbs-up.png")
+    grey = np.repeat(image.mean(axis=2, keepdims=True), 3, axis=2)
+    (colour,) = detect_hands(image)
+    (hand,) = detect_hands(grey)
+    assert hand.score == 0.5 and "tinted" in hand.found_by and "tinted" not in colour.found_by
+    size = np.linalg.norm(np.subtract(colour.box[2:], colour.box[:2]))
+    assert np.linalg.norm(hand.keypoints - colour.keypoints, axis=1).mean() < 0.1 * size
