@@ -275,27 +275,13 @@ def test_blank_searches_every_level():
 
 class SkinHands(FakeHands):
     """A stand-in that, like MediaPipe, needs skin colour: a "hand" is a region whose red
-    exceeds its blue by 40 levels (none in a greyscale image); every label "Left", score 0.9."""
+    exceeds its blue by 40 levels (none in a greyscale image), found as :class:`FakeHands`
+    finds a marker without a thumb patch (label "Right": a left hand)."""
 
     def process(self, rgb: np.ndarray):
-        height, width = rgb.shape[:2]
-        self.inputs.append((width, height))
         skin = rgb[..., 0].astype(int) - rgb[..., 2].astype(int) > 40
-        labels, count = ndimage.label(skin)
-        landmarks, handedness = [], []
-        grid = np.stack(np.meshgrid(np.linspace(0, 1, 3), np.linspace(0, 1, 7)), -1).reshape(-1, 2)
-        for index in range(1, count + 1):
-            rows, cols = np.nonzero(labels == index)
-            x0, x1, y0, y1 = cols.min(), cols.max() + 1, rows.min(), rows.max() + 1
-            if not 0.1 <= max(x1 - x0, y1 - y0) / max(width, height) <= 0.7:
-                continue
-            points = [SimpleNamespace(x=(x0 + u * (x1 - x0)) / width,
-                                      y=(y0 + v * (y1 - y0)) / height) for u, v in grid]
-            landmarks.append(SimpleNamespace(landmark=points))
-            handedness.append(SimpleNamespace(
-                classification=[SimpleNamespace(label="Left", score=0.9)]))
-        return SimpleNamespace(multi_hand_landmarks=landmarks or None,
-                               multi_handedness=handedness or None)
+        painted = np.where(skin[..., None], np.uint8([255, 0, 255]), np.uint8([115, 115, 115]))
+        return super().process(np.ascontiguousarray(painted, dtype=np.uint8))
 
 
 def test_a_greyscale_photo_is_searched_again_tinted_with_its_side_unknown():
@@ -307,7 +293,7 @@ def test_a_greyscale_photo_is_searched_again_tinted_with_its_side_unknown():
     assert np.allclose(hand.box, (300, 200, 550, 500), atol=2)
     coloured = image * np.array([1.0, 0.78, 0.66], np.float32)  # the same hand, in colour
     (plain,) = detect_hands(coloured, hands_factory=lambda **options: SkinHands(**options))
-    assert plain.side == "right" and plain.score > 0.8 and "tinted" not in plain.found_by
+    assert plain.side == "left" and plain.score > 0.8 and "tinted" not in plain.found_by
 
 
 def test_uint8_input_and_bad_input():
