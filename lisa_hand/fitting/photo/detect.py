@@ -55,6 +55,10 @@ in which nothing is found is searched again with skin-coloured channels (gains
 :data:`_SKIN_TINT`): the grey ``thumbs-up.png`` is then found. The side MediaPipe gives a tinted
 photo is not to be trusted (with gains 1, 0.85, 0.75 it called the same hand left with score
 1.0), so such a hand's score is 0.5 and ``lisa fit-photo --side auto`` fits it as both sides.
+Tinted photos are also where false hands appear (a 17 x 6 px one on the grass of skimage's
+``camera``), so a hand found only tinted must span 5% of the photo's long side; then none is
+reported in skimage's greyscale ``camera``, ``brick``, ``grass``, ``gravel``, ``moon``,
+``text``, ``page`` or ``coins``. A greyscale photo without a hand takes twice the search time.
 
 **Keypoint order.** MediaPipe's 21 landmarks (wrist, thumb CMC, MCP, IP, tip, then index, middle,
 ring and pinky MCP, PIP, DIP, tip) are exactly :data:`lisa_hand.skeleton.KEYPOINT_NAMES`, so no
@@ -448,6 +452,9 @@ _SKIN_TINT = (1.0, 0.78, 0.66)
 """RGB gains that give a greyscale photo a skin's colour before a second search."""
 _TINTED = "greyscale photo tinted skin-coloured, side unknown"
 _GREY_TOLERANCE = 2  # uint8 levels: channels this close everywhere make a greyscale photo
+_MIN_TINTED_SIZE = 0.05
+"""A hand found only tinted must span this share of the photo's long side (its keypoints' box):
+skimage's greyscale ``camera`` photo, tinted, gave a 17 x 6 px "hand" on the grass."""
 
 
 def _greyscale(pixels: np.ndarray) -> bool:
@@ -506,9 +513,12 @@ def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | N
         hands_found = _search(hands, pixels, config)
         if not hands_found and _greyscale(pixels):  # no skin colour to go by: lend it one
             tinted = np.round(pixels * np.asarray(_SKIN_TINT)).astype(np.uint8)
+            smallest = _MIN_TINTED_SIZE * max(pixels.shape[:2])
             hands_found = [(replace(found, p_right=0.5, votes=(0, 0)),
                             f"{level}, {_TINTED}")
-                           for found, level in _search(hands, tinted, config)]
+                           for found, level in _search(hands, tinted, config)
+                           if max(found.box[2] - found.box[0], found.box[3] - found.box[1])
+                           >= smallest]
     unique: list[tuple[_Found, str]] = []
     for found, level in sorted(hands_found, key=lambda pair: -abs(pair[0].p_right - 0.5)):
         if all(_iou(found.box, other.box) <= config.duplicate_iou for other, _ in unique):

@@ -294,6 +294,14 @@ def test_a_greyscale_photo_is_searched_again_tinted_with_its_side_unknown():
     coloured = image * np.array([1.0, 0.78, 0.66], np.float32)  # the same hand, in colour
     (plain,) = detect_hands(coloured, hands_factory=lambda **options: SkinHands(**options))
     assert plain.side == "left" and plain.score > 0.8 and "tinted" not in plain.found_by
+    # a "hand" 4% of the photo's long side, found tinted (in crops) only, is not reported; in
+    # colour the same one is (its side is MediaPipe's there)
+    small = np.full((800, 1000, 3), 0.2, np.float32)
+    small[300:330, 400:440] = 0.9
+    assert detect_hands(small, hands_factory=lambda **options: SkinHands(**options)) == []
+    (found,) = detect_hands(small * np.array([1.0, 0.78, 0.66], np.float32),
+                            hands_factory=lambda **options: SkinHands(**options))
+    assert "crops" in found.found_by
 
 
 def test_uint8_input_and_bad_input():
