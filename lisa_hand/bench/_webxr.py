@@ -245,7 +245,7 @@ def _points_to_mesh_mm(points: np.ndarray, mesh, plane) -> float:
 
 def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int = 0,
                    threads: int = 1, wrists: tuple[str, ...] = ("as-is",),
-                   config=None, refine=None, viewpoints: bool = False, log=None) -> list[dict]:
+                   config=None, refine=None, viewpoints: str = "none", log=None) -> list[dict]:
     """Fit ``model`` to the WebXR hand (``right_hand.npz`` or ``left_hand.npz``, its side found
     by :func:`webxr_side`) in each pose of :data:`WEBXR_POSES` and each wrist
     variant of ``wrists`` (:data:`WEBXR_WRISTS`), from a full scan and from a one-view partial
@@ -255,8 +255,10 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
     ``num_threads=threads`` and ``seed``). refine: a
     :class:`~lisa_hand.fitting.points.refine.RefineConfig`: each fit is also refined
     (``lisa fit-points --refine``) and measured again (``refined_*`` keys, ``refine_seconds``).
-    viewpoints: give each one-view scan's fit its sensor position (``fit_points(viewpoint=)``,
-    the free-space term), as a depth camera's points in its own frame give it.
+    viewpoints: what each one-view scan's fit is told of its sensor position
+    (``fit_points(viewpoint=)``, the free-space term): "none"; "true", the simulated sensor's, as
+    a depth camera's points in its own frame give it; "auto", found from the scan (a full scan's
+    fit gets "auto" too, which leaves it without one).
     log: called with each row as it is measured.
     -> one dict per fit: pose, wrist, scan kind, seconds, points left out beyond the wrist, the
     four distances (mm, fitted 128^3 mesh against the variant's mesh, both cut at the fit's
@@ -272,6 +274,8 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
     from ..inference import MeshConfig, mesh_hand
     from ..metrics import mesh_distances
 
+    if viewpoints not in ("none", "true", "auto"):
+        raise ValueError(f"viewpoints must be 'none', 'true' or 'auto', got {viewpoints!r}")
     for variant in wrists:
         if variant not in WEBXR_WRISTS:
             raise ValueError(f"unknown wrist variant {variant!r}: one of {WEBXR_WRISTS}")
@@ -307,7 +311,8 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                     points = points[Plane(place(wrist[None])[0],
                                           -(forearm @ rotation.T)).keeps(points)]
                 with cpu_threads(threads):  # the fit and its mesh on ``threads`` threads
-                    viewpoint = scan.viewpoint if partial and viewpoints else None
+                    viewpoint = {"none": None, "auto": "auto",
+                                 "true": scan.viewpoint if partial else None}[viewpoints]
                     fit = fit_points(model, points, None, config, side=side,
                                      viewpoint=viewpoint)
                     mesh = mesh_hand(model, fit.params, 128, plain, clip=fit.wrist_plane)
@@ -315,7 +320,7 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                                            clip=fit.wrist_plane)
                 rows.append({"pose": pose, "wrist": variant,
                              "scan": "partial" if partial else "full",
-                             "viewpoint": viewpoint is not None, "seconds": fit.seconds,
+                             "viewpoint": viewpoints, "seconds": fit.seconds,
                              "beyond_wrist_points": fit.beyond_wrist_points,
                              **distances.to_dict(),
                              "scan_points_to_recon_mm": _points_to_mesh_mm(points, mesh,

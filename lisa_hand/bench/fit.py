@@ -327,9 +327,12 @@ def main(argv: list[str] | None = None) -> None:
                              f"{', '.join(WEBXR_WRISTS)} (default as-is)")
     parser.add_argument("--webxr-refine", action="store_true",
                         help="also refine each WebXR fit (lisa fit-points --refine) and measure it")
-    parser.add_argument("--webxr-viewpoint", action="store_true",
-                        help="give the one-view WebXR scans' fits their sensor position (lisa "
-                             "fit-points --viewpoint: the free-space term)")
+    parser.add_argument("--webxr-viewpoint", nargs="?", const="true", default="none",
+                        choices=("none", "true", "auto"),
+                        help="the one-view WebXR scans' sensor position: none (the fit gets "
+                             "none), true (the simulated sensor's, as lisa fit-points "
+                             "--viewpoint X,Y,Z; the flag alone) or auto (found from the scan, "
+                             "as lisa fit-points does by default)")
     parser.add_argument("--only-webxr", action="store_true",
                         help="skip the self-consistency benchmark")
     args = parser.parse_args(argv)

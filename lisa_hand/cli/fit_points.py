@@ -45,12 +45,13 @@ def fit_points(
                          "'lisa mesh', 'render' and 'animate' use it.")] = False,
     refine_iters: Annotated[int | None, typer.Option(
         "--refine-iters", min=1, help="Steps of --refine (default 300).")] = None,
-    viewpoint: Annotated[str | None, typer.Option(
-        "--viewpoint", metavar="X,Y,Z",
+    viewpoint: Annotated[str, typer.Option(
+        "--viewpoint", metavar="X,Y,Z|auto|none",
         help="The sensor position of a one-view scan, in the cloud's units (a depth camera's "
              "points in its own frame: 0,0,0): the fit then keeps the hand out of the space the "
-             "sensor saw to be empty (a finger it cannot see stays hidden). Leave it out for a "
-             "scan merged from several views.")] = None,
+             "sensor saw to be empty (a finger it cannot see stays hidden). auto: found from "
+             "the scan when it looks like one view (its own origin when that can be the "
+             "sensor), left out for a scan from all round; none: never.")] = "auto",
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
@@ -64,14 +65,7 @@ def fit_points(
     if restarts is not None:
         overrides["num_restarts"] = restarts
     config = FitPointsConfig(**overrides)
-    view = None
-    if viewpoint is not None:
-        try:
-            view = [float(v) for v in viewpoint.split(",")]
-        except ValueError:
-            view = []
-        if len(view) != 3:
-            raise ValueError(f"--viewpoint: expected three numbers X,Y,Z, got {viewpoint!r}")
+    view = _viewpoint(viewpoint)
     refine_config = None
     if refine:
         from ..fitting.points.refine import RefineConfig
@@ -94,6 +88,19 @@ def fit_points(
             typer.echo(f"  {key}: {shown}")
     for path in report.written:
         typer.echo(f"wrote {path}")
+
+
+def _viewpoint(text: str) -> list[float] | str | None:
+    """``--viewpoint``: "auto", "none" (None) or three numbers X,Y,Z."""
+    if text.strip().lower() in ("auto", "none"):
+        return None if text.strip().lower() == "none" else "auto"
+    try:
+        view = [float(v) for v in text.split(",")]
+    except ValueError:
+        view = []
+    if len(view) != 3:
+        raise ValueError(f"--viewpoint: expected three numbers X,Y,Z, auto or none, got {text!r}")
+    return view
 
 
 def register(app: typer.Typer) -> None:

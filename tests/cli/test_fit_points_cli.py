@@ -199,7 +199,7 @@ def test_viewpoint_is_read_in_the_clouds_units_and_recorded(lisa, files, capsys)
                  str(root / "tiny.pt"), "--viewpoint", given, *FAST_ARGS]) == 0
     recorded = read_params(out / "params.json").extra["input"]["viewpoint_m"]
     assert np.allclose(recorded, sensor, atol=1e-6)
-    for bad, message in (("1,2", "--viewpoint: expected three numbers"),
+    for bad, message in (("1,2", "--viewpoint: expected three numbers"), ("al", "auto or none"),
                          ("a,b,c", "--viewpoint: expected three numbers"),
                          (",".join(f"{v:.6f}" for v in points.mean(0)), "viewpoint: the scan")):
         failed = root / "failed_view"
@@ -210,30 +210,43 @@ def test_viewpoint_is_read_in_the_clouds_units_and_recorded(lisa, files, capsys)
         assert "\n" not in error and not failed.exists()
 
 
-def test_a_one_sided_scan_without_its_sensor_position_gets_a_hint(lisa, files, capsys):
-    """A scan that covers little of the fitted hand (here a one-view scan and a toy model) is
-    fitted as it is, with one line on --viewpoint; params.json records the coverage; given the
-    sensor position, no hint."""
+def test_a_one_sided_scans_sensor_is_found_or_hinted_at(lisa, files, capsys):
+    """A one-view scan (a toy model: it covers little of the fitted hand): by default
+    (``--viewpoint auto``) its sensor is found from the points, said in one line and recorded
+    (within 25 degrees of the true direction); with ``--viewpoint none`` it is fitted as it is,
+    with one line on --viewpoint; given the sensor position, neither. params.json records the
+    coverage."""
     root, _ = files
     with cpu_threads(1):
         model = tiny_model(color=True)
         truth = true_hand(model, seed=2)
-        sensor = (0.0, 0.0, 0.5)
+        sensor = np.array([0.0, 0.0, 0.5])
         points, normals, _ = scan_of(model, truth, ScanConfig(
-            num_points=600, partial=True, viewpoint=sensor), seed=2)
+            num_points=4500, partial=True, viewpoint=tuple(sensor)), seed=2)
     np.savez(root / "one_view.npz", points=points, normals=normals)
-    for name, extra in (("hinted", []), ("quiet", ["--viewpoint", "0,0,0.5"])):
+    for name, extra in (("hinted", ["--viewpoint", "none"]), ("given", ["--viewpoint", "0,0,0.5"]),
+                        ("found", [])):
         out = root / name
         assert lisa(["fit-points", str(root / "one_view.npz"), "--out", str(out), "--model",
                      str(root / "tiny.pt"), *extra, *FAST_ARGS]) == 0
         captured = capsys.readouterr()
         said = captured.out + captured.err
-        coverage = read_params(out / "params.json").extra["fit"]["coverage"]
+        params = read_params(out / "params.json")
+        coverage = params.extra["fit"]["coverage"]
         assert 0.0 <= coverage < 2.0 / 3.0, coverage
-        hinted = "--viewpoint X,Y,Z" in said
+        hinted = "--viewpoint X,Y,Z (the sensor" in said
         assert hinted == (name == "hinted"), said
         if hinted:
             assert f"shows {coverage:.0%} of the hand" in said
+            assert "viewpoint_m" not in params.extra["input"]
+            continue
+        recorded = params.extra["input"]
+        assert recorded["viewpoint_source"] == ("given" if name == "given" else "estimated")
+        assert ("looks like one view" in said) == (name == "found"), said
+        direction = np.asarray(recorded["viewpoint_m"]) - points.mean(0)
+        cosine = direction @ (sensor - points.mean(0)) / (
+            np.linalg.norm(direction) * np.linalg.norm(sensor - points.mean(0)))
+        assert cosine > np.cos(np.radians(25.0)), (name, cosine)
 
 
 def test_refine_writes_the_refined_model_that_params_json_names(lisa, files, capsys):

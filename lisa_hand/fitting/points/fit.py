@@ -60,6 +60,7 @@ from .global_pose import search_global_pose
 from .monitor import FitMonitor, FitStep
 from .proxy import build_surface_proxy, covered_fraction, fit_proxy_pose, unseen_fingers
 from .surface_stage import fit_surface, frozen_field, surface_residuals
+from .viewpoint import ViewpointEstimate, estimate_viewpoint
 
 __all__ = ["FitPointsConfig", "FitStep", "FitResult", "fit_points", "start_hand"]
 
@@ -114,6 +115,9 @@ class FitResult:
     side_distances_mm: dict[str, float] | None = None
     """``side="auto"``: each side's fitted surface's mean distance (mm) from the scan points
     that both fits keep (:func:`_either_side`); None when the side was given."""
+    viewpoint: ViewpointEstimate | None = None
+    """``viewpoint="auto"``: what :func:`.viewpoint.estimate_viewpoint` found (its position
+    was used when ``one_view``); None when the viewpoint was given or left out."""
 
     def summary(self) -> dict[str, Any]:
         """The scalar results as a JSON-able dict (what ``params.extra["fit"]`` holds)."""
@@ -130,6 +134,11 @@ class FitResult:
             "coverage": self.coverage,
             **({} if self.side_distances_mm is None
                else {"side_distances_mm": dict(self.side_distances_mm)}),
+            **({} if self.viewpoint is None else {"viewpoint_estimate": {
+                "position_m": [float(v) for v in self.viewpoint.position],
+                "hidden_fraction": self.viewpoint.hidden_fraction,
+                "one_view": self.viewpoint.one_view, "at_origin": self.viewpoint.at_origin,
+                "num_points": self.viewpoint.num_points}}),
         }
 
 
@@ -380,7 +389,7 @@ def fit_points(
     *,
     rest_joints: torch.Tensor | None = None,
     side: str = "right",
-    viewpoint: np.ndarray | torch.Tensor | None = None,
+    viewpoint: np.ndarray | torch.Tensor | str | None = None,
     progress: bool = False,
     callback: Callable[[FitStep], None] | None = None,
 ) -> FitResult:
@@ -399,6 +408,8 @@ def fit_points(
         points in its own frame: the origin), or None; with it the proxy and surface stages keep
         the hand out of what the sensor saw to be empty (:mod:`.free_space`,
         ``config.free_space_weight``). Leave it None for a scan merged from several views.
+        "auto": found from the points (:func:`.viewpoint.estimate_viewpoint`) and used when
+        they look like one view (``FitResult.viewpoint`` says what was found).
     progress: show a progress bar. callback: called with a :class:`FitStep` after every
         iteration (for benchmarks and logging; its hands are of ``side``).
     -> :class:`FitResult`. Runs on ``config.device`` (default: the model's), in the model's dtype.
@@ -411,12 +422,23 @@ def fit_points(
     device = torch.device(config.device) if config.device is not None else model.device
     if device != model.device:
         model = model.to(device)
+    estimate = None
+    if isinstance(viewpoint, str):
+        if viewpoint != "auto":
+            raise ValueError(f"viewpoint must be 3 numbers (metres), 'auto' or None, got "
+                             f"{viewpoint!r}")
+        estimate = estimate_viewpoint(points, seed=config.seed)
+        viewpoint = estimate.position if estimate.one_view else None
     if side == "auto":
-        return _either_side(model, points, normals, config, rest_joints=rest_joints,
-                            viewpoint=viewpoint, progress=progress, callback=callback)
-    return _fit_side(model, points, normals, config, rest_joints=rest_joints,
-                     side=check_side(side), viewpoint=viewpoint, progress=progress,
-                     callback=callback)
+        result = _either_side(model, points, normals, config, rest_joints=rest_joints,
+                              viewpoint=viewpoint, progress=progress, callback=callback)
+    else:
+        result = _fit_side(model, points, normals, config, rest_joints=rest_joints,
+                           side=check_side(side), viewpoint=viewpoint, progress=progress,
+                           callback=callback)
+    result.viewpoint = estimate
+    result.params.extra["fit"] = result.summary()
+    return result
 
 
 def _fit_side(model, points, normals, config: FitPointsConfig, *, rest_joints, side: str,

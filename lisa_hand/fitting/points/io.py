@@ -300,7 +300,7 @@ def fit_point_file(
     progress: bool = False,
     log: Callable[[str], None] | None = None,
     refine: Any = None,
-    viewpoint: Sequence[float] | None = None,
+    viewpoint: Sequence[float] | str | None = None,
 ) -> FitPointsReport:
     """Read a cloud, fit the model, write ``params.json``, ``mesh.ply`` (skinning weights, and
     vertex colours from the mean colour code when the model has colour) and (with ``gt_path``)
@@ -324,8 +324,8 @@ def fit_point_file(
     (:func:`lisa_hand.fitting.points.fit.fit_points`; the choice is logged).
     log: called with one line per note (unit conversion, dropped points).
     viewpoint: the sensor position of a one-view scan, 3 numbers in the cloud's units (a depth
-        camera's points in its own frame: 0, 0, 0), or None
-        (:func:`lisa_hand.fitting.points.fit.fit_points`).
+        camera's points in its own frame: 0, 0, 0), "auto" (found from the scan when it looks
+        like one view; logged) or None (:func:`lisa_hand.fitting.points.fit.fit_points`).
     """
     from ...inference import MeshConfig, mesh_hand
     from ...model.trained import model_label
@@ -343,27 +343,16 @@ def fit_point_file(
         log(f"{points_path}: {note}")
     truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
 
-    view = None  # checked by fit_points
-    if viewpoint is not None:
+    view = viewpoint  # checked by fit_points
+    if viewpoint is not None and not isinstance(viewpoint, str):
         view = np.asarray(viewpoint, dtype=np.float64) * LENGTH_UNITS[cloud.unit]
     fit = fit_points(model, cloud.points, cloud.normals, config, side=side, viewpoint=view,
                      progress=progress)
     params = fit.params
-    if fit.side_distances_mm is not None:
-        log(_side_choice(points_path, fit, config))
     params.model = model_label(model_path)
     params.extra["input"] = {"path": str(points_path), "unit": cloud.unit,
-                             "num_input_points": cloud.num_input, "notes": cloud.notes}
-    if view is not None:
-        params.extra["input"]["viewpoint_m"] = [float(v) for v in view]
-    if view is None and fit.coverage < config.covered_fraction:
-        log(f"{points_path}: the scan shows {fit.coverage:.0%} of the hand, one side of it; if it "
-            "is one depth-camera view, --viewpoint X,Y,Z (the sensor's position, 0,0,0 in the "
-            "camera's own frame) keeps the hand out of the space the sensor saw empty")
-    if fit.beyond_wrist_points:
-        log(f"{points_path}: {fit.beyond_wrist_points} points lie beyond the wrist cut "
-            f"({1000 * config.wrist_clip_m:g} mm past the fitted wrist joint) and were left "
-            "out; the mesh and the metrics end at the same cut")
+                             "num_input_points": cloud.num_input, "notes": cloud.notes,
+                             **_fit_notes(points_path, fit, view, cloud.unit, config, log)}
     refined = None
     if refine is not None:
         model, refined = _refined(model, fit, cloud, params.side, refine, progress, log,
@@ -376,6 +365,48 @@ def fit_point_file(
                                 model=None if refined is None else model)
     return FitPointsReport(cloud=cloud, fit=fit, mesh=mesh, metrics=metrics, written=written,
                            refine=refined)
+
+
+def _fit_notes(points_path: Path, fit, view, unit: str, config, log) -> dict:
+    """Log what the fit decided (the viewpoint found, the side kept, a one-sided scan without a
+    viewpoint, points beyond the wrist) -> the viewpoint used, for ``params.json``'s "input"
+    (``viewpoint_m``, ``viewpoint_source``; empty without one)."""
+    if fit.viewpoint is not None:
+        log(_viewpoint_found(points_path, fit.viewpoint, unit))
+        view = fit.viewpoint.position if fit.viewpoint.one_view else None
+    if fit.side_distances_mm is not None:
+        log(_side_choice(points_path, fit, config))
+    if view is None and fit.coverage < config.covered_fraction:
+        log(f"{points_path}: the scan shows {fit.coverage:.0%} of the hand, one side of it; if it "
+            "is one depth-camera view, --viewpoint X,Y,Z (the sensor's position, 0,0,0 in the "
+            "camera's own frame) keeps the hand out of the space the sensor saw empty")
+    if fit.beyond_wrist_points:
+        log(f"{points_path}: {fit.beyond_wrist_points} points lie beyond the wrist cut "
+            f"({1000 * config.wrist_clip_m:g} mm past the fitted wrist joint) and were left "
+            "out; the mesh and the metrics end at the same cut")
+    if view is None:
+        return {}
+    return {"viewpoint_m": [float(v) for v in view],
+            "viewpoint_source": "given" if fit.viewpoint is None else "estimated"}
+
+
+def _viewpoint_found(points_path: Path, found, unit: str) -> str:
+    """The line that says what ``--viewpoint auto`` found (a
+    :class:`~lisa_hand.fitting.points.viewpoint.ViewpointEstimate`)."""
+    from .viewpoint import ViewpointConfig
+
+    hidden = f"{found.hidden_fraction:.0%} of its points hidden from the best direction"
+    if found.num_points < ViewpointConfig.min_points:
+        return (f"{points_path}: {found.num_points} points are too few to find where a scan "
+                f"was seen from (--viewpoint auto needs {ViewpointConfig.min_points}): fitted "
+                "without a viewpoint")
+    if not found.one_view:
+        return f"{points_path}: the scan is not one view ({hidden}): fitted without a viewpoint"
+    where = ("the cloud's origin (its frame looks like the camera's)" if found.at_origin else
+             ",".join(f"{v / LENGTH_UNITS[unit]:.4g}" for v in found.position)
+             + f" {unit}, a guess along the direction it was seen from")
+    return (f"{points_path}: the scan looks like one view ({hidden}); its sensor taken to be at "
+            f"{where}: pass --viewpoint X,Y,Z if you know it, or --viewpoint none")
 
 
 _CLOSE_SIDES = 1.15
