@@ -81,3 +81,18 @@ def test_bad_points_are_refused():
         estimate_viewpoint(np.full((30, 3), np.nan))
     with pytest.raises(ValueError, match="num_directions"):
         ViewpointConfig(num_directions=2)
+
+
+def test_stray_points_do_not_turn_the_sensor_round(hand_mesh):
+    """A fifth of the points are outliers spread over the scan's box: the side along the axis
+    comes from the median bulge, which they do not sway (a mean did, on WebXR scans). (Whether
+    so noisy a scan is still taken for one view is not asked: outliers in front of the surface
+    hide some of it, 15% here.)"""
+    vertices, faces = hand_mesh
+    for seed, offset in enumerate([(0.0, 0.45, 0.1), (0.1, -0.4, -0.2)]):
+        sensor = vertices.mean(0) + np.asarray(offset)
+        scan = simulate_scan(vertices, faces, ScanConfig(
+            num_points=4000, partial=True, viewpoint=tuple(sensor), outlier_fraction=0.2),
+            seed=seed)
+        found = estimate_viewpoint(scan.points)
+        assert _angle_deg(found.direction, sensor - scan.points.mean(0)) < 25.0, offset
