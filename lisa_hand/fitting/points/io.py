@@ -416,7 +416,8 @@ _CLOSE_SIDES = 1.15
 def _side_choice(points_path: Path, fit, config) -> str:
     """The line that says which side ``--side auto`` chose, and how far to trust it: a close
     call, or a scan of one side of the hand (whose mirror image fits that side about as well:
-    measured on one-view WebXR scans, the wrong side was kept in 6 of 24), asks for
+    measured on one-view WebXR scans, the wrong side was kept in 6 of 24; 2 of 24 with
+    ``--viewpoint auto``), asks for
     ``--side``."""
     side, distances = fit.params.side, fit.side_distances_mm
     other = "left" if side == "right" else "right"
