@@ -65,9 +65,11 @@ __all__ = [
     "write_fit_outputs",
 ]
 
-FIT_FILES = ("params.json", "mesh.ply", "keypoints.json", "metrics.json", "model.pt")
+FIT_FILES = ("params.json", "mesh.ply", "keypoints.json", "metrics.json", "model.pt",
+             "preview.png")
 """The files a fit writes into its output folder (``metrics.json`` only with metrics,
-``model.pt`` only with a refined model: ``lisa fit-points --refine``)."""
+``model.pt`` only with a refined model: ``lisa fit-points --refine``; ``preview.png``: the
+picture of a point-cloud fit, :mod:`lisa_hand.fitting.points.preview`)."""
 
 Allowed = Callable[[Path], bool]
 """Which entries a fit's output folder may hold: called with each entry's path (a file or a
@@ -370,6 +372,7 @@ def write_fit_outputs(
     metrics: dict[str, Any] | None = None,
     keypoints: dict[str, Any] | None = None,
     model: Any = None,
+    preview: np.ndarray | None = None,
 ) -> list[Path]:
     """Write ``params.json``, ``mesh.ply``, ``keypoints.json`` and (when ``metrics`` is given)
     ``metrics.json`` as the folder ``out_dir`` (created), all or nothing (:func:`write_folder`).
@@ -377,7 +380,8 @@ def write_fit_outputs(
     keypoints: what ``keypoints.json`` holds (default: :func:`keypoints_3d_record`, the fitted
     hand's 3D keypoints in the world frame). model: a refined
     :class:`~lisa_hand.model.trained.TrainedModel` written as ``model.pt`` (full precision), or
-    None. The folder holds this fit's files and nothing
+    None. preview: an RGB picture [H, W, 3] uint8 written as ``preview.png``, or None. The folder
+    holds this fit's files and nothing
     else (a previous fit's ``metrics.json`` does not survive). ``out_dir`` must be new, empty or
     hold only :data:`FIT_FILES` (:func:`check_output_folder`).
     -> the written paths, in that order.
@@ -398,6 +402,10 @@ def write_fit_outputs(
             from ..model.trained import export_trained
 
             files.append(export_trained(model, staging / "model.pt")[0])
+        if preview is not None:
+            from ..data.layout import write_image
+
+            files.append(write_image(staging / "preview.png", preview))
         return files
 
     return write_folder(out_dir, write)

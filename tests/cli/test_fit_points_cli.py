@@ -57,7 +57,7 @@ def test_writes_params_mesh_and_metrics(lisa, files, capsys):
                  str(root / "tiny.pt"), "--gt", str(root / "truth.ply"), *FAST_ARGS]) == 0
     printed = capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "metrics.json",
-                                                     "params.json"]
+                                                     "params.json", "preview.png"]
     # This tiny model's blob hand runs on past its wrist: the scan points there are left out
     # and said so.
     beyond = read_params(out / "params.json").extra["fit"]["beyond_wrist_points"]
@@ -89,7 +89,8 @@ def test_millimetre_cloud_is_converted(lisa, files, capsys):
                  str(root / "tiny.pt"), *FAST_ARGS]) == 0
     printed = capsys.readouterr().out
     assert "read as millimetres" in printed
-    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "params.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "params.json",
+                                                     "preview.png"]
     translation = read_params(out / "params.json").translation.numpy()
     assert np.linalg.norm(translation - points.mean(0)) < 0.1  # metres, not millimetres
 
@@ -264,7 +265,7 @@ def test_refine_writes_the_refined_model_that_params_json_names(lisa, files, cap
                  str(root / "tiny.pt"), *FAST_ARGS, "--refine", "--refine-iters", "40"]) == 0
     printed = capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "model.pt",
-                                                     "params.json"]
+                                                     "params.json", "preview.png"]
     params = read_params(out / "params.json")
     assert params.model == str((out / "model.pt").resolve())
     record = params.extra["refine"]

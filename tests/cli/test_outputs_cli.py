@@ -121,12 +121,13 @@ def test_a_reused_fit_folder_is_replaced_as_a_whole(fit_files, capsys):
                          "--gt", str(root / "truth.ply"), *FAST_ARGS], capsys)
     assert code == 0, err
     assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "metrics.json",
-                                                     "params.json"]
+                                                     "params.json", "preview.png"]
     # The same folder, another cloud, no --gt: the first fit's metrics.json does not survive.
     code, _, err = lisa(["fit-points", str(root / "scan_cm.npy"), "--out", str(out), *model,
                          *FAST_ARGS], capsys)
     assert code == 0, err
-    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "params.json"]
+    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "params.json",
+                                                     "preview.png"]
     assert read_params(out / "params.json").extra["input"]["path"].endswith("scan_cm.npy")
     assert not [p for p in root.iterdir() if p.name.startswith(".reused.")]
     # A folder holding files a fit does not write is refused before the fit, and kept.
@@ -136,7 +137,7 @@ def test_a_reused_fit_folder_is_replaced_as_a_whole(fit_files, capsys):
              capsys),
         f"{out}: output folder holds files a fit does not write (notes.txt)")
     assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "notes.txt",
-                                                     "params.json"]
+                                                     "params.json", "preview.png"]
 
 
 def test_a_hand_in_centimetres_is_fitted_at_its_size(fit_files, capsys):

@@ -67,7 +67,8 @@ def test_demo_fits_measures_renders_and_reports(model_file, tmp_path):
     # Each fit wrote its files (all four, metrics against the true mesh).
     for folder in ("fit_points", "fit_1view", "fit_4views"):
         assert sorted(p.name for p in (out / folder).iterdir()) == [
-            "keypoints.json", "mesh.ply", "metrics.json", "params.json"], folder
+            "keypoints.json", "mesh.ply", "metrics.json", "params.json",
+            *(["preview.png"] if folder == "fit_points" else [])], folder
     assert not [p for p in out.iterdir() if p.name.startswith(".")]  # no staging folder left
 
     # The turntable of the 4-view fit: one frame per orbit view.

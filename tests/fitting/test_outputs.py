@@ -55,7 +55,7 @@ def test_a_folder_with_other_files_is_refused_before_the_work(tmp_path):
         write_fit_outputs(out, hand(), MESH)
     assert sorted(p.name for p in out.iterdir()) == ["notes.txt", "params.json", "renders"]
     assert set(FIT_FILES) == {"params.json", "mesh.ply", "keypoints.json", "metrics.json",
-                              "model.pt"}
+                              "model.pt", "preview.png"}
     check_output_folder(tmp_path / "new" / "fit")  # creates nothing
     assert not (tmp_path / "new").exists()
 

@@ -181,7 +181,7 @@ def test_fit_points_on_the_real_obj(tmp_path):
     # Both the cloud and the ground truth are millimetres, and each says so.
     assert sum("read as millimetres" in note for note in notes) == 2
     assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "metrics.json",
-                                                     "params.json"]
+                                                     "params.json", "preview.png"]
     metrics = json.loads((out / "metrics.json").read_text())
     assert list(metrics) == list(METRICS)
     assert all(math.isfinite(metrics[key]) and 0 < metrics[key] < 100 for key in METRICS)

@@ -522,8 +522,8 @@ def _either_side(model, points, normals, config: FitPointsConfig, **kwargs) -> F
     (0.98-1.18 mm against 1.24-1.83 for the mirror image), from 18 of 24 one-view scans, where
     the mirror image can fit the seen side as well (``lisa fit-points`` then asks for
     ``--side``); with the viewpoint found from the scan (``viewpoint="auto"``) from 22 of 24
-    one-view scans of 4 placements, against 20 of the same 24 without a viewpoint. ``FitResult.side_distances_mm`` holds both; ``seconds`` is the wall time of
-    both.
+    one-view scans of 4 placements, against 20 of the same 24 without a viewpoint.
+    ``FitResult.side_distances_mm`` holds both; ``seconds`` is the wall time of both.
 
     On a CUDA device, or on a CPU with two cores or more when the fit runs on one thread
     (``config.num_threads`` 1, the default), the two fits run side by side in two threads (the
