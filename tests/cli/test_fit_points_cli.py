@@ -299,3 +299,21 @@ def test_without_model_the_shipped_geometric_prior_fits(lisa, files, tmp_path, c
     model, hand = load_hand(out / "params.json")
     assert not model.has_color and model.source.endswith("lisa_geometry_v2.pt")
     assert hand.model == "geometry_v2"
+
+
+def test_a_failed_preview_leaves_the_fit_written(lisa, files, capsys, monkeypatch):
+    """``preview.png`` is a picture, not the fit: when drawing it fails, the command says so in
+    one line and writes the fit's other files."""
+    from lisa_hand.fitting.points import preview
+
+    def broken(*args, **kwargs):
+        raise RuntimeError("no rays today")
+
+    monkeypatch.setattr(preview, "fit_preview", broken)
+    root, _ = files
+    out = root / "no_preview"
+    assert lisa(["fit-points", str(root / "scan.npz"), "--out", str(out), "--model",
+                 str(root / "tiny.pt"), *FAST_ARGS]) == 0
+    said = capsys.readouterr().out
+    assert "preview.png not written: RuntimeError: no rays today" in said
+    assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "params.json"]

@@ -363,15 +363,16 @@ def fit_point_file(
     metrics = None if truth is None else ground_truth_metrics(mesh, truth, fit.wrist_plane)
     written = write_fit_outputs(out_dir, params, mesh, metrics,
                                 model=None if refined is None else model,
-                                preview=_preview(mesh, cloud, fit, params.extra["input"]))
+                                preview=_preview(mesh, cloud, fit, params.extra["input"], log))
     return FitPointsReport(cloud=cloud, fit=fit, mesh=mesh, metrics=metrics, written=written,
                            refine=refined)
 
 
-def _preview(mesh, cloud: PointCloud, fit, record: dict) -> np.ndarray | None:
+def _preview(mesh, cloud: PointCloud, fit, record: dict, log) -> np.ndarray | None:
     """``preview.png`` (:func:`lisa_hand.fitting.points.preview.fit_preview`) of the fitted
     ``mesh`` and the scan, from the sensor when ``record`` (``params.json``'s "input") has one;
-    None for a mesh without faces."""
+    None for a mesh without faces, or when the picture fails (logged: the fit's files are
+    written without it)."""
     import point_cloud_utils as pcu
 
     from .preview import fit_preview
@@ -381,10 +382,14 @@ def _preview(mesh, cloud: PointCloud, fit, record: dict) -> np.ndarray | None:
     points = np.asarray(cloud.points, np.float64)
     vertices = np.asarray(mesh.vertices, np.float64)
     faces = np.asarray(mesh.faces, np.int64)
-    distances, _, _ = pcu.closest_points_on_mesh(points, vertices, faces)
-    kept = None if fit.wrist_plane is None else fit.wrist_plane.keeps(points)
-    return fit_preview(vertices, faces, points, 1000.0 * distances, kept=kept,
-                       viewpoint=record.get("viewpoint_m"))
+    try:
+        distances, _, _ = pcu.closest_points_on_mesh(points, vertices, faces)
+        kept = None if fit.wrist_plane is None else fit.wrist_plane.keeps(points)
+        return fit_preview(vertices, faces, points, 1000.0 * distances, kept=kept,
+                           viewpoint=record.get("viewpoint_m"))
+    except Exception as error:  # a picture is not worth the fit: write the rest
+        log(f"preview.png not written: {type(error).__name__}: {error}")
+        return None
 
 
 def _fit_notes(points_path: Path, fit, view, unit: str, config, log) -> dict:
