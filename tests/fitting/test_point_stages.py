@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 import re
 
+import numpy as np
 import pytest
 import torch
 
@@ -404,6 +405,40 @@ def test_side_auto_keeps_the_side_the_scan_shows():
             sdf = hand_field(model, fit.params).sdf_fn()(cloud)
         own = float(sdf.abs().clamp_max(0.01)[keep].mean()) * 1e3  # this fit's cut only
         assert own == pytest.approx(distances[side], rel=0.05, abs=0.02)
+
+
+def test_tries_keep_the_fit_nearest_the_scan():
+    """``view_tries=2`` on a one-view scan with its sensor: fits from seeds 3 and 4, the one
+    nearer the scan kept, equal to that seed's fit on its own (the two ran side by side in two
+    threads); without a sensor position the same config fits once (``tries`` 1)."""
+    import dataclasses
+
+    from lisa_hand.data.scans import simulate_scan
+    from lisa_hand.fitting.points.fit import start_hand
+    from lisa_hand.inference import MeshConfig, mesh_hand
+    from lisa_hand.model.trained import load_trained
+
+    model = load_trained("geometry_v2", "cpu")
+    config = FitPointsConfig(**{**FAST, "seed": 3, "view_tries": 2})
+    _, rest_hand, _ = start_hand(model, target_cloud(torch.zeros(30, 3), None), None)
+    pose = torch.zeros(16, 3)
+    pose[0] = torch.tensor([0.3, 0.2, -0.4])
+    pose[1:16, 2] = 0.4
+    truth = rest_hand.with_pose(pose.reshape(48), torch.tensor([0.0, 0.0, 0.35]))
+    mesh = mesh_hand(model, truth, 64, MeshConfig(colors=False, skin_weights=False))
+    scan = simulate_scan(mesh.vertices, mesh.faces, ScanConfig(
+        num_points=2000, partial=True, viewpoint=(0.0, 0.0, 0.0)), seed=2)
+    fit = fit_points(model, scan.points, None, config, side="right", viewpoint=np.zeros(3))
+    distances = fit.try_distances_mm
+    assert len(distances) == 2 and fit.side_distances_mm is None
+    assert fit.params.extra["fit"]["try_distances_mm"] == distances
+    seed = 3 + int(np.argmin(distances))
+    alone = fit_points(model, scan.points, None, dataclasses.replace(config, seed=seed,
+                                                                     view_tries=1),
+                       side="right", viewpoint=np.zeros(3))
+    assert alone.energy == fit.energy and torch.equal(alone.params.pose, fit.params.pose)
+    once = fit_points(model, scan.points, None, config, side="right")
+    assert once.try_distances_mm is None
 
 
 def test_a_sparse_cloud_counts_coverage_within_its_point_spacing():

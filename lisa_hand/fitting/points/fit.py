@@ -28,16 +28,16 @@ limits are the shared ones of :mod:`lisa_hand.fitting.priors`.
 
 LISA is a right hand: a left hand's cloud (``side="left"``) is fitted as the right hand of the
 mirrored cloud and the result mirrored back (``params.side == "left"``). With ``side="auto"``
-both are fitted and the one whose surface lies nearer the scan is kept (:func:`_either_side`).
+both are fitted and the one whose surface lies nearer the scan is kept; with
+``FitPointsConfig.tries`` above 1, so is the nearest of fits from as many seeds
+(:func:`.hypotheses.best_of`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import os
 import time
 from collections.abc import Callable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -57,6 +57,7 @@ from .config import FitPointsConfig
 from .finger_search import restart_fingers
 from .free_space import DepthImage, free_points_near, free_space_points
 from .global_pose import search_global_pose
+from .hypotheses import best_of
 from .monitor import FitMonitor, FitStep
 from .proxy import build_surface_proxy, covered_fraction, fit_proxy_pose, unseen_fingers
 from .surface_stage import fit_surface, frozen_field, surface_residuals
@@ -114,7 +115,10 @@ class FitResult:
     coverage: float = float("nan")
     side_distances_mm: dict[str, float] | None = None
     """``side="auto"``: each side's fitted surface's mean distance (mm) from the scan points
-    that both fits keep (:func:`_either_side`); None when the side was given."""
+    that all fits keep (:func:`.hypotheses.best_of`); None when the side was given."""
+    try_distances_mm: list[float] | None = None
+    """Several fits (``side="auto"``, ``config.tries`` > 1): every fit's distance (mm), the
+    sides side by side for each seed; None for one fit."""
     viewpoint: ViewpointEstimate | None = None
     """``viewpoint="auto"``: what :func:`.viewpoint.estimate_viewpoint` found (its position
     was used when ``one_view``); None when the viewpoint was given or left out."""
@@ -134,6 +138,8 @@ class FitResult:
             "coverage": self.coverage,
             **({} if self.side_distances_mm is None
                else {"side_distances_mm": dict(self.side_distances_mm)}),
+            **({} if self.try_distances_mm is None
+               else {"try_distances_mm": list(self.try_distances_mm)}),
             **({} if self.viewpoint is None else {"viewpoint_estimate": {
                 "position_m": [float(v) for v in self.viewpoint.position],
                 "hidden_fraction": self.viewpoint.hidden_fraction,
@@ -403,7 +409,8 @@ def fit_points(
     rest_joints: [16, 3] metres, a fixed skeleton (of the ``side`` hand); None: the template's
         (:func:`lisa_hand.handmodel.template.load_template`), whose betas are fitted.
     side: 'right' or 'left': the hand the cloud shows (a left one is fitted mirrored); 'auto':
-        both fitted, the nearer one kept (:func:`_either_side`; side by side in two threads).
+        both fitted, the nearer one kept (:func:`.hypotheses.best_of`; side by side in two
+        threads). ``config.tries`` fits of each side from consecutive seeds, the same way.
     viewpoint: [3] world metres, the sensor position of a one-view scan (a depth camera's
         points in its own frame: the origin), or None; with it the proxy and surface stages keep
         the hand out of what the sensor saw to be empty (:mod:`.free_space`,
@@ -429,13 +436,15 @@ def fit_points(
                              f"{viewpoint!r}")
         estimate = estimate_viewpoint(points, seed=config.seed)
         viewpoint = estimate.position if estimate.one_view else None
-    if side == "auto":
-        result = _either_side(model, points, normals, config, rest_joints=rest_joints,
-                              viewpoint=viewpoint, progress=progress, callback=callback)
-    else:
-        result = _fit_side(model, points, normals, config, rest_joints=rest_joints,
-                           side=check_side(side), viewpoint=viewpoint, progress=progress,
-                           callback=callback)
+
+    def fit_one(one_side: str, one_config: FitPointsConfig, bar) -> FitResult:
+        return _fit_side(model, points, normals, one_config, rest_joints=rest_joints,
+                         side=one_side, viewpoint=viewpoint, progress=progress,
+                         callback=callback, bar=bar)
+
+    sides = ("right", "left") if side == "auto" else (check_side(side),)
+    tries = config.tries if viewpoint is None else config.view_tries
+    result = best_of(fit_one, model, points, dataclasses.replace(config, tries=tries), sides)
     result.viewpoint = estimate
     result.params.extra["fit"] = result.summary()
     return result
@@ -506,73 +515,3 @@ def _left_callback(callback: Callable[[FitStep], None] | None
         callback(dataclasses.replace(step, _make_params=lambda: mirror_hand(right())))
 
     return forward
-
-
-_SIDE_DISTANCE_CAP_MM = 10.0
-"""Distances beyond this count as this much when the two sides are compared (an outlier in the
-scan is far from either hand and must not decide)."""
-
-
-def _either_side(model, points, normals, config: FitPointsConfig, **kwargs) -> FitResult:
-    """``fit_points(side="auto")``: the cloud fitted as a right hand and as a left one; the fit
-    kept is the one whose surface lies nearer the scan: the mean ``min(|G(x)|, 10 mm)`` over the
-    points on the hand's side of both fits' wrist cuts (the same points for both, so that
-    neither wins by cutting more of the scan away). Measured on the WebXR hands (both sides;
-    rest, bent index and fist; two placements): the true side kept from all 12 full scans
-    (0.98-1.18 mm against 1.24-1.83 for the mirror image), from 18 of 24 one-view scans, where
-    the mirror image can fit the seen side as well (``lisa fit-points`` then asks for
-    ``--side``); with the viewpoint found from the scan (``viewpoint="auto"``) from 22 of 24
-    one-view scans of 4 placements, against 20 of the same 24 without a viewpoint.
-    ``FitResult.side_distances_mm`` holds both; ``seconds`` is the wall time of both.
-
-    On a CUDA device, or on a CPU with two cores or more when the fit runs on one thread
-    (``config.num_threads`` 1, the default), the two fits run side by side in two threads (the
-    same results as one after the other: each fit has its own seeded generator): 10.7 s for
-    both against 19.2 s one after the other, a full WebXR scan on the 2-core machine. The
-    callback then gets both fits' steps, interleaved (``step.params().side`` tells them apart).
-    """
-    start = time.perf_counter()
-    sides = ("right", "left")
-    parallel = model.device.type == "cuda" or (config.num_threads == 1
-                                               and (os.cpu_count() or 1) >= 2)
-    inner = dataclasses.replace(config, num_threads=None)  # the threads are set here, once
-    threads = config.num_threads if model.device.type == "cpu" else None
-
-    def one(index: int) -> FitResult:
-        return _fit_side(model, points, normals, inner, side=sides[index],
-                         bar=(sides[index], index if parallel else None), **kwargs)
-
-    with cpu_threads(threads), frozen_field(model):
-        if parallel:
-            with ThreadPoolExecutor(max_workers=2, thread_name_prefix="fit-side") as pool:
-                fits = dict(zip(sides, pool.map(one, range(2)), strict=True))
-        else:
-            fits = {side: one(index) for index, side in enumerate(sides)}
-        distances = _side_distances(model, points, fits, config)
-    best = fits[min(distances, key=distances.get)]
-    best.side_distances_mm = distances
-    best.seconds = time.perf_counter() - start
-    best.params.extra["fit"] = best.summary()
-    return best
-
-
-def _side_distances(model, points, fits: dict[str, FitResult], config: FitPointsConfig
-                    ) -> dict[str, float]:
-    """Each side's mean capped distance (mm) from the points both fits keep
-    (:func:`_either_side`)."""
-    cloud = target_cloud(points, None, dtype=model.field.dtype, device=model.device,
-                         min_points=config.min_points, max_points=config.max_points,
-                         seed=config.seed).points
-    numpy_cloud = cloud.detach().cpu().double().numpy()
-    keep = np.ones(cloud.shape[0], dtype=bool)
-    for fit in fits.values():
-        if fit.wrist_plane is not None:
-            keep &= fit.wrist_plane.keeps(numpy_cloud)
-    common = cloud[torch.from_numpy(keep).to(cloud.device)] if keep.any() else cloud
-    distances = {}
-    with torch.no_grad():
-        for side, fit in fits.items():
-            hand = mirror_hand(fit.params) if side == "left" else fit.params
-            residual = surface_residuals(model, hand, mirror_cloud(common, side))
-            distances[side] = float(residual.clamp_max(_SIDE_DISTANCE_CAP_MM * _MM).mean()) / _MM
-    return distances
