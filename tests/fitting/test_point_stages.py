@@ -408,9 +408,9 @@ def test_side_auto_keeps_the_side_the_scan_shows():
 
 
 def test_tries_keep_the_fit_nearest_the_scan():
-    """``view_tries=2`` on a one-view scan with its sensor: fits from seeds 3 and 4, the one
-    nearer the scan kept, equal to that seed's fit on its own (the two ran side by side in two
-    threads); without a sensor position the same config fits once (``tries`` 1)."""
+    """``tries=2`` on a one-view scan with its sensor: fits from seeds 3 and 4, the one nearer
+    the scan kept, equal to that seed's fit on its own (the two ran side by side in two
+    threads); ``tries=1`` fits once."""
     import dataclasses
 
     from lisa_hand.data.scans import simulate_scan
@@ -419,7 +419,7 @@ def test_tries_keep_the_fit_nearest_the_scan():
     from lisa_hand.model.trained import load_trained
 
     model = load_trained("geometry_v2", "cpu")
-    config = FitPointsConfig(**{**FAST, "seed": 3, "view_tries": 2})
+    config = FitPointsConfig(**{**FAST, "seed": 3, "tries": 2})
     _, rest_hand, _ = start_hand(model, target_cloud(torch.zeros(30, 3), None), None)
     pose = torch.zeros(16, 3)
     pose[0] = torch.tensor([0.3, 0.2, -0.4])
@@ -433,12 +433,10 @@ def test_tries_keep_the_fit_nearest_the_scan():
     assert len(distances) == 2 and fit.side_distances_mm is None
     assert fit.params.extra["fit"]["try_distances_mm"] == distances
     seed = 3 + int(np.argmin(distances))
-    alone = fit_points(model, scan.points, None, dataclasses.replace(config, seed=seed,
-                                                                     view_tries=1),
+    alone = fit_points(model, scan.points, None, dataclasses.replace(config, seed=seed, tries=1),
                        side="right", viewpoint=np.zeros(3))
     assert alone.energy == fit.energy and torch.equal(alone.params.pose, fit.params.pose)
-    once = fit_points(model, scan.points, None, config, side="right")
-    assert once.try_distances_mm is None
+    assert alone.try_distances_mm is None
 
 
 def test_a_sparse_cloud_counts_coverage_within_its_point_spacing():

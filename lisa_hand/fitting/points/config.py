@@ -170,11 +170,7 @@ class FitPointsConfig:
     """Seed of the random point subsets."""
     tries: int = 1
     """Fits from seeds ``seed``, ``seed + 1``, ...; the one nearest the scan is kept
-    (:func:`lisa_hand.fitting.points.hypotheses.best_of`) ..."""
-    view_tries: int = 1
-    """... and as many of a one-view scan fitted with its sensor position (``viewpoint`` given
-    or found), where a hidden finger is found from some seeds and not others (``lisa
-    fit-points``: 2)."""
+    (:func:`lisa_hand.fitting.points.hypotheses.best_of`; ``lisa fit-points --tries``)."""
 
     def __post_init__(self) -> None:
         from .global_pose import initial_finger_pose
@@ -183,7 +179,7 @@ class FitPointsConfig:
                                 "second_pass_iters"), 0)
         check_int_fields(self, ("free_space_points", "free_near_every", "align_keep",
                                 "num_restarts", "points_per_iteration", "proxy_points",
-                                "max_points", "min_points", "tries", "view_tries"), 1)
+                                "max_points", "min_points", "tries"), 1)
         if not self.init_poses:
             raise ValueError("init_poses must name at least one pose")
         for name in self.init_poses:

@@ -443,8 +443,7 @@ def fit_points(
                          callback=callback, bar=bar)
 
     sides = ("right", "left") if side == "auto" else (check_side(side),)
-    tries = config.tries if viewpoint is None else config.view_tries
-    result = best_of(fit_one, model, points, dataclasses.replace(config, tries=tries), sides)
+    result = best_of(fit_one, model, points, config, sides)
     result.viewpoint = estimate
     result.params.extra["fit"] = result.summary()
     return result

@@ -18,9 +18,12 @@ from all 12 full scans of two placements (0.98-1.18 mm against 1.24-1.83 for the
 from 18 of 24 one-view scans, where the mirror image can fit the seen side as well (``lisa
 fit-points`` then asks for ``--side``); with the viewpoint found from the scan
 (``viewpoint="auto"``) from 22 of 24 one-view scans of 4 placements, against 20 of the same 24
-without one. Seeds (one-view WebXR scans, the nearest of seeds 0 and 1 against seed 0 alone,
-V2S scan->recon): 6 hard placements 5.31 -> 3.57 mm mean; seed 0's fit of one of them was 11.8
-mm (1.69 mm from the scan, against 0.73 for seed 1's 4.05 mm fit).
+without one. Seeds (one-view scans with ``viewpoint="auto"``, V2S scan->recon, mean (worst),
+one try against two): WebXR right, 15 scans (5 placements x 3 poses) 2.23 (4.02) -> 2.20
+(4.02); WebXR left 2.62 (5.40) -> 2.61 (5.54); 12 scans of held-out v2 subjects 2.06 (4.32) ->
+1.74 (4.26). Where the seeds disagree most (6 placements picked for it) the nearest of two pulled
+a 11.8 mm fit back to 4.05 mm, but on the real hand the scan distance ranks its fits no better
+than chance, so a second try (twice the work) is left to ``tries``.
 """
 
 from __future__ import annotations
