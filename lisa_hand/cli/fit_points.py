@@ -15,7 +15,9 @@ def fit_points(
         metavar="POINTS",
         help="Point cloud: PLY, OBJ, XYZ, NPY or NPZ (normals optional; a mesh's vertices).")],
     out: Annotated[Path, typer.Option(
-        "--out", help="Output folder: params.json, mesh.ply and, with --gt, metrics.json.")],
+        "--out", help="Output folder: params.json, mesh.ply, keypoints.json, preview.png (the "
+                      "fit and the scan's points, coloured by their distance to it) and, with "
+                      "--gt, metrics.json.")],
     model: PointModelOpt = None,
     gt: Annotated[Path | None, typer.Option(
         "--gt", help="Ground-truth mesh (or points): also write V2V and V2S distances (mm), "
@@ -61,7 +63,8 @@ def fit_points(
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
-    full, with noise and outliers) and write OUT/params.json and OUT/mesh.ply."""
+    full, with noise and outliers) and write OUT/params.json, OUT/mesh.ply, OUT/keypoints.json and
+    OUT/preview.png."""
     from ..fitting.points.fit import FitPointsConfig
     from ..fitting.points.io import fit_point_file
 
