@@ -65,6 +65,12 @@ def test_writes_params_mesh_and_metrics(lisa, files, capsys):
     assert f"fitted {counted} points" in printed and "wrote" in printed
     assert (f"{beyond} points lie beyond the wrist" in printed) == (beyond > 0)
     params = read_params(out / "params.json")
+    # A scan from all round: --viewpoint auto finds no sensor, and says nothing of it unless
+    # the fit covers little of the hand (where the user may want to know why).
+    found = params.extra["fit"]["viewpoint_estimate"]
+    assert not found["one_view"] and "viewpoint_m" not in params.extra["input"]
+    covered = params.extra["fit"]["coverage"] >= 2.0 / 3.0
+    assert ("not one view" in printed or "too few to find" in printed) == (not covered), printed
     assert params.side == "right" and params.betas is not None and params.betas.shape == (10,)
     assert params.color_code is not None and params.color_code.shape == (8,)
     assert params.model.endswith("tiny.pt")

@@ -393,11 +393,14 @@ def _preview(mesh, cloud: PointCloud, fit, record: dict, log) -> np.ndarray | No
 
 
 def _fit_notes(points_path: Path, fit, view, unit: str, config, log) -> dict:
-    """Log what the fit decided (the viewpoint found, the side kept, a one-sided scan without a
-    viewpoint, points beyond the wrist) -> the viewpoint used, for ``params.json``'s "input"
-    (``viewpoint_m``, ``viewpoint_source``; empty without one)."""
+    """Log what the fit decided (the viewpoint found, or why none was for a scan that shows one
+    side of the hand; the side kept; a one-sided scan without a viewpoint; points beyond the
+    wrist) -> the viewpoint used, for ``params.json``'s "input" (``viewpoint_m``,
+    ``viewpoint_source``; empty without one). A scan from all round for which none was found
+    (as it should be) gets no line about it."""
     if fit.viewpoint is not None:
-        log(_viewpoint_found(points_path, fit.viewpoint, unit))
+        if fit.viewpoint.one_view or fit.coverage < config.covered_fraction:
+            log(_viewpoint_found(points_path, fit.viewpoint, unit))
         view = fit.viewpoint.position if fit.viewpoint.one_view else None
     if fit.side_distances_mm is not None:
         log(_side_choice(points_path, fit, config))
