@@ -165,9 +165,10 @@ def run_demo(
     log(f"(PSNR: inside the mask, in {len(novel)} views that no fit used, with the model's mean "
         "colour calibration, then with each novel camera's own simulated gain and bias; "
         "distances in mm against the ground-truth mesh)")
+    preview = out_dir / "fit_points" / "preview.png"
     report_path = _write_report(out_dir / "report.html", rows, pictures, turntable.gif_path,
                                 _to_uint8(read_image(frame.image(fitted[0]))), model.source, total,
-                                config)
+                                config, preview if preview.is_file() else None)
     (out_dir / "results.md").write_text(table + "\n", encoding="utf-8")
     log(f"demo finished in {total:.0f} s: {report_path}")
     return DemoResult(rows=rows, report=report_path, seconds=total)
@@ -255,7 +256,11 @@ def _markdown_table(rows: list[dict]) -> str:
 
 
 def _write_report(path: Path, rows, pictures, gif: Path | None, input_image: np.ndarray,
-                  source: str, seconds: float, config: DemoConfig) -> Path:
+                  source: str, seconds: float, config: DemoConfig,
+                  preview: Path | None = None) -> Path:
+    """report.html; preview: the point-cloud fit's ``preview.png`` (shown when given)."""
+    import imageio.v3 as iio
+
     from ..utils.io import atomic_path
 
     header = ("<tr><th>input</th><th>V2V recon&rarr;scan</th><th>V2S recon&rarr;scan</th>"
@@ -277,6 +282,10 @@ def _write_report(path: Path, rows, pictures, gif: Path | None, input_image: np.
     )
     turntable = (f"<figure><img src='{_gif_data_uri(gif)}'><figcaption>turntable of the "
                  "4-view fit</figcaption></figure>") if gif is not None else ""
+    scan_fit = ("<h2>The point-cloud fit and its scan</h2><figure><img src='"
+                f"{_png_data_uri(iio.imread(preview))}'><figcaption>preview.png: the scan's "
+                "points coloured by their distance to the fitted surface</figcaption></figure>"
+                ) if preview is not None else ""
     page = f"""<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>LISA-open demo</title>
 <style>body{{font-family:sans-serif;max-width:1100px;margin:2em auto}}
@@ -293,6 +302,7 @@ V2S: vertex to surface), PSNR inside the mask in views that no fit used. Whole d
 <figure><img src='{_png_data_uri(input_image)}'></figure>
 <h2>Novel views</h2>{figures}
 <h2>Turntable</h2>{turntable}
+{scan_fit}
 </body></html>
 """
     with atomic_path(path) as tmp:

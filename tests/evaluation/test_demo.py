@@ -81,6 +81,7 @@ def test_demo_fits_measures_renders_and_reports(model_file, tmp_path):
     assert sources and all(src.startswith("data:image/") for src in sources)
     assert any(src.startswith("data:image/gif;base64,") for src in sources)
     assert "href=" not in page and page.count("<tr><td>LISA, ") == 3
+    assert "The point-cloud fit and its scan" in page  # fit_points/preview.png, embedded
 
     # The calibrated PSNR renders each novel view with that camera's gain and bias from the
     # frame's truth: given the model's own mean calibration there, it is the plain PSNR; a
