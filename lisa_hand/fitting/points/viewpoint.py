@@ -96,8 +96,9 @@ class ViewpointEstimate:
     direction: np.ndarray
     """[3] unit vector from the cloud's centre towards the sensor."""
     hidden_fraction: float
-    """Share of the points hidden behind others seen from ``position``'s direction (0 for a
-    perfect one-view scan; about half for a scan from all round)."""
+    """Share of the points hidden behind others seen along the found axis, from the end of it
+    that hides fewer (step 1 of the module docstring; 0 for a perfect one-view scan, about half
+    for a scan from all round)."""
     one_view: bool
     """``hidden_fraction`` is at most ``ViewpointConfig.max_hidden``: the cloud looks like one
     view, and ``position`` can be given to the fit."""
