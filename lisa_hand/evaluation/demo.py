@@ -90,8 +90,10 @@ def _png_data_uri(image: np.ndarray) -> str:
     return "data:image/png;base64," + base64.b64encode(buffer.getvalue()).decode("ascii")
 
 
-def _gif_data_uri(path: Path) -> str:
-    return "data:image/gif;base64," + base64.b64encode(path.read_bytes()).decode("ascii")
+def _file_data_uri(path: Path, kind: str) -> str:
+    """The image file ``path`` of type ``kind`` ("gif", "png") as a data URI, its bytes as
+    they are."""
+    return f"data:image/{kind};base64," + base64.b64encode(path.read_bytes()).decode("ascii")
 
 
 def _novel_view_psnr(model, params, frame, names: list[str]) -> tuple[float, float, list]:
@@ -259,8 +261,6 @@ def _write_report(path: Path, rows, pictures, gif: Path | None, input_image: np.
                   source: str, seconds: float, config: DemoConfig,
                   preview: Path | None = None) -> Path:
     """report.html; preview: the point-cloud fit's ``preview.png`` (shown when given)."""
-    import imageio.v3 as iio
-
     from ..utils.io import atomic_path
 
     header = ("<tr><th>input</th><th>V2V recon&rarr;scan</th><th>V2S recon&rarr;scan</th>"
@@ -280,11 +280,11 @@ def _write_report(path: Path, rows, pictures, gif: Path | None, input_image: np.
         "</figcaption></figure>"
         for label, (shot, truth) in pictures.items()
     )
-    turntable = (f"<figure><img src='{_gif_data_uri(gif)}'><figcaption>turntable of the "
+    turntable = (f"<figure><img src='{_file_data_uri(gif, 'gif')}'><figcaption>turntable of the "
                  "4-view fit</figcaption></figure>") if gif is not None else ""
     scan_fit = ("<h2>The point-cloud fit and its scan</h2><figure><img src='"
-                f"{_png_data_uri(iio.imread(preview))}'><figcaption>preview.png: the scan's "
-                "points coloured by their distance to the fitted surface</figcaption></figure>"
+                f"{_file_data_uri(preview, 'png')}'><figcaption>preview.png: the scan's points "
+                "coloured by their distance to the fitted surface</figcaption></figure>"
                 ) if preview is not None else ""
     page = f"""<!DOCTYPE html>
 <html><head><meta charset="utf-8"><title>LISA-open demo</title>

@@ -36,16 +36,16 @@ def distance_colors(distance_mm: np.ndarray) -> np.ndarray:
 def _axes(vertices: np.ndarray, viewpoint: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """(unit direction [3] from the hand's centre towards the first view's camera, unit image-up
     [3] across it): the sensor's direction, or the thinnest principal axis; up along the
-    longest principal axis (the next one when that looks along the view)."""
+    longest principal axis (the next one when that looks along the view: of two orthogonal
+    axes one is always at least 45 degrees off it)."""
     centre = vertices.mean(0)
     _, _, axes = np.linalg.svd(vertices - centre, full_matrices=False)
     toward = axes[2] if viewpoint is None else np.asarray(viewpoint, np.float64) - centre
     toward = toward / max(np.linalg.norm(toward), 1e-12)
-    for up in (axes[0], axes[1]):
-        across = up - (up @ toward) * toward
-        if np.linalg.norm(across) > 0.3:
-            return toward, across / np.linalg.norm(across)
-    return toward, axes[2] - (axes[2] @ toward) * toward  # unreachable for three axes
+    across = axes[0] - (axes[0] @ toward) * toward
+    if np.linalg.norm(across) <= 0.3:
+        across = axes[1] - (axes[1] @ toward) * toward
+    return toward, across / np.linalg.norm(across)
 
 
 def _rotated(vector: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
@@ -54,13 +54,11 @@ def _rotated(vector: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
             + axis * (axis @ vector) * (1.0 - math.cos(angle)))
 
 
-def _view(vertices, faces, points, colors, toward, up, size: int) -> np.ndarray:
-    """One panel [size, size, 3] float: the surface seen from ``toward`` (unit [3], from the
-    centre), ``up`` upright, and the visible points drawn as dots of ``colors`` [N, 3]."""
+def _camera(vertices: np.ndarray, toward: np.ndarray, up: np.ndarray, size: int):
+    """A square camera [size px] looking at the surface from ``toward`` (unit [3], from its
+    centre), ``up`` upright, far enough to see all of it."""
     import torch
 
-    from ...data.images import render_views
-    from ...data.shading import ShadingConfig
     from ...geometry.cameras import Camera, intrinsics_from_fov, look_at
 
     centre = 0.5 * (vertices.min(0) + vertices.max(0))
@@ -68,22 +66,25 @@ def _view(vertices, faces, points, colors, toward, up, size: int) -> np.ndarray:
     distance = 1.15 * radius / math.sin(math.radians(0.5 * _FOV_DEG))
     R, t = look_at(torch.from_numpy(centre + distance * toward), torch.from_numpy(centre),
                    torch.from_numpy(up))
-    camera = Camera(K=intrinsics_from_fov(_FOV_DEG, size, size, dtype=torch.float64), R=R, t=t,
-                    width=size, height=size)
-    shading = ShadingConfig(ambient=0.3, diffuse=0.7, light_directions=((0.0, -0.3, -1.0),),
-                            background=(1.0, 1.0, 1.0))
-    view = render_views(vertices, faces, [camera], np.array([0.72, 0.72, 0.72]),
-                        shading=shading)[0]
+    return Camera(K=intrinsics_from_fov(_FOV_DEG, size, size, dtype=torch.float64), R=R, t=t,
+                  width=size, height=size)
+
+
+def _with_points(view, camera, points: np.ndarray, colors: np.ndarray) -> np.ndarray:
+    """One panel [size, size, 3] float: the rendered ``view`` with the ``points`` [N, 3] that
+    ``camera`` sees (not behind the surface) drawn over it as dots of ``colors`` [N, 3]."""
+    import torch
+
+    from ...geometry.cameras import project_points
+
+    size = camera.width
     image = view.rgb.astype(np.float64).copy()
-    in_camera = points @ R.numpy().T + t.numpy()
-    z = in_camera[:, 2]
-    K = camera.K.numpy()
-    u = np.floor(K[0, 0] * in_camera[:, 0] / z + K[0, 2]).astype(np.int64)
-    v = np.floor(K[1, 1] * in_camera[:, 1] / z + K[1, 2]).astype(np.int64)
+    pixels, depth = project_points(camera.K, camera.R, camera.t, torch.from_numpy(points))
+    u, v = np.floor(pixels.numpy()).astype(np.int64).T
+    z = depth.numpy()
     inside = (z > 0) & (u >= 0) & (u < size) & (v >= 0) & (v < size)
     u, v, z, colors = u[inside], v[inside], z[inside], colors[inside]
-    surface = view.depth[v, u]
-    seen = ~view.mask[v, u] | (z <= surface + _NEAR_M)
+    seen = ~view.mask[v, u] | (z <= view.depth[v, u] + _NEAR_M)
     order = np.argsort(-z[seen])  # far first, so that the nearest dot is drawn last
     u, v, colors = u[seen][order], v[seen][order], colors[seen][order]
     dot = max(1, size // 240)
@@ -103,6 +104,9 @@ def fit_preview(vertices, faces, points, distances_mm, kept=None, viewpoint=None
     fit kept (others grey), None: all; viewpoint: [3] metres, the sensor, or None; size: pixels
     of each square panel. -> [size + legend, 3 size, 3] uint8 RGB.
     """
+    from ...data.images import render_views
+    from ...data.shading import ShadingConfig
+
     vertices = np.asarray(vertices, np.float64)
     faces = np.asarray(faces, np.int64)
     points = np.asarray(points, np.float64)
@@ -110,9 +114,14 @@ def fit_preview(vertices, faces, points, distances_mm, kept=None, viewpoint=None
     if kept is not None:
         colors[~np.asarray(kept, bool)] = 0.55
     toward, up = _axes(vertices, viewpoint)
-    panels = [_view(vertices, faces, points, colors, _rotated(toward, up, angle), up, size)
-              for angle in (0.0, 0.5 * math.pi, math.pi)]
-    picture = np.concatenate(panels, axis=1)
+    cameras = [_camera(vertices, _rotated(toward, up, angle), up, size)
+               for angle in (0.0, 0.5 * math.pi, math.pi)]
+    shading = ShadingConfig(ambient=0.3, diffuse=0.7, light_directions=((0.0, -0.3, -1.0),),
+                            background=(1.0, 1.0, 1.0))
+    views = render_views(vertices, faces, cameras, np.array([0.72, 0.72, 0.72]),
+                         shading=shading)
+    picture = np.concatenate([_with_points(view, camera, points, colors)
+                              for view, camera in zip(views, cameras, strict=True)], axis=1)
     return _with_labels(picture, size, viewpoint is not None)
 
 
