@@ -49,9 +49,12 @@ def _axes(vertices: np.ndarray, viewpoint: np.ndarray | None) -> tuple[np.ndarra
 
 
 def _rotated(vector: np.ndarray, axis: np.ndarray, angle: float) -> np.ndarray:
-    """``vector`` [3] turned by ``angle`` radians about the unit ``axis`` [3] (Rodrigues)."""
-    return (vector * math.cos(angle) + np.cross(axis, vector) * math.sin(angle)
-            + axis * (axis @ vector) * (1.0 - math.cos(angle)))
+    """``vector`` [3] turned by ``angle`` radians about the unit ``axis`` [3]."""
+    import torch
+
+    from ...geometry import axis_angle_to_matrix
+
+    return axis_angle_to_matrix(torch.from_numpy(angle * axis)).numpy() @ vector
 
 
 def _camera(vertices: np.ndarray, toward: np.ndarray, up: np.ndarray, size: int):
