@@ -39,7 +39,9 @@ class MeshRender:
 def render_mesh(model: TrainedModel, mesh: Mesh, camera: Camera, supersample: int = 2
                 ) -> MeshRender:
     """Render ``mesh`` (a hand of ``model``: world frame metres, outward faces, uint8 colours
-    [V, 3] or none: grey) into ``camera`` with the model's shading.
+    [V, 3]) into ``camera`` with the model's shading; a mesh without colours, or of a model
+    without colour (a geometric prior), in grey lit by a light at the camera (ambient 0.3,
+    diffuse 0.7: :class:`lisa_hand.data.shading.ShadingConfig`), so that its shape shows.
 
     supersample: rays a pixel side (>= 1). -> :class:`MeshRender` of ``camera``'s size.
     """
@@ -53,14 +55,18 @@ def render_mesh(model: TrainedModel, mesh: Mesh, camera: Camera, supersample: in
         return MeshRender(rgb=np.zeros((height, width, 3), np.float32),
                           alpha=np.zeros((height, width), np.float32))
     fine = scale_camera(camera.to("cpu"), width * supersample, height * supersample)
-    colors = (np.full((len(mesh.vertices), 3), 0.7, np.float32) if mesh.colors is None
-              else mesh.colors.astype(np.float32) / 255.0)
-    unlit = ShadingConfig(ambient=1.0, diffuse=0.0)  # the model's shading is applied below
-    (view,) = render_views(mesh.vertices, mesh.faces, [fine], colors, unlit,
+    shaded = mesh.colors is not None and model.has_color
+    if not shaded:  # no colour to show: grey, lit from the camera, to show the shape
+        colors = np.full((len(mesh.vertices), 3), 0.8, np.float32)
+        lighting = ShadingConfig(ambient=0.3, diffuse=0.7)
+    else:  # the model's shading (when it has one) is applied below
+        colors = mesh.colors.astype(np.float32) / 255.0
+        lighting = ShadingConfig(ambient=1.0, diffuse=0.0)
+    (view,) = render_views(mesh.vertices, mesh.faces, [fine], colors, lighting,
                            return_normals=True)
     hit = view.mask.reshape(-1)
     rgb = view.rgb.reshape(-1, 3) * hit[:, None]
-    if model.shading is not None and hit.any():
+    if model.shading is not None and shaded and hit.any():
         device = model.shading.diffuse_raw.device
         _, directions = pixel_rays(fine, device=device, dtype=torch.float32)
         rows = torch.from_numpy(np.flatnonzero(hit)).to(device)

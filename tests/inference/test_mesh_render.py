@@ -127,3 +127,21 @@ def test_mesh_attributes_and_mirror_mesh(model, right_mesh):
 
     assert volume(mesh) > 0 and volume(mirrored) == pytest.approx(volume(mesh), rel=1e-5)
     np.testing.assert_array_equal(mirrored.colors, mesh.colors)
+
+
+def test_a_mesh_without_colours_is_grey_and_lit_from_the_camera(model):
+    # A mesh without colours, or any mesh of a geometry-only model: grey 0.8 times ambient 0.3 + diffuse 0.7 max(0, n . l),
+    # whatever the model's own shading; brightest where the sphere faces the light.
+    sphere = ball(0.03, (0.0, 0.0, 0.4))
+    grey = Mesh(vertices=sphere.vertices, faces=sphere.faces)
+    geometry_only = dataclasses.replace(model, color_codes=None)  # its mesh: grey colours
+    cases = [(dataclasses.replace(model, shading=None), grey),
+             (dataclasses.replace(model, shading=HeadlightShading(0.65)), grey),
+             (geometry_only, sphere)]
+    for owner, mesh in cases:
+        image = render_mesh(owner, mesh, camera(), supersample=1)
+        inside = image.alpha == 1.0
+        values = image.rgb[inside]
+        np.testing.assert_allclose(values[:, 0], values[:, 2])  # grey
+        assert values.max() == pytest.approx(0.8, abs=0.01)
+        assert values.min() >= 0.8 * 0.3 - 1e-6 and values.max() - values.min() > 0.2

@@ -174,25 +174,37 @@ def fit_image_folder(
                               log)
 
 
-def fitted_mesh(model: Any, fit: FitImagesResult, resolution: int) -> Any:
+def fitted_mesh(model: Any, fit: FitImagesResult, resolution: int, clip: Any = None) -> Any:
     """The written mesh of ``fit.params`` (:func:`lisa_hand.inference.mesh_hand`: colours and
     skinning weights) at ``resolution``: the guard's mesh of the returned hand with its
     attributes when the guard meshed it at that resolution (the same surface, not extracted
-    twice), else extracted."""
+    twice), else extracted. clip: a :class:`lisa_hand.geometry.planes.Plane` (the hand's wrist
+    cut, :func:`lisa_hand.skeleton.wrist.wrist_plane`) along which the surface is cut, or
+    None."""
+    from ...geometry.meshing import Mesh
+    from ...geometry.planes import clip_mesh
     from ...inference import mesh_attributes, mesh_hand
 
     surface = fit.surface_meshes.get("returned")
     if surface is not None and fit.surface_resolution == resolution:
+        if clip is not None:
+            surface = Mesh(*clip_mesh(surface.vertices, surface.faces, clip))
         return mesh_attributes(model, fit.params, surface)
-    return mesh_hand(model, fit.params, resolution)
+    return mesh_hand(model, fit.params, resolution, clip=clip)
 
 
-def output_surface(model: Any, fit: FitImagesResult, mesh: Any, resolution: int
-                   ) -> dict[str, Any] | None:
-    """The guard's figures on the written mesh: ``mesh`` against the colour stage's start
-    meshed at the same ``resolution`` (:func:`lisa_hand.fitting.images.guard.surface_guard`;
-    the guard's own mesh of the start when it has that resolution); None when the colour stage
-    did not run."""
+def output_surface(model: Any, fit: FitImagesResult, mesh: Any, resolution: int,
+                   wrist_clip_m: float | None = None) -> dict[str, Any] | None:
+    """The guard's figures on the written mesh: ``mesh`` (specks removed,
+    :func:`lisa_hand.geometry.pieces.drop_specks`; cut ``wrist_clip_m`` past the fitted wrist
+    when that is not None) against the colour stage's start meshed at the same ``resolution``,
+    its specks removed and cut past its own wrist the same way
+    (:func:`lisa_hand.fitting.images.guard.surface_guard`; the guard's own mesh of the start
+    when it has that resolution); None when the colour stage did not run."""
+    from ...geometry.meshing import Mesh
+    from ...geometry.pieces import drop_specks
+    from ...geometry.planes import clip_mesh
+    from ...skeleton.wrist import wrist_plane
     from .guard import guard_mesh, surface_guard
 
     if fit.start is None or "color" not in fit.reports:
@@ -200,7 +212,10 @@ def output_surface(model: Any, fit: FitImagesResult, mesh: Any, resolution: int
     reference = fit.surface_meshes.get("start")
     if reference is None or fit.surface_resolution != resolution:
         reference = guard_mesh(model, fit.start, resolution)
-    report = surface_guard(reference, mesh)
+    if wrist_clip_m is not None:
+        reference = Mesh(*clip_mesh(reference.vertices, reference.faces,
+                                    wrist_plane(fit.start, wrist_clip_m)))
+    report = surface_guard(drop_specks(reference)[0], mesh)
     return {"resolution": resolution, **report.to_dict()}
 
 
@@ -208,11 +223,14 @@ def _finish_folder(model: Any, fit: FitImagesResult, image_views: Sequence[Image
                    out_dir: Path, truth: Any, resolution: int, psnr: bool,
                    notes: list[str], log: Callable[[str], None]) -> FitImagesReport:
     """Mesh, metrics and files of :func:`fit_image_folder`."""
+    from ...geometry.pieces import drop_specks
     from ..outputs import ground_truth_metrics, write_fit_outputs
 
     params = fit.params
     mesh_start = time.perf_counter()
-    mesh = fitted_mesh(model, fit, resolution)
+    mesh, specks = drop_specks(fitted_mesh(model, fit, resolution))
+    if specks.count:
+        log(specks.note("mesh.ply"))
     surface = output_surface(model, fit, mesh, resolution)
     if surface is not None and not surface["passed"]:
         note = (f"the written mesh (resolution {resolution}) fails the surface guard: "
@@ -235,6 +253,7 @@ def _finish_folder(model: Any, fit: FitImagesResult, image_views: Sequence[Image
                             ("passed", "pieces", "area_ratio", "fallback", "notes")}
     if surface is not None:
         metrics["surface"] = surface
+    metrics["specks_removed"] = specks.to_dict()
     if psnr:
         render_start = time.perf_counter()
         scores = view_psnrs(render_fitted_views(model, params, image_views))

@@ -33,13 +33,10 @@ from typing import Any
 
 import numpy as np
 
+from ...geometry.pieces import MIN_PIECE_FRACTION, surface_pieces
+
 __all__ = ["GuardReport", "MIN_PIECE_FRACTION", "surface_pieces", "surface_guard",
            "guard_mesh"]
-
-MIN_PIECE_FRACTION = 1e-3
-"""Pieces with less than this fraction of the surface's area are specks, not counted (0.1 %: for
-a 400 cm^2 hand, 0.4 cm^2, about the smallest closed blob a 64^3 grid around the hand resolves;
-a 0.6 cm^2 floater on a real photo counts, the ~0.01 cm^2 specks of marching cubes do not)."""
 
 
 @dataclass(frozen=True)
@@ -65,57 +62,6 @@ class GuardReport:
         values = asdict(self)
         values["notes"] = list(self.notes)
         return values
-
-
-def _mesh_arrays(mesh: Any, name: str) -> tuple[np.ndarray, np.ndarray]:
-    """(vertices [V, 3] float64, faces [F, 3] int64) of a mesh with ``vertices`` and ``faces``."""
-    try:
-        vertices = np.asarray(mesh.vertices, dtype=np.float64).reshape(-1, 3)
-        faces = np.asarray(mesh.faces, dtype=np.int64).reshape(-1, 3)
-    except (AttributeError, TypeError, ValueError) as exc:
-        raise TypeError(f"{name} must be a mesh with vertices [V, 3] and faces [F, 3] "
-                        f"({exc})") from None
-    if faces.size and (faces.min() < 0 or faces.max() >= len(vertices)):
-        raise ValueError(f"{name}: face indices outside [0, {len(vertices)})")
-    return vertices, faces
-
-
-def _triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """[F] areas (metres^2) of the triangles."""
-    corners = vertices[faces]  # [F, 3, 3]
-    cross = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    return 0.5 * np.linalg.norm(cross, axis=-1)
-
-
-def surface_pieces(mesh: Any, name: str = "mesh") -> tuple[np.ndarray, float]:
-    """Areas of a mesh's connected pieces, largest first, and its total area.
-
-    mesh: anything with ``vertices`` [V, 3] metres and ``faces`` [F, 3]
-    (:class:`lisa_hand.geometry.meshing.Mesh`, a trimesh). Vertices at the same position
-    (to 1e-9 m) are merged; triangles sharing a vertex are connected (scipy's
-    ``connected_components`` on the vertex graph of the face edges).
-    -> (areas [P] metres^2 of every piece, specks included, sorted descending; total area
-    metres^2). Specks are included; :func:`surface_guard` leaves them out of the count.
-    name: how errors call the mesh.
-    """
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-
-    vertices, faces = _mesh_arrays(mesh, name)
-    if len(faces) == 0:
-        return np.zeros(0), 0.0
-    areas = _triangle_areas(vertices, faces)
-    _, welded = np.unique(np.round(vertices / 1e-9).astype(np.int64), axis=0,
-                          return_inverse=True)
-    faces = welded.reshape(-1)[faces]
-    num_vertices = int(faces.max()) + 1
-    rows = faces[:, [0, 1, 2]].reshape(-1)
-    cols = faces[:, [1, 2, 0]].reshape(-1)
-    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(num_vertices, num_vertices))
-    _, labels = connected_components(graph, directed=False)
-    piece_area = np.bincount(labels[faces[:, 0]], weights=areas)
-    piece_area = piece_area[piece_area > 0] if piece_area.size else piece_area
-    return np.sort(piece_area)[::-1], float(areas.sum())
 
 
 def _floating(areas: np.ndarray, total: float) -> float:

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from ...data.photo import DEFAULT_MAX_SIDE
+from ...skeleton.wrist import WRIST_CLIP_M
 from ..images.config import FitImagesConfig
 
 __all__ = ["photo_fit_defaults", "FitPhotoConfig"]
@@ -58,6 +59,12 @@ class FitPhotoConfig:
     they are."""
     mesh_resolution: int = 128
     """Marching-cubes samples a side of ``mesh.ply``."""
+    wrist_clip_m: float | None = WRIST_CLIP_M
+    """``mesh.ply`` (and so the overlay and the refined mask) ends this far past the fitted
+    wrist joint, towards the forearm, as ``lisa fit-points``' mesh does
+    (:func:`lisa_hand.skeleton.wrist.wrist_plane`), metres: a photo shows the forearm, which
+    the model does not know (the models trained on hand model v2 end their 4 cm forearm stub
+    in a ragged rim of specks). None: the model's whole stub."""
     render_supersample: int = 2
     """Rays a pixel side of the rendering of ``mesh.ply`` into the photos (overlay,
     silhouette; :func:`lisa_hand.inference.mesh_render.render_mesh`)."""
@@ -76,6 +83,9 @@ class FitPhotoConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if self.wrist_clip_m is not None and not -0.05 <= self.wrist_clip_m <= 0.2:
+            raise ValueError(f"wrist_clip_m must be None or within [-0.05, 0.2] metres, got "
+                             f"{self.wrist_clip_m!r}")
         for name in ("crop_margin", "min_hand_px", "inconsistent_fraction", "side_confidence"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")

@@ -430,6 +430,8 @@ def _fit_hand(model: Any, inputs: list[_PhotoInput], hands: list[PhotoHand], fol
               side: str, config: FitPhotoConfig, progress: bool, log: Callable[[str], None],
               model_label: str) -> tuple[Any, PhotoFitReport]:
     """Fit one hand to its photos -> (what to write, the report)."""
+    from ...geometry.pieces import drop_specks
+    from ...skeleton.wrist import wrist_plane
     from ...utils.threads import cpu_threads
     from ..images.fit import fit_images
     from ..images.folder import fitted_mesh, output_surface
@@ -481,10 +483,15 @@ def _fit_hand(model: Any, inputs: list[_PhotoInput], hands: list[PhotoHand], fol
                               camera_source=item.camera_source, hand=one, crop=crop,
                               coarse=mask, refine=item.mask is None)
                   for item, one, crop, mask in zip(inputs, hands, crops, coarse, strict=True)]
-        mesh = fitted_mesh(model, result, config.mesh_resolution)
+        cut = None if config.wrist_clip_m is None else wrist_plane(params, config.wrist_clip_m)
+        mesh, specks = drop_specks(fitted_mesh(model, result, config.mesh_resolution, cut))
         outputs = build_hand_outputs(model, params, photos, folder, mesh,
                                      config.render_supersample, config.render_max_side)
-        outputs.metrics["surface"] = output_surface(model, result, mesh, config.mesh_resolution)
+        outputs.metrics["surface"] = output_surface(model, result, mesh, config.mesh_resolution,
+                                                    config.wrist_clip_m)
+        outputs.metrics["specks_removed"] = specks.to_dict()
+        if specks.count:
+            notes.append(specks.note("mesh.ply"))
     _consistency_notes(outputs, photos, config, notes)
     timings["seconds_outputs"] = time.perf_counter() - outputs_began
     seconds = time.perf_counter() - began

@@ -6,7 +6,9 @@ One fitted hand's folder (``DIR``, or ``DIR/handN`` when a photo holds several h
 * ``params.json``: the hand (:mod:`lisa_hand.skeleton.params`), in the frame of the (first)
   photo's camera (OpenCV: x right, y down, z forward, metres);
 * ``mesh.ply``: its surface with vertex colours and skinning weights
-  (:func:`lisa_hand.inference.mesh_hand`), same frame;
+  (:func:`lisa_hand.inference.mesh_hand`), same frame, cut ``FitPhotoConfig.wrist_clip_m`` past
+  the fitted wrist, without specks (:func:`lisa_hand.geometry.pieces.drop_specks`; what was
+  removed in ``metrics.json``'s ``"specks_removed"``);
 * ``keypoints.json`` (:func:`keypoints_record`): ``"names"`` the 21 keypoint names in OpenPose
   order, ``"keypoints_2d_detected"`` [21, 2] (what the fit was given: detected, or ``--keypoints``;
   with ``FitPhotoConfig.detector_wrist_shift`` the detected wrist moved, and the detector's own

@@ -327,6 +327,7 @@ def fit_point_file(
         camera's points in its own frame: 0, 0, 0), "auto" (found from the scan when it looks
         like one view; logged) or None (:func:`lisa_hand.fitting.points.fit.fit_points`).
     """
+    from ...geometry.pieces import drop_specks
     from ...inference import MeshConfig, mesh_hand
     from ...model.trained import model_label
     from ..outputs import ground_truth_metrics, prepare_fit, write_fit_outputs
@@ -358,8 +359,11 @@ def fit_point_file(
         model, refined = _refined(model, fit, cloud, params.side, refine, progress, log,
                                   points_path)
         params.model = str((out_dir / "model.pt").resolve())
-    mesh = mesh_hand(model, params, resolution, MeshConfig(colors=model.has_color),
-                     clip=fit.wrist_plane)
+    mesh, specks = drop_specks(mesh_hand(model, params, resolution,
+                                         MeshConfig(colors=model.has_color),
+                                         clip=fit.wrist_plane))
+    if specks.count:
+        log(specks.note(f"{out_dir / 'mesh.ply'}"))
     metrics = None if truth is None else ground_truth_metrics(mesh, truth, fit.wrist_plane)
     written = write_fit_outputs(out_dir, params, mesh, metrics,
                                 model=None if refined is None else model,

@@ -362,3 +362,36 @@ def test_a_real_photo_with_detection(tmp_path):
     inside = mask[np.clip(detected[:, 1].astype(int), 0, 520),
                   np.clip(detected[:, 0].astype(int), 0, 639)]
     assert inside.mean() > 0.9 and 0.08 < mask.mean() < 0.3  # the hand, not the forearm
+
+
+def test_the_mesh_ends_past_the_wrist_without_specks(model_file, tmp_path):
+    from lisa_hand.data.meshio import load_mesh
+    from lisa_hand.geometry.pieces import MIN_PIECE_FRACTION, surface_pieces
+    from lisa_hand.skeleton.params import read_params
+    from lisa_hand.skeleton.wrist import WRIST_CLIP_M, wrist_plane
+
+    model, path = model_file
+    photo = render_photo(model, [photo_hand(model)])
+    jpeg = save_jpeg(tmp_path / "hand.jpg", photo.image)
+    keypoints = save_keypoints(tmp_path / "hand.json", photo.keypoints[0], side="right")
+    meshes = {}
+    for clip in (WRIST_CLIP_M, None):
+        out = tmp_path / f"clip{clip}"
+        lines = []
+        config = dataclasses.replace(fast_config(), wrist_clip_m=clip, mesh_resolution=64)
+        (report,) = fit_photo_folder(jpeg, out, keypoints_json=keypoints, focal_px=FOCAL,
+                                     model_path=path, device="cpu", progress=False,
+                                     log=lines.append, config=config)
+        mesh, params = load_mesh(out / "mesh.ply"), read_params(out / "params.json")
+        distance = wrist_plane(params).signed_distance(np.asarray(mesh.vertices, np.float64))
+        meshes[clip] = (distance, mesh)
+        # No speck in the file; what was removed is in metrics.json and said when any.
+        metrics = json.loads((out / "metrics.json").read_text())
+        areas, total = surface_pieces(mesh)
+        assert areas.min() >= MIN_PIECE_FRACTION * total
+        removed = metrics["specks_removed"]["count"]
+        assert removed == sum(" speck(s) below 0.1 % " in line for line in lines)
+        assert metrics["surface"]["pieces"] == len(areas)
+    cut, whole = meshes[WRIST_CLIP_M][0], meshes[None][0]
+    assert cut.min() > -1e-6  # nothing beyond the cut, 1 cm past the fitted wrist
+    assert whole.min() < -0.01  # without it the model's stub runs on
