@@ -60,6 +60,12 @@ def fit_points(
              "sensor saw to be empty (a finger it cannot see stays hidden). auto: found from "
              "the scan when it looks like one view (its own origin when that can be the "
              "sensor), left out for a scan from all round; none: never.")] = "auto",
+    support: Annotated[str, typer.Option(
+        "--support", metavar="auto|none",
+        help="auto: a surface the hand rests on (a desk or a wall in a depth camera's view, "
+             "the largest plane of the scan reaching out round the hand) is found, its points "
+             "left out and the hand kept on its side, and the command says so; none: every "
+             "point is the hand's.")] = "auto",
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
@@ -75,6 +81,8 @@ def fit_points(
         overrides["num_restarts"] = restarts
     config = FitPointsConfig(**overrides)
     view = _viewpoint(viewpoint)
+    if support.strip().lower() not in ("auto", "none"):
+        raise ValueError(f"--support: expected auto or none, got {support!r}")
     refine_config = None
     if refine:
         from ..fitting.points.refine import RefineConfig
@@ -83,6 +91,7 @@ def fit_points(
                                                    else {"iters": refine_iters}))
     report = fit_point_file(points, out, model_path=model, gt_path=gt, units=units.value,
                             refine=refine_config, viewpoint=view,
+                            support="auto" if support.strip().lower() == "auto" else None,
                             resolution=res, config=config, device=device, side=side.value,
                             progress=progress, log=typer.echo)
     fit = report.fit

@@ -25,24 +25,27 @@ class TargetCloud:
     known (:mod:`.free_space`): free, [M, 3] world metres, points the sensor saw to be empty,
     and depth, its :class:`~.free_space.DepthImage`; None otherwise. coupling: [4] weights of
     the fingers the sensor could not see (:func:`~.proxy.unseen_fingers`), set by the fit
-    once it has a hand, or None.
+    once it has a hand, or None. support: the :class:`~lisa_hand.geometry.planes.Plane` the
+    hand rests on (:mod:`.support`; its normal towards the hand, in this cloud's frame), or
+    None.
     """
 
     def __init__(self, points: torch.Tensor, normals: torch.Tensor | None,
                  generator: torch.Generator, free: torch.Tensor | None = None,
-                 depth=None, coupling: torch.Tensor | None = None) -> None:
+                 depth=None, coupling: torch.Tensor | None = None, support=None) -> None:
         self.points = points
         self.normals = normals
         self.generator = generator
         self.free = free
         self.depth = depth
         self.coupling = coupling
+        self.support = support
 
     def replace(self, **changes) -> TargetCloud:
         """A copy with the named attributes (``points``, ``normals``, ``free``, ``depth``,
-        ``coupling``) changed; the same generator."""
+        ``coupling``, ``support``) changed; the same generator."""
         fields = dict(points=self.points, normals=self.normals, free=self.free,
-                      depth=self.depth, coupling=self.coupling)
+                      depth=self.depth, coupling=self.coupling, support=self.support)
         unknown = set(changes) - set(fields)
         if unknown:
             raise TypeError(f"TargetCloud has no {', '.join(sorted(unknown))}")

@@ -131,6 +131,11 @@ class FitPointsConfig:
     position is known (``fit_points(viewpoint=...)``, ``lisa fit-points --viewpoint``): the
     robust penalty of the field being inside at points the sensor saw to be empty
     (:mod:`.free_space`); 0: off."""
+    support_weight: float = 1.0
+    """Weight of the support bound, for a scan of a hand resting on a surface that was found
+    in it (``fit_points(support="auto")``, :mod:`.support`): the proxy stages' robust penalty of
+    proxy points beyond the plane, and the surface stage's free-space term at points just
+    beyond it under the hand; 0: off (the plane's points are still left out)."""
     free_space_points: int = 4096
     """Free-space points drawn once per fit over the whole view, and as many near the surface
     stage's candidates (``points_per_iteration`` of all of them each iteration)."""
@@ -200,8 +205,8 @@ class FitPointsConfig:
             raise ValueError(f"wrist_clip_m must be a number of metres or None, got {clip!r}")
         for name in ("shape_weight", "covered_shape_weight", "covered_fraction", "covered_mm",
                      "pose_weight", "limit_weight", "betas_weight",
-                     "normal_weight", "free_space_weight", "coverage_weight", "wrist_margin_m",
-                     "coupling_weight",
+                     "normal_weight", "free_space_weight", "support_weight", "coverage_weight",
+                     "wrist_margin_m", "coupling_weight",
                      "proxy_tangent_weight"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):

@@ -60,6 +60,7 @@ from .global_pose import search_global_pose
 from .hypotheses import best_of
 from .monitor import FitMonitor, FitStep
 from .proxy import build_surface_proxy, covered_fraction, fit_proxy_pose, unseen_fingers
+from .support import Support, find_support, support_points
 from .surface_stage import fit_surface, frozen_field, surface_residuals
 from .viewpoint import ViewpointEstimate, estimate_viewpoint
 
@@ -121,7 +122,10 @@ class FitResult:
     sides side by side for each seed; None for one fit."""
     viewpoint: ViewpointEstimate | None = None
     """``viewpoint="auto"``: what :func:`.viewpoint.estimate_viewpoint` found (its position
-    was used when ``one_view``); None when the viewpoint was given or left out."""
+    was used when ``one_view``); None when the viewpoint was given or left out.
+    support: ``support="auto"``: the surface the hand rests on, found and left out
+    (:class:`.support.Support`; its ``removed`` mask is over the points given), or None."""
+    support: Support | None = None
 
     def summary(self) -> dict[str, Any]:
         """The scalar results as a JSON-able dict (what ``params.extra["fit"]`` holds)."""
@@ -145,6 +149,7 @@ class FitResult:
                 "hidden_fraction": self.viewpoint.hidden_fraction,
                 "one_view": self.viewpoint.one_view, "at_origin": self.viewpoint.at_origin,
                 "num_points": self.viewpoint.num_points}}),
+            **({} if self.support is None else {"support_plane": self.support.to_dict()}),
         }
 
 
@@ -208,6 +213,20 @@ def with_free_space(cloud: TargetCloud, viewpoint, side: str, config: FitPointsC
     image = DepthImage(cloud.points, view)
     free = free_space_points(image, cloud.points, config.free_space_points, cloud.generator)
     return cloud.replace(free=free, depth=image)
+
+
+def with_support(cloud: TargetCloud, plane, side: str, config: FitPointsConfig
+                 ) -> TargetCloud:
+    """``cloud`` (of the right hand: a left one already mirrored) resting on ``plane`` (a
+    :class:`~lisa_hand.geometry.planes.Plane` of the ``side`` hand's world, its normal towards
+    the hand): the plane for the proxy stages, and free points just beyond it under the hand
+    (:func:`.support.support_points`) added to the cloud's own for the surface stage."""
+    if side == "left":
+        mirrored = mirror_cloud(torch.as_tensor(np.stack([plane.point, plane.normal])), side)
+        plane = Plane(mirrored[0].numpy(), mirrored[1].numpy())
+    beyond = support_points(plane, cloud.points, config.free_space_points, cloud.generator)
+    free = beyond if cloud.free is None else torch.cat([cloud.free, beyond])
+    return cloud.replace(free=free, support=plane)
 
 
 def _free_near(cloud: TargetCloud, proxy, config: FitPointsConfig
@@ -396,6 +415,7 @@ def fit_points(
     rest_joints: torch.Tensor | None = None,
     side: str = "right",
     viewpoint: np.ndarray | torch.Tensor | str | None = None,
+    support: str | None = None,
     progress: bool = False,
     callback: Callable[[FitStep], None] | None = None,
 ) -> FitResult:
@@ -417,6 +437,10 @@ def fit_points(
         ``config.free_space_weight``). Leave it None for a scan merged from several views.
         "auto": found from the points (:func:`.viewpoint.estimate_viewpoint`) and used when
         they look like one view (``FitResult.viewpoint`` says what was found).
+    support: "auto": a surface the hand rests on (a desk in a depth camera's view) is looked
+        for (:func:`.support.find_support`); when found its points are left out and the hand
+        kept on its side (``config.support_weight``; ``FitResult.support``); "auto" viewpoints
+        are looked for with its points (the whole view). None: every point is the hand's.
     progress: show a progress bar. callback: called with a :class:`FitStep` after every
         iteration (for benchmarks and logging; its hands are of ``side``).
     -> :class:`FitResult`. Runs on ``config.device`` (default: the model's), in the model's dtype.
@@ -429,29 +453,37 @@ def fit_points(
     device = torch.device(config.device) if config.device is not None else model.device
     if device != model.device:
         model = model.to(device)
+    if support not in (None, "auto"):
+        raise ValueError(f"support must be 'auto' or None, got {support!r}")
+    if isinstance(viewpoint, str) and viewpoint != "auto":
+        raise ValueError(f"viewpoint must be 3 numbers (metres), 'auto' or None, got "
+                         f"{viewpoint!r}")
+    found = None if support is None else find_support(points, seed=config.seed)
     estimate = None
-    if isinstance(viewpoint, str):
-        if viewpoint != "auto":
-            raise ValueError(f"viewpoint must be 3 numbers (metres), 'auto' or None, got "
-                             f"{viewpoint!r}")
+    if isinstance(viewpoint, str):  # "auto", with the support's points: the whole view
         estimate = estimate_viewpoint(points, seed=config.seed)
         viewpoint = estimate.position if estimate.one_view else None
+    if found is not None:
+        keep = torch.as_tensor(~found.removed)
+        points = points[keep if isinstance(points, torch.Tensor) else keep.numpy()]
+        normals = None if normals is None else normals[
+            keep if isinstance(normals, torch.Tensor) else keep.numpy()]
 
     def fit_one(one_side: str, one_config: FitPointsConfig, bar) -> FitResult:
         return _fit_side(model, points, normals, one_config, rest_joints=rest_joints,
                          side=one_side, viewpoint=viewpoint, progress=progress,
-                         callback=callback, bar=bar)
+                         callback=callback, bar=bar, support=found)
 
     sides = ("right", "left") if side == "auto" else (check_side(side),)
     result = best_of(fit_one, model, points, config, sides)
-    result.viewpoint = estimate
+    result.viewpoint, result.support = estimate, found
     result.params.extra["fit"] = result.summary()
     return result
 
 
 def _fit_side(model, points, normals, config: FitPointsConfig, *, rest_joints, side: str,
-              viewpoint, progress: bool, callback, bar: tuple[str, int | None] = ("fit", None)
-              ) -> FitResult:
+              viewpoint, progress: bool, callback, bar: tuple[str, int | None] = ("fit", None),
+              support=None) -> FitResult:
     """:func:`fit_points` of one side, its arguments checked (the model on its device); bar:
     the progress bar's label and line (None: tqdm's choice)."""
     device = model.device
@@ -465,6 +497,8 @@ def _fit_side(model, points, normals, config: FitPointsConfig, *, rest_joints, s
         callback = _left_callback(callback)
     if viewpoint is not None and config.free_space_weight > 0:
         cloud = with_free_space(cloud, viewpoint, side, config)
+    if support is not None and config.support_weight > 0:
+        cloud = with_support(cloud, support.plane, side, config)
     total = config.align_iters + config.pose_iters + config.finger_iters + config.field_iters
     if config.second_pass_iters > 0:  # at most: its field steps run when a finger changed
         total += config.finger_iters + config.second_pass_iters

@@ -301,6 +301,7 @@ def fit_point_file(
     log: Callable[[str], None] | None = None,
     refine: Any = None,
     viewpoint: Sequence[float] | str | None = None,
+    support: str | None = None,
 ) -> FitPointsReport:
     """Read a cloud, fit the model, write ``params.json``, ``mesh.ply`` (skinning weights, and
     vertex colours from the mean colour code when the model has colour) and (with ``gt_path``)
@@ -326,6 +327,8 @@ def fit_point_file(
     viewpoint: the sensor position of a one-view scan, 3 numbers in the cloud's units (a depth
         camera's points in its own frame: 0, 0, 0), "auto" (found from the scan when it looks
         like one view; logged) or None (:func:`lisa_hand.fitting.points.fit.fit_points`).
+    support: "auto": a surface the hand rests on is found, left out and kept as a bound (logged
+        when found), or None (:func:`lisa_hand.fitting.points.fit.fit_points`).
     """
     from ...geometry.pieces import drop_specks
     from ...inference import MeshConfig, mesh_hand
@@ -348,7 +351,7 @@ def fit_point_file(
     if viewpoint is not None and not isinstance(viewpoint, str):
         view = np.asarray(viewpoint, dtype=np.float64) * LENGTH_UNITS[cloud.unit]
     fit = fit_points(model, cloud.points, cloud.normals, config, side=side, viewpoint=view,
-                     progress=progress)
+                     support=support, progress=progress)
     params = fit.params
     params.model = model_label(model_path)
     params.extra["input"] = {"path": str(points_path), "unit": cloud.unit,
@@ -388,7 +391,9 @@ def _preview(mesh, cloud: PointCloud, fit, record: dict, log) -> np.ndarray | No
     faces = np.asarray(mesh.faces, np.int64)
     try:
         distances, _, _ = pcu.closest_points_on_mesh(points, vertices, faces)
-        kept = None if fit.wrist_plane is None else fit.wrist_plane.keeps(points)
+        kept = np.ones(len(points), bool) if fit.support is None else ~fit.support.removed
+        if fit.wrist_plane is not None:
+            kept &= fit.wrist_plane.keeps(points)
         return fit_preview(vertices, faces, points, 1000.0 * distances, kept=kept,
                            viewpoint=record.get("viewpoint_m"))
     except Exception as error:  # a picture is not worth the fit: write the rest
@@ -402,6 +407,12 @@ def _fit_notes(points_path: Path, fit, view, unit: str, config, log) -> dict:
     wrist) -> the viewpoint used, for ``params.json``'s "input" (``viewpoint_m``,
     ``viewpoint_source``; empty without one). A scan from all round for which none was found
     (as it should be) gets no line about it."""
+    if fit.support is not None:
+        found = fit.support
+        log(f"{points_path}: {int(found.removed.sum())} of {len(found.removed)} points lie on "
+            f"(or beyond) a surface the hand rests on ({100 * found.fraction:.0f}% of the scan "
+            "on one plane, reaching out round the hand): left out, the hand kept on its side "
+            "(--support none keeps them)")
     if fit.viewpoint is not None:
         if fit.viewpoint.one_view or fit.coverage < config.covered_fraction:
             log(_viewpoint_found(points_path, fit.viewpoint, unit))

@@ -16,7 +16,9 @@ one-view scan whose sensor position is known, a third term, ``free_space_weight`
 bounded penalty (same scale) of how far each proxy point lies in the space the sensor saw to be
 empty (:class:`~.free_space.DepthImage`; points beyond the wrist joint are not asked, a scan may
 stop there), in every stage but the global search ('align', where a hand still turned the wrong way
-would be pushed sideways rather than turned).
+would be pushed sideways rather than turned). For a hand resting on a surface found in the scan
+(:mod:`.support`), ``support_weight`` times the bounded penalty of how far each proxy point lies
+beyond it (2 mm allowed), in every stage.
 """
 
 from __future__ import annotations
@@ -42,6 +44,7 @@ __all__ = ["SurfaceProxy", "build_surface_proxy", "covered_fraction", "unseen_fi
 
 _MM = 1e-3
 _PROXY_STAGE_POINTS = 256  # cloud points per iteration of the proxy stages
+_SUPPORT_MARGIN_M = 0.002  # proxy points may sink this far into a support (noise, flesh)
 
 
 @dataclass
@@ -233,6 +236,13 @@ def proxy_energy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch,
         seen = robust_loss(cloud.depth.violation(proxy_points), "geman_mcclure",
                            config.coverage_scale_mm * _MM)
         energy = energy + config.free_space_weight * (seen * hand_side).mean(-1)
+    if cloud.support is not None and config.support_weight > 0:
+        # the hand stays on its side of the surface it rests on (a small margin for noise)
+        normal = torch.as_tensor(cloud.support.normal).to(proxy_points)
+        origin = torch.as_tensor(cloud.support.point).to(proxy_points)
+        beyond = (-((proxy_points - origin) @ normal) - _SUPPORT_MARGIN_M).clamp(min=0.0)
+        energy = energy + config.support_weight * robust_loss(
+            beyond, "geman_mcclure", config.coverage_scale_mm * _MM).mean(-1)
     return energy
 
 

@@ -1,0 +1,192 @@
+"""The surface a hand rests on (a desk, a turntable, a wall behind it), found in a scan, taken out
+of it and kept as a bound.
+
+A depth camera looking at a hand on a desk returns the desk too: in a 30 cm crop around the hand
+about two thirds of the points. Fitted as they are, the hand is pulled into the desk (the WebXR
+hand palm down on a table, seen from above: 60-73 mm V2S). Such a surface is the largest plane
+of the cloud, and it is not part of a hand:
+
+* **found** by RANSAC (:func:`find_support`: planes through three random points, the one with
+  the most points within ``threshold_m``, refined by least squares on them), and taken only when
+  it is a support and not a flat part of the hand: at least ``min_fraction`` of the points on it,
+  the points clearly off it (more than three thresholds) nearly all on one side of it (a hand on
+  a desk lies above it), and its points spread over an area (convex hull, in the plane) at least
+  ``min_spread`` times that of the points off it. The last tells a desk from the flat back of a
+  hand seen from behind, whose other points also lie on one side of it: a desk reaches out round
+  the hand, the back or the palm of a hand stays within the hand's own outline.
+* **taken out**: the points within the threshold of it or beyond it (the fit never sees them).
+* **kept as a bound** (:func:`support_points`): the hand lies on the side of the points off the
+  plane. The fit's proxy stages penalise proxy points beyond the plane, its surface stage asks
+  the field to be outside at points just beyond it under the hand, as it does where a sensor saw
+  empty space (:mod:`.free_space`); for a one-view scan from above, that bounds the hidden palm.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ...geometry.planes import Plane
+
+__all__ = ["SupportConfig", "Support", "find_support", "support_points"]
+
+
+@dataclass(frozen=True)
+class SupportConfig:
+    """How :func:`find_support` looks for a support plane."""
+
+    threshold_m: float = 0.0025
+    """Points within this distance of a plane are on it (a depth sensor's noise at half a metre,
+    1-2 mm, with room)."""
+    iterations: int = 1000
+    """RANSAC planes tried: three random points all on a plane holding a fifth of the cloud
+    come once in 125 draws, so such a plane is missed once in about 3000 searches."""
+    max_points: int = 20_000
+    """RANSAC scores planes on at most this many random points of the cloud."""
+    min_fraction: float = 0.2
+    """Share of the points the plane must hold (fewer cost the fit little: its robust penalty
+    takes them for outliers)."""
+    one_side: float = 0.97
+    """Share of the points clearly off the plane that must lie on one side of it."""
+    min_spread: float = 1.5
+    """The plane's points must spread over this many times the area of the points off it."""
+    min_hand_points: int = 200
+    """Points that must be left off the plane (else there is no hand beside it)."""
+
+    def __post_init__(self) -> None:
+        if not self.threshold_m > 0:
+            raise ValueError(f"threshold_m must be > 0 (metres), got {self.threshold_m!r}")
+        for name in ("iterations", "max_points", "min_hand_points"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if not 0 < self.min_fraction < 1 or not 0.5 < self.one_side <= 1:
+            raise ValueError("min_fraction must be in (0, 1) and one_side in (0.5, 1]")
+        if not self.min_spread > 0:
+            raise ValueError(f"min_spread must be > 0, got {self.min_spread!r}")
+
+
+@dataclass(frozen=True)
+class Support:
+    """A support plane found in a cloud.
+
+    plane: its :class:`~lisa_hand.geometry.planes.Plane`, the normal towards the hand.
+    removed: [N] bool, the cloud's points on it or beyond it (left out of the fit).
+    fraction: share of the cloud's points on the plane. spread: the area of its points over
+    that of the points off it (convex hulls in the plane).
+    """
+
+    plane: Plane
+    removed: np.ndarray
+    fraction: float
+    spread: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready (``params.json``'s "fit")."""
+        return {**self.plane.to_dict(), "removed_points": int(self.removed.sum()),
+                "fraction": self.fraction, "spread": self.spread}
+
+
+def _plane_through(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """[T, 3, 3] triples -> (unit normals [T, 3] (zero for degenerate triples), offsets [T]:
+    the planes n . x = offset)."""
+    normals = np.cross(samples[:, 1] - samples[:, 0], samples[:, 2] - samples[:, 0])
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    normals = np.where(length > 1e-12, normals / np.maximum(length, 1e-12), 0.0)
+    return normals, (normals * samples[:, 0]).sum(1)
+
+
+def _least_squares_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
+    """The plane nearest ``points`` [M, 3] in the least-squares sense -> (unit normal, offset)."""
+    centre = points.mean(0)
+    normal = np.linalg.svd(points - centre, full_matrices=False)[2][-1]
+    return normal, float(normal @ centre)
+
+
+def _hull_area(points: np.ndarray, normal: np.ndarray) -> float:
+    """Area (metres^2) of the convex hull of ``points`` [M, 3] projected into the plane of
+    ``normal``; 0 for fewer than three points or a degenerate set."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    if len(points) < 3:
+        return 0.0
+    axis = np.eye(3)[int(np.argmin(np.abs(normal)))]
+    first = np.cross(normal, axis)
+    first /= np.linalg.norm(first)
+    second = np.cross(normal, first)
+    flat = np.stack([points @ first, points @ second], 1)
+    try:
+        return float(ConvexHull(flat).volume)  # a 2D hull's "volume" is its area
+    except QhullError:
+        return 0.0
+
+
+def find_support(points, config: SupportConfig | None = None, seed: int = 0
+                 ) -> Support | None:
+    """The support plane of a cloud, or None when it has none (see the module docstring).
+
+    points: [N, 3] world metres (numpy or torch). seed: the RANSAC draws'.
+    """
+    config = SupportConfig() if config is None else config
+    points = np.asarray(torch.as_tensor(points).detach().cpu().double().numpy()
+                        if isinstance(points, torch.Tensor) else points, np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must have shape [N, 3], got {list(points.shape)}")
+    count = len(points)
+    if count < config.min_hand_points + 3:
+        return None
+    rng = np.random.default_rng(seed)
+    scored = points[rng.choice(count, min(count, config.max_points), replace=False)]
+    triples = scored[rng.integers(0, len(scored), (config.iterations, 3))]
+    normals, offsets = _plane_through(triples)
+    best, best_hits = None, 0
+    for chunk in range(0, config.iterations, 50):  # [50, M] distances at a time
+        near = np.abs(scored @ normals[chunk:chunk + 50].T - offsets[chunk:chunk + 50])
+        hits = (near <= config.threshold_m).sum(0) * (np.abs(normals[chunk:chunk + 50]).sum(1)
+                                                      > 0)
+        if hits.max() > best_hits:
+            best_hits, best = int(hits.max()), chunk + int(hits.argmax())
+    if best is None:
+        return None
+    normal, offset = normals[best], offsets[best]
+    for _ in range(2):  # least squares on the plane's points, then count them again
+        on = np.abs(points @ normal - offset) <= config.threshold_m
+        if on.sum() < 3:
+            return None
+        normal, offset = _least_squares_plane(points[on])
+    distance = points @ normal - offset
+    on = np.abs(distance) <= config.threshold_m
+    off = np.abs(distance) > 3.0 * config.threshold_m
+    if on.mean() < config.min_fraction or off.sum() < config.min_hand_points:
+        return None
+    above = float((distance[off] > 0).mean())
+    if max(above, 1.0 - above) < config.one_side:
+        return None
+    if above < 0.5:  # the normal towards the hand
+        normal, offset, distance = -normal, -offset, -distance
+    spread = _hull_area(points[on], normal) / max(_hull_area(points[off], normal), 1e-12)
+    if spread < config.min_spread:
+        return None
+    removed = distance <= config.threshold_m
+    return Support(plane=Plane(normal * offset, normal), removed=removed,
+                   fraction=float(on.mean()), spread=float(spread))
+
+
+def support_points(plane: Plane, hand_points: torch.Tensor, count: int,
+                   generator: torch.Generator, depth_m: tuple[float, float] = (0.002, 0.008)
+                   ) -> torch.Tensor:
+    """[count, 3] points just beyond the support ``plane`` under the hand: the ``hand_points``
+    ([N, 3] world metres, the cloud left after :func:`find_support`) projected onto it and moved
+    ``depth_m`` (uniform) beyond it, where the field must be outside. Same device and dtype as
+    ``hand_points``; drawn from ``generator`` (CPU)."""
+    like = dict(device=hand_points.device, dtype=hand_points.dtype)
+    normal = torch.as_tensor(plane.normal).to(**like)
+    origin = torch.as_tensor(plane.point).to(**like)
+    pick = torch.randint(0, hand_points.shape[0], (count,), generator=generator)
+    chosen = hand_points[pick.to(hand_points.device)]
+    height = (chosen - origin) @ normal
+    low, high = depth_m
+    beyond = low + (high - low) * torch.rand(count, generator=generator).to(**like)
+    return chosen - (height + beyond)[:, None] * normal
