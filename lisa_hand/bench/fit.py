@@ -39,7 +39,13 @@ import numpy as np
 import torch
 
 from ..utils.threads import cpu_threads
-from ._webxr import WEBXR_POSES, WEBXR_WRISTS, pose_webxr_hand, run_webxr_fits
+from ._webxr import (
+    WEBXR_POSES,
+    WEBXR_WRISTS,
+    pose_webxr_hand,
+    run_table_fits,
+    run_webxr_fits,
+)
 
 __all__ = ["WEBXR_POSES", "FitBenchmark", "pose_webxr_hand", "run_webxr_fits",
            "run_fit_benchmark", "main"]
@@ -333,6 +339,12 @@ def main(argv: list[str] | None = None) -> None:
                              "none), true (the simulated sensor's, as lisa fit-points "
                              "--viewpoint X,Y,Z; the flag alone) or auto (found from the scan, "
                              "as lisa fit-points does by default)")
+    parser.add_argument("--webxr-table", nargs="?", const="auto", default=None,
+                        choices=("auto", "none"),
+                        help="also fit one-view scans of the WebXR hand lying on a table, palm "
+                             "and back down, the table in the scan: auto (the flag alone: the "
+                             "table found and left out, as lisa fit-points --support auto) or "
+                             "none (every point fitted); their viewpoint as --webxr-viewpoint")
     parser.add_argument("--only-webxr", action="store_true",
                         help="skip the self-consistency benchmark")
     args = parser.parse_args(argv)
@@ -367,6 +379,11 @@ def main(argv: list[str] | None = None) -> None:
                                           threads=args.threads, wrists=wrists, refine=refine,
                                           viewpoints=args.webxr_viewpoint,
                                           log=shown_row)
+        if args.webxr_table is not None:
+            numbers["webxr"] += run_table_fits(
+                model, args.webxr, seed=args.seed, threads=args.threads,
+                support=None if args.webxr_table == "none" else "auto",
+                viewpoints=args.webxr_viewpoint, log=shown_row)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(numbers, indent=2))

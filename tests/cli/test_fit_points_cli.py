@@ -323,3 +323,41 @@ def test_a_failed_preview_leaves_the_fit_written(lisa, files, capsys, monkeypatc
     said = capsys.readouterr().out
     assert "preview.png not written: RuntimeError: no rays today" in said
     assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "params.json"]
+
+
+def test_a_surface_the_hand_rests_on_is_left_out_and_said(lisa, files, capsys):
+    """A one-view scan of the hand in front of a wall: by default (``--support auto``) the
+    wall's points are left out, one line says so, params.json records the plane and the preview
+    greys them; ``--support none`` fits every point."""
+    from tests.fitting.test_support import with_wall
+
+    root, _ = files
+    with cpu_threads(1):
+        model = tiny_model(color=True)
+        mesh = surface(model, true_hand(model, seed=2))
+    vertices, faces, wall, _ = with_wall(np.asarray(mesh.vertices, np.float64),
+                                         np.asarray(mesh.faces), side=0.25)
+    sensor = np.asarray(mesh.vertices).mean(0) - np.array([0.0, 0.0, 0.4])
+    from lisa_hand.data.scans import simulate_scan
+
+    scan = simulate_scan(vertices, faces, ScanConfig(num_points=3000, partial=True,
+                                                     viewpoint=tuple(sensor)), seed=0)
+    np.save(root / "walled.npy", scan.points)
+    for name, extra in (("kept", ["--support", "none"]), ("left", [])):
+        out = root / f"wall_{name}"
+        assert lisa(["fit-points", str(root / "walled.npy"), "--out", str(out), "--model",
+                     str(root / "tiny.pt"), *extra, *FAST_ARGS]) == 0
+        captured = capsys.readouterr()
+        said = captured.out + captured.err
+        fit = read_params(out / "params.json").extra["fit"]
+        assert ("a surface the hand rests on" in said) == (name == "left"), said
+        assert ("support_plane" in fit) == (name == "left")
+        if name == "left":
+            plane = fit["support_plane"]
+            assert np.asarray(plane["normal"]) @ wall.normal > np.cos(np.radians(2.0))
+            assert f"{plane['removed_points']} of 3000 points lie on" in said
+            assert fit["num_points"] + fit["beyond_wrist_points"] == 3000 - plane[
+                "removed_points"]
+    assert lisa(["fit-points", str(root / "walled.npy"), "--out", str(root / "bad"),
+                 "--model", str(root / "tiny.pt"), "--support", "maybe", *FAST_ARGS]) != 0
+    assert "--support: expected auto or none" in capsys.readouterr().err

@@ -64,8 +64,8 @@ class SupportConfig:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if not 0 < self.min_fraction < 1 or not 0.5 < self.one_side <= 1:
             raise ValueError("min_fraction must be in (0, 1) and one_side in (0.5, 1]")
-        if not self.min_spread > 0:
-            raise ValueError(f"min_spread must be > 0, got {self.min_spread!r}")
+        if not self.min_spread >= 0:
+            raise ValueError(f"min_spread must be >= 0, got {self.min_spread!r}")
 
 
 @dataclass(frozen=True)
