@@ -134,3 +134,20 @@ def test_a_noisy_depth_cameras_view_is_still_one_view(hand_mesh, noise):
     full = simulate_scan(vertices, faces, ScanConfig(num_points=3000, noise_normal_std=noise),
                          seed=1)
     assert not estimate_viewpoint(full.points).one_view
+
+
+def test_a_known_side_turns_the_axis(hand_mesh):
+    """``side`` (the normal of a desk the hand rests on) decides which way along the axis the
+    sensor is, instead of the bulge: the same axis, turned to it."""
+    vertices, faces = hand_mesh
+    sensor = vertices.mean(0) + np.array([0.1, -0.4, -0.2])
+    scan = simulate_scan(vertices, faces, ScanConfig(num_points=3000, partial=True,
+                                                     viewpoint=tuple(sensor)), seed=1)
+    found = estimate_viewpoint(scan.points)
+    same = estimate_viewpoint(scan.points, side=found.direction + 0.5 * np.array([1.0, 0, 0]))
+    turned = estimate_viewpoint(scan.points, side=-found.direction)
+    np.testing.assert_array_equal(same.direction, found.direction)
+    np.testing.assert_array_equal(turned.direction, -found.direction)
+    assert turned.hidden_fraction == found.hidden_fraction
+    centre = scan.points.astype(np.float64).mean(0)
+    assert (turned.position - centre) @ found.direction == pytest.approx(-0.5)

@@ -460,8 +460,10 @@ def fit_points(
                          f"{viewpoint!r}")
     found = None if support is None else find_support(points, seed=config.seed)
     estimate = None
-    if isinstance(viewpoint, str):  # "auto", with the support's points: the whole view
-        estimate = estimate_viewpoint(points, seed=config.seed)
+    if isinstance(viewpoint, str):  # "auto", with the support's points: the whole view,
+        # and on the hand's side of the support (the sensor saw its top)
+        estimate = estimate_viewpoint(points, seed=config.seed,
+                                      side=None if found is None else found.plane.normal)
         viewpoint = estimate.position if estimate.one_view else None
     if found is not None:
         keep = torch.as_tensor(~found.removed)

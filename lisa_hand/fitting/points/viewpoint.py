@@ -237,10 +237,14 @@ def _bulge(points: np.ndarray, axis: np.ndarray, config: ViewpointConfig) -> flo
 
 
 def estimate_viewpoint(points, config: ViewpointConfig | None = None,
-                       seed: int = 0) -> ViewpointEstimate:
+                       seed: int = 0, side: np.ndarray | None = None) -> ViewpointEstimate:
     """The sensor position of a one-view scan, from its points (see the module docstring).
 
     points: [N, 3] metres (numpy or torch), finite, N >= 20. seed: of the subset searched.
+    side: [3] a direction the sensor is known to lie along from the points (the normal of the
+    desk the hand rests on, :mod:`.support`: the sensor saw its top): the axis is turned
+    towards it instead of by the bulge of the surfaces (step 2), which a hand lying palm up
+    reads the wrong way (its palm is hollow); None: the bulge decides.
     -> :class:`ViewpointEstimate`; use its ``position`` only when ``one_view``.
     """
     from scipy.spatial import cKDTree
@@ -263,7 +267,8 @@ def estimate_viewpoint(points, config: ViewpointConfig | None = None,
     spacing = float(np.median(cKDTree(centred).query(centred, 2)[0][:, 1]))
     radius = config.radius_spacings * max(spacing, 1e-6)
     axis, hidden = _best_axis(centred, radius, config, noise)
-    if _bulge(centred, axis, config) < 0:
+    if (_bulge(centred, axis, config) if side is None
+            else float(axis @ np.asarray(side, np.float64))) < 0:
         axis = -axis
     to_origin = -centre
     origin_range = float(np.linalg.norm(to_origin))
