@@ -6,7 +6,7 @@ or exported from another tool does not. :func:`estimate_viewpoint` finds it from
 
 0. **Noise smoothed first.** A depth camera's 1-2 mm across the surface put neighbours on one
    surface 5 mm apart in depth often enough that a view looked like several (one-view scans of
-   the WebXR hand, 3 placements x 3 poses x both hands: at 1 mm noise 12 of 18 taken for one
+   the WebXR hand, 3 placements x 3 poses x both hands: at 1 mm noise 11 of 18 taken for one
    view, at 2 mm none, with the axis turned the wrong way in 11). Each point is first moved
    onto the plane of its 16 nearest points, and the gap below is at least ``gap_noise`` times
    the scan's noise (:func:`scan_noise`): then 18 of 18 at 1 mm (axes 1-15 degrees off), 18 of
