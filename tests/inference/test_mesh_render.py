@@ -130,8 +130,9 @@ def test_mesh_attributes_and_mirror_mesh(model, right_mesh):
 
 
 def test_a_mesh_without_colours_is_grey_and_lit_from_the_camera(model):
-    # A mesh without colours, or any mesh of a geometry-only model: grey 0.8 times ambient 0.3 + diffuse 0.7 max(0, n . l),
-    # whatever the model's own shading; brightest where the sphere faces the light.
+    # A mesh without colours, or any mesh of a geometry-only model: grey 0.8 times ambient 0.3
+    # + diffuse 0.7 max(0, n . l), whatever the model's own shading; brightest where the
+    # sphere faces the light.
     sphere = ball(0.03, (0.0, 0.0, 0.4))
     grey = Mesh(vertices=sphere.vertices, faces=sphere.faces)
     geometry_only = dataclasses.replace(model, color_codes=None)  # its mesh: grey colours

@@ -3,8 +3,8 @@ of it and kept as a bound.
 
 A depth camera looking at a hand on a desk returns the desk too: in a 30 cm crop around the hand
 79-86% of the points. Fitted as they are, the hand is pulled into the desk (the WebXR hand on a
-table, seen from above: 16-71 mm V2S, ``python -m lisa_hand.bench fit --webxr-table none``). Such a surface is the largest plane
-of the cloud, and it is not part of a hand:
+table, seen from above: 16-71 mm V2S, ``python -m lisa_hand.bench fit --webxr-table none``).
+Such a surface is the largest plane of the cloud, and it is not part of a hand:
 
 * **found** by RANSAC (:func:`find_support`: planes through three random points, the one with
   the most points within ``threshold_m``, refined by least squares on them), and taken only when
