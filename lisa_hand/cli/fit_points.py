@@ -9,6 +9,26 @@ import typer
 
 from .options import AutoSide, DeviceOpt, PointModelOpt, Units
 
+TriesOpt = Annotated[int, typer.Option(
+    "--tries", min=1,
+    help="Fits from seeds SEED, SEED+1, ... (of each side with --side auto), the one "
+         "nearest the scan kept: on one-view scans of held-out generator hands 2 tries gave "
+         "1.74 mm against 2.06 (V2S), on the real WebXR hand no gain; each try costs a "
+         "fit.")]
+ViewpointOpt = Annotated[str, typer.Option(
+    "--viewpoint", metavar="X,Y,Z|auto|none",
+    help="The sensor position of a one-view scan, in the cloud's units (a depth camera's "
+         "points in its own frame: 0,0,0): the fit then keeps the hand out of the space the "
+         "sensor saw to be empty (a finger it cannot see stays hidden). auto: found from "
+         "the scan when it looks like one view (its own origin when that can be the "
+         "sensor), left out for a scan from all round; none: never.")]
+SupportOpt = Annotated[str, typer.Option(
+    "--support", metavar="auto|none",
+    help="auto: a surface the hand rests on (a desk or a wall in a depth camera's view, "
+         "the largest plane of the scan reaching out round the hand) is found, its points "
+         "left out and the hand kept on its side, and the command says so; none: every "
+         "point is the hand's.")]
+
 
 def fit_points(
     points: Annotated[Path, typer.Argument(
@@ -40,12 +60,7 @@ def fit_points(
                        "right or left hand (a left one is fitted as the mirrored right hand).")
     ] = AutoSide.auto,
     seed: Annotated[int, typer.Option(help="Seed of the random point subsets.")] = 0,
-    tries: Annotated[int, typer.Option(
-        "--tries", min=1,
-        help="Fits from seeds SEED, SEED+1, ... (of each side with --side auto), the one "
-             "nearest the scan kept: on one-view scans of held-out generator hands 2 tries gave "
-             "1.74 mm against 2.06 (V2S), on the real WebXR hand no gain; each try costs a "
-             "fit.")] = 1,
+    tries: TriesOpt = 1,
     refine: Annotated[bool, typer.Option(
         "--refine", help="After the fit, fine-tune the model's per-bone SDF networks on this "
                          "scan (beyond the learned shape space; about 30 s on a CPU); writes the "
@@ -53,19 +68,8 @@ def fit_points(
                          "'lisa mesh', 'render' and 'animate' use it.")] = False,
     refine_iters: Annotated[int | None, typer.Option(
         "--refine-iters", min=1, help="Steps of --refine (default 300).")] = None,
-    viewpoint: Annotated[str, typer.Option(
-        "--viewpoint", metavar="X,Y,Z|auto|none",
-        help="The sensor position of a one-view scan, in the cloud's units (a depth camera's "
-             "points in its own frame: 0,0,0): the fit then keeps the hand out of the space the "
-             "sensor saw to be empty (a finger it cannot see stays hidden). auto: found from "
-             "the scan when it looks like one view (its own origin when that can be the "
-             "sensor), left out for a scan from all round; none: never.")] = "auto",
-    support: Annotated[str, typer.Option(
-        "--support", metavar="auto|none",
-        help="auto: a surface the hand rests on (a desk or a wall in a depth camera's view, "
-             "the largest plane of the scan reaching out round the hand) is found, its points "
-             "left out and the hand kept on its side, and the command says so; none: every "
-             "point is the hand's.")] = "auto",
+    viewpoint: ViewpointOpt = "auto",
+    support: SupportOpt = "auto",
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
