@@ -134,8 +134,9 @@ class FitPointsConfig:
     support_weight: float = 1.0
     """Weight of the support bound, for a scan of a hand resting on a surface that was found
     in it (``fit_points(support="auto")``, :mod:`.support`): the proxy stages' robust penalty of
-    proxy points beyond the plane, and the surface stage's free-space term at points just
-    beyond it under the hand; 0: off (the plane's points are still left out)."""
+    proxy points beyond the plane; the surface stage gets points just beyond it under the hand
+    among its free-space points (weighted by ``free_space_weight``). 0: neither (the plane's
+    points are still left out)."""
     free_space_points: int = 4096
     """Free-space points drawn once per fit over the whole view, and as many near the surface
     stage's candidates (``points_per_iteration`` of all of them each iteration)."""

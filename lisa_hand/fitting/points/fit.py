@@ -466,10 +466,14 @@ def fit_points(
                                       side=None if found is None else found.plane.normal)
         viewpoint = estimate.position if estimate.one_view else None
     if found is not None:
-        keep = torch.as_tensor(~found.removed)
-        points = points[keep if isinstance(points, torch.Tensor) else keep.numpy()]
-        normals = None if normals is None else normals[
-            keep if isinstance(normals, torch.Tensor) else keep.numpy()]
+        keep = ~found.removed
+
+        def kept(values):
+            if values is None or not isinstance(values, torch.Tensor):
+                return None if values is None else np.asarray(values)[keep]
+            return values[torch.as_tensor(keep, device=values.device)]
+
+        points, normals = kept(points), kept(normals)
 
     def fit_one(one_side: str, one_config: FitPointsConfig, bar) -> FitResult:
         return _fit_side(model, points, normals, one_config, rest_joints=rest_joints,
