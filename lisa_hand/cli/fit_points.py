@@ -28,6 +28,11 @@ SupportOpt = Annotated[str, typer.Option(
          "the largest plane of the scan reaching out round the hand) is found, its points "
          "left out and the hand kept on its side, and the command says so; none: every "
          "point is the hand's.")]
+OthersOpt = Annotated[str, typer.Option(
+    "--others", metavar="auto|none",
+    help="auto: pieces of the scan 3 cm or more apart from the hand's (another object, the "
+         "other hand), with at least 5% as many points, are left out, and the command says "
+         "so; none: kept.")]
 
 
 def fit_points(
@@ -70,6 +75,7 @@ def fit_points(
         "--refine-iters", min=1, help="Steps of --refine (default 300).")] = None,
     viewpoint: ViewpointOpt = "auto",
     support: SupportOpt = "auto",
+    others: OthersOpt = "auto",
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
@@ -85,8 +91,9 @@ def fit_points(
         overrides["num_restarts"] = restarts
     config = FitPointsConfig(**overrides)
     view = _viewpoint(viewpoint)
-    if support.strip().lower() not in ("auto", "none"):
-        raise ValueError(f"--support: expected auto or none, got {support!r}")
+    for name, value in (("--support", support), ("--others", others)):
+        if value.strip().lower() not in ("auto", "none"):
+            raise ValueError(f"{name}: expected auto or none, got {value!r}")
     refine_config = None
     if refine:
         from ..fitting.points.refine import RefineConfig
@@ -96,6 +103,7 @@ def fit_points(
     report = fit_point_file(points, out, model_path=model, gt_path=gt, units=units.value,
                             refine=refine_config, viewpoint=view,
                             support="auto" if support.strip().lower() == "auto" else None,
+                            others="auto" if others.strip().lower() == "auto" else None,
                             resolution=res, config=config, device=device, side=side.value,
                             progress=progress, log=typer.echo)
     fit = report.fit

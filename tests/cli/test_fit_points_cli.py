@@ -361,3 +361,31 @@ def test_a_surface_the_hand_rests_on_is_left_out_and_said(lisa, files, capsys):
     assert lisa(["fit-points", str(root / "walled.npy"), "--out", str(root / "bad"),
                  "--model", str(root / "tiny.pt"), "--support", "maybe", *FAST_ARGS]) != 0
     assert "--support: expected auto or none" in capsys.readouterr().err
+
+
+def test_a_thing_apart_from_the_hand_is_left_out_and_said(lisa, files, capsys):
+    """A scan with a ball 25 cm from the hand (half as many points): by default (``--others
+    auto``) its points are left out, one line says so and params.json records it; ``--others
+    none`` keeps them. A ball as large as the hand is kept, and the command says why."""
+    from tests.fitting.test_others import ball
+
+    root, points = files
+    thing = ball(points.mean(0) + np.array([0.25, 0.0, 0.0]), 0.04, len(points) // 2, seed=0)
+    np.save(root / "with_ball.npy", np.concatenate([points, thing]))
+    for name, extra in (("kept", ["--others", "none"]), ("left", [])):
+        out = root / f"ball_{name}"
+        assert lisa(["fit-points", str(root / "with_ball.npy"), "--out", str(out), "--model",
+                     str(root / "tiny.pt"), *extra, *FAST_ARGS]) == 0
+        captured = capsys.readouterr()
+        said = captured.out + captured.err
+        fit = read_params(out / "params.json").extra["fit"]
+        assert (f"{len(thing)} points in 1 piece(s)" in said) == (name == "left"), said
+        assert ("others" in fit) == (name == "left")
+    large = ball(points.mean(0) + np.array([0.25, 0.0, 0.0]), 0.04, len(points), seed=0)
+    np.save(root / "with_large_ball.npy", np.concatenate([points, large]))
+    assert lisa(["fit-points", str(root / "with_large_ball.npy"), "--out", str(root / "large"),
+                 "--model", str(root / "tiny.pt"), *FAST_ARGS]) == 0
+    captured = capsys.readouterr()
+    assert "nearly as large (another hand, a large object): kept" in captured.out + captured.err
+    fit = read_params(root / "large" / "params.json").extra["fit"]
+    assert fit["others"]["unclear"] == 1 and fit["others"]["removed_points"] == 0

@@ -59,6 +59,7 @@ from .free_space import DepthImage, free_points_near, free_space_points
 from .global_pose import search_global_pose
 from .hypotheses import best_of
 from .monitor import FitMonitor, FitStep
+from .others import Others, find_others
 from .proxy import build_surface_proxy, covered_fraction, fit_proxy_pose, unseen_fingers
 from .support import Support, find_support, support_points
 from .surface_stage import fit_surface, frozen_field, surface_residuals
@@ -126,6 +127,10 @@ class FitResult:
     support: ``support="auto"``: the surface the hand rests on, found and left out
     (:class:`.support.Support`; its ``removed`` mask is over the points given), or None."""
     support: Support | None = None
+    others: Others | None = None
+    """``others="auto"``: the pieces of the scan apart from the hand, left out
+    (:class:`.others.Others`; its ``removed`` mask is over the points left after the support's
+    were), or None."""
 
     def summary(self) -> dict[str, Any]:
         """The scalar results as a JSON-able dict (what ``params.extra["fit"]`` holds)."""
@@ -150,6 +155,7 @@ class FitResult:
                 "one_view": self.viewpoint.one_view, "at_origin": self.viewpoint.at_origin,
                 "num_points": self.viewpoint.num_points}}),
             **({} if self.support is None else {"support_plane": self.support.to_dict()}),
+            **({} if self.others is None else {"others": self.others.to_dict()}),
         }
 
 
@@ -416,6 +422,7 @@ def fit_points(
     side: str = "right",
     viewpoint: np.ndarray | torch.Tensor | str | None = None,
     support: str | None = None,
+    others: str | None = None,
     progress: bool = False,
     callback: Callable[[FitStep], None] | None = None,
 ) -> FitResult:
@@ -441,6 +448,9 @@ def fit_points(
         for (:func:`.support.find_support`); when found its points are left out and the hand
         kept on its side (``config.support_weight``; ``FitResult.support``); "auto" viewpoints
         are looked for with its points (the whole view). None: every point is the hand's.
+    others: "auto": pieces of the scan well apart from the hand (another object, the other
+        hand; :func:`.others.find_others`) are left out (``FitResult.others``), after the
+        support's points; None: kept.
     progress: show a progress bar. callback: called with a :class:`FitStep` after every
         iteration (for benchmarks and logging; its hands are of ``side``).
     -> :class:`FitResult`. Runs on ``config.device`` (default: the model's), in the model's dtype.
@@ -453,8 +463,9 @@ def fit_points(
     device = torch.device(config.device) if config.device is not None else model.device
     if device != model.device:
         model = model.to(device)
-    if support not in (None, "auto"):
-        raise ValueError(f"support must be 'auto' or None, got {support!r}")
+    for name, value in (("support", support), ("others", others)):
+        if value not in (None, "auto"):
+            raise ValueError(f"{name} must be 'auto' or None, got {value!r}")
     if isinstance(viewpoint, str) and viewpoint != "auto":
         raise ValueError(f"viewpoint must be 3 numbers (metres), 'auto' or None, got "
                          f"{viewpoint!r}")
@@ -466,14 +477,10 @@ def fit_points(
                                       side=None if found is None else found.plane.normal)
         viewpoint = estimate.position if estimate.one_view else None
     if found is not None:
-        keep = ~found.removed
-
-        def kept(values):
-            if values is None or not isinstance(values, torch.Tensor):
-                return None if values is None else np.asarray(values)[keep]
-            return values[torch.as_tensor(keep, device=values.device)]
-
-        points, normals = kept(points), kept(normals)
+        points, normals = _kept(points, ~found.removed), _kept(normals, ~found.removed)
+    apart = None if others is None else find_others(points)
+    if apart is not None and apart.pieces:
+        points, normals = _kept(points, ~apart.removed), _kept(normals, ~apart.removed)
 
     def fit_one(one_side: str, one_config: FitPointsConfig, bar) -> FitResult:
         return _fit_side(model, points, normals, one_config, rest_joints=rest_joints,
@@ -482,9 +489,17 @@ def fit_points(
 
     sides = ("right", "left") if side == "auto" else (check_side(side),)
     result = best_of(fit_one, model, points, config, sides)
-    result.viewpoint, result.support = estimate, found
+    result.viewpoint, result.support, result.others = estimate, found, apart
     result.params.extra["fit"] = result.summary()
     return result
+
+
+def _kept(values, keep: np.ndarray):
+    """The rows ``keep`` ([N] bool) of points or normals (numpy, or torch on any device), or
+    None."""
+    if values is None or not isinstance(values, torch.Tensor):
+        return None if values is None else np.asarray(values)[keep]
+    return values[torch.as_tensor(keep, device=values.device)]
 
 
 def _fit_side(model, points, normals, config: FitPointsConfig, *, rest_joints, side: str,

@@ -302,6 +302,7 @@ def fit_point_file(
     refine: Any = None,
     viewpoint: Sequence[float] | str | None = None,
     support: str | None = None,
+    others: str | None = None,
 ) -> FitPointsReport:
     """Read a cloud, fit the model, write ``params.json``, ``mesh.ply`` (skinning weights, and
     vertex colours from the mean colour code when the model has colour) and (with ``gt_path``)
@@ -329,6 +330,7 @@ def fit_point_file(
         like one view; logged) or None (:func:`lisa_hand.fitting.points.fit.fit_points`).
     support: "auto": a surface the hand rests on is found, left out and kept as a bound (logged
         when found), or None (:func:`lisa_hand.fitting.points.fit.fit_points`).
+    others: "auto": pieces of the scan well apart from the hand are left out (logged), or None.
     """
     from ...geometry.pieces import drop_specks
     from ...inference import MeshConfig, mesh_hand
@@ -351,7 +353,7 @@ def fit_point_file(
     if viewpoint is not None and not isinstance(viewpoint, str):
         view = np.asarray(viewpoint, dtype=np.float64) * LENGTH_UNITS[cloud.unit]
     fit = fit_points(model, cloud.points, cloud.normals, config, side=side, viewpoint=view,
-                     support=support, progress=progress)
+                     support=support, others=others, progress=progress)
     params = fit.params
     params.model = model_label(model_path)
     params.extra["input"] = {"path": str(points_path), "unit": cloud.unit,
@@ -392,6 +394,8 @@ def _preview(mesh, cloud: PointCloud, fit, record: dict, log) -> np.ndarray | No
     try:
         distances, _, _ = pcu.closest_points_on_mesh(points, vertices, faces)
         kept = np.ones(len(points), bool) if fit.support is None else ~fit.support.removed
+        if fit.others is not None:
+            kept[np.flatnonzero(kept)[fit.others.removed]] = False
         if fit.wrist_plane is not None:
             kept &= fit.wrist_plane.keeps(points)
         return fit_preview(vertices, faces, points, 1000.0 * distances, kept=kept,
@@ -413,6 +417,15 @@ def _fit_notes(points_path: Path, fit, view, unit: str, config, log) -> dict:
             f"(or beyond) a surface the hand rests on ({100 * found.fraction:.0f}% of the scan "
             "on one plane, reaching out round the hand): left out, the hand kept on its side "
             "(--support none keeps them)")
+    apart = fit.others
+    if apart is not None and apart.pieces:
+        log(f"{points_path}: {int(apart.removed.sum())} points in {apart.pieces} piece(s) "
+            f"{100 * apart.gap_m:.0f} cm or more apart from the hand (another object or hand; "
+            f"the largest {apart.largest} points) were left out (--others none keeps them)")
+    if apart is not None and apart.unclear:
+        log(f"{points_path}: the scan holds {apart.unclear} more piece(s) 3 cm or more apart "
+            "from the largest and nearly as large (another hand, a large object): kept, as "
+            "which is the hand is not clear; crop the scan to the hand")
     if fit.viewpoint is not None:
         if fit.viewpoint.one_view or fit.coverage < config.covered_fraction:
             log(_viewpoint_found(points_path, fit.viewpoint, unit))

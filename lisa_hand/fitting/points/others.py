@@ -1,0 +1,101 @@
+"""Other things in a scan: pieces of it well apart from the hand (a cup beside it, the other
+hand, a bit of background), found and left out (``fit_points(others="auto")``).
+
+A crop around a hand often holds more than the hand. The fit's robust penalty shrugs off stray
+points, but its global search starts from the cloud's centre and its coverage terms weigh every
+point: a cup 15 cm from the WebXR hand, a third of a one-view scan, took the fit from 1.77 to
+3.85 mm V2S. Such a thing is a separate piece: the scan's points are binned into ``link_m``
+voxels, the occupied voxels joined with their 26 neighbours into pieces (scipy's ``label``),
+and the piece with the most points is taken for the hand. Pieces within ``reach_m`` of it stay
+(a fingertip seen apart from its finger, behind another), and so do small ones (under
+``min_share`` of the hand's points: the robust penalty shrugs them off, and a thumb tip seen 5 cm
+from the rest of a fist is one); the others are left out, unless they hold more than
+``max_share`` of the hand's points: then which piece is the hand is not clear (the other hand,
+a large object), nothing of them is left out, and they are counted (``Others.unclear``) for the
+command to say so. A thing touching the hand (a held cup) is one piece with it and stays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Others", "find_others"]
+
+
+@dataclass(frozen=True)
+class Others:
+    """What :func:`find_others` left out.
+
+    removed: [N] bool, the points of the pieces left out. pieces: how many were. largest:
+    points of the largest of them. gap_m: the distance from the hand's piece to the nearest of
+    them, metres (inf when none). unclear: far pieces nearly as large as the hand's, kept.
+    """
+
+    removed: np.ndarray
+    pieces: int
+    largest: int
+    gap_m: float
+    unclear: int = 0
+
+    def to_dict(self) -> dict:
+        """JSON-ready (``params.json``'s "fit")."""
+        return {"removed_points": int(self.removed.sum()), "pieces": self.pieces,
+                "largest": self.largest, "gap_m": self.gap_m, "unclear": self.unclear}
+
+
+def find_others(points, link_m: float = 0.01, reach_m: float = 0.03, min_share: float = 0.05,
+                max_share: float = 0.6) -> Others | None:
+    """The pieces of a scan apart from its largest one (see the module docstring), or None when
+    none is.
+
+    points: [N, 3] metres (numpy or torch). link_m: voxel size, metres (points in touching
+    voxels are one piece: gaps under about a centimetre are bridged). reach_m: pieces nearer
+    the largest than this stay, metres. min_share: pieces with fewer points than this share of
+    the largest's stay; max_share: so do those with more (counted as unclear).
+    """
+    from scipy.ndimage import label
+    from scipy.spatial import cKDTree
+
+    if not (link_m > 0 and reach_m >= 0):
+        raise ValueError(f"link_m must be > 0 and reach_m >= 0, got {link_m!r}, {reach_m!r}")
+    points = np.asarray(points.detach().cpu() if hasattr(points, "detach") else points,
+                        np.float64)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must have shape [N, 3], got {list(points.shape)}")
+    if len(points) < 2:
+        return None
+    cells = np.floor((points - points.min(0)) / link_m).astype(np.int64)
+    shape = cells.max(0) + 1
+    if int(np.prod(shape)) > 50_000_000:  # a cloud tens of metres across: not a hand's crop
+        return None
+    grid = np.zeros(tuple(shape), bool)
+    grid[tuple(cells.T)] = True
+    labels, count = label(grid, structure=np.ones((3, 3, 3), bool))
+    if count < 2:
+        return None
+    point_labels = labels[tuple(cells.T)]
+    sizes = np.bincount(point_labels, minlength=count + 1)
+    hand = int(np.argmax(sizes))
+    tree = cKDTree(points[point_labels == hand])
+    removed = np.zeros(len(points), bool)
+    gaps, left_out, largest, unclear = [], 0, 0, 0
+    for piece in range(1, count + 1):
+        if piece == hand or sizes[piece] < min_share * sizes[hand]:
+            continue
+        members = point_labels == piece
+        gap = float(tree.query(points[members])[0].min())
+        if gap < reach_m:
+            continue
+        if sizes[piece] > max_share * sizes[hand]:
+            unclear += 1
+            continue
+        removed |= members
+        gaps.append(gap)
+        left_out += 1
+        largest = max(largest, int(sizes[piece]))
+    if not (left_out or unclear):
+        return None
+    return Others(removed=removed, pieces=left_out, largest=largest,
+                  gap_m=min(gaps) if gaps else float("inf"), unclear=unclear)

@@ -1,0 +1,85 @@
+"""Pieces of a scan apart from the hand (``lisa_hand.fitting.points.others``): spheres placed at
+known distances from a hand's scan, and the fit that leaves them out."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lisa_hand.data.scans import ScanConfig, simulate_scan
+from lisa_hand.fitting.points.fit import FitPointsConfig, fit_points
+from lisa_hand.fitting.points.others import find_others
+from tests.fitting.test_points import FAST, sdf_at, surface, tiny_model, true_hand
+
+
+def ball(centre, radius: float, count: int, seed: int) -> np.ndarray:
+    """[count, 3] points on a sphere (metres)."""
+    points = np.random.default_rng(seed).normal(size=(count, 3))
+    return centre + radius * points / np.linalg.norm(points, axis=1, keepdims=True)
+
+
+@pytest.fixture(scope="module")
+def hand_scan():
+    """A one-view scan of the tiny model's hand: (points [N, 3], the model, the hand)."""
+    model = tiny_model()
+    truth = true_hand(model, seed=0)
+    mesh = surface(model, truth)
+    sensor = np.asarray(mesh.vertices).mean(0) - np.array([0.0, 0.0, 0.4])
+    scan = simulate_scan(np.asarray(mesh.vertices), np.asarray(mesh.faces),
+                         ScanConfig(num_points=3000, partial=True, viewpoint=tuple(sensor)),
+                         seed=0)
+    return scan.points.astype(np.float64), model, truth
+
+
+def test_a_thing_apart_from_the_hand_is_left_out(hand_scan):
+    points, _, _ = hand_scan
+    far_side = points[:, 0].max()
+    # a 3 cm ball whose surface is 6 cm beyond the hand's farthest point along x
+    thing = ball(np.array([far_side + 0.09, *points[:, 1:].mean(0)]), 0.03, 1000, seed=1)
+    found = find_others(np.concatenate([points, thing]))
+    assert found is not None and found.pieces == 1 and found.largest == 1000
+    assert found.unclear == 0 and len(points) > 1000 / 0.6  # the ball: under 60% of the hand
+    assert np.array_equal(found.removed, np.r_[np.zeros(len(points), bool), np.ones(1000, bool)])
+    nearest = np.linalg.norm(points[:, None] - thing[None], axis=2).min()
+    assert found.gap_m == pytest.approx(nearest)
+    assert found.to_dict()["removed_points"] == 1000
+
+
+def test_near_or_small_pieces_stay(hand_scan):
+    points, _, _ = hand_scan
+    assert find_others(points) is None  # one piece
+    centre = points[np.argmax(points[:, 0])]  # the hand's farthest point along x
+    near = ball(centre + [0.035, 0.0, 0.0], 0.01, 500, seed=2)  # 2.5 cm from the hand
+    assert find_others(np.concatenate([points, near])) is None
+    small = ball(centre + [0.2, 0.0, 0.0], 0.01, 100, seed=3)  # far, 3% of the hand's points
+    assert find_others(np.concatenate([points, small])) is None
+    assert find_others(np.concatenate([points, small]), min_share=0.01).pieces == 1
+    # as many points as the hand, far: which is the hand is not clear, nothing left out
+    twin = ball(centre + [0.2, 0.0, 0.0], 0.04, len(points), seed=5)
+    unclear = find_others(np.concatenate([points, twin]))
+    assert unclear.unclear == 1 and unclear.pieces == 0 and not unclear.removed.any()
+    with pytest.raises(ValueError, match="link_m"):
+        find_others(points, link_m=0.0)
+    with pytest.raises(ValueError, match=r"\[N, 3\]"):
+        find_others(np.zeros((5, 2)))
+
+
+def test_the_fit_leaves_them_out(hand_scan):
+    points, model, truth = hand_scan
+    thing = ball(points.mean(0) + np.array([0.25, 0.0, 0.0]), 0.05, len(points) // 2, seed=4)
+    cloud = np.concatenate([points, thing])
+    config = FitPointsConfig(**FAST)
+    rest = truth.rest_joints
+    left = fit_points(model, cloud, None, config, rest_joints=rest, others="auto")
+    kept = fit_points(model, cloud, None, config, rest_joints=rest)
+    alone = fit_points(model, points, None, config, rest_joints=rest)  # the reference
+    assert left.others is not None and kept.others is None
+    assert left.num_points == len(points)
+    assert left.params.extra["fit"]["others"]["removed_points"] == len(thing)
+    error, reference, missed = (float(sdf_at(model, fit.params, points).abs().mean())
+                                for fit in (left, alone, kept))
+    assert error == pytest.approx(reference, rel=1e-6) and missed > 1.3 * error
+    moved = float((kept.params.translation - alone.params.translation).norm())
+    assert moved > 0.005 and bool((left.params.translation == alone.params.translation).all())
+    with pytest.raises(ValueError, match="others must be 'auto' or None"):
+        fit_points(model, cloud, None, config, others="all")
