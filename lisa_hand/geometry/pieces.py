@@ -40,7 +40,7 @@ class Specks:
         if self.count == 0:
             return None
         return (f"{name}: {self.count} speck(s) below {100 * MIN_PIECE_FRACTION:g} % of the "
-                f"surface removed ({1e4 * self.area_m2:.2f} cm^2 in all)")
+                f"surface removed ({1e4 * self.area_m2:.3g} cm^2 in all)")
 
     def to_dict(self) -> dict[str, float]:
         """JSON-ready (``metrics.json``, ``params.json`` extras)."""

@@ -285,7 +285,7 @@ def test_mesh_removes_specks_unless_kept(app, files, tmp_path):
     assert len(specks) > 0  # the untrained blob leaves some: the case is real
     result = run(app, [*args, tmp_path / "clean.ply"])
     assert (f"note: the mesh: {len(specks)} speck(s) below 0.1 % of the surface removed "
-            f"({1e4 * specks.sum():.2f} cm^2 in all) (--keep-specks keeps them)") in result.output
+            f"({1e4 * specks.sum():.3g} cm^2 in all) (--keep-specks keeps them)") in result.output
     left, left_total = surface_pieces(load_mesh(tmp_path / "clean.ply"))
     np.testing.assert_allclose(left, every[every >= MIN_PIECE_FRACTION * total], rtol=1e-6)
     assert left_total == pytest.approx(total - specks.sum(), rel=1e-6)
