@@ -130,7 +130,7 @@ def find_support(points, config: SupportConfig | None = None, seed: int = 0
     points: [N, 3] world metres (numpy or torch). seed: the RANSAC draws'.
     """
     config = SupportConfig() if config is None else config
-    points = np.asarray(torch.as_tensor(points).detach().cpu().double().numpy()
+    points = np.asarray(points.detach().cpu().double().numpy()
                         if isinstance(points, torch.Tensor) else points, np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"points must have shape [N, 3], got {list(points.shape)}")
