@@ -22,17 +22,29 @@ ViewpointOpt = Annotated[str, typer.Option(
          "sensor saw to be empty (a finger it cannot see stays hidden). auto: found from "
          "the scan when it looks like one view (its own origin when that can be the "
          "sensor), left out for a scan from all round; none: never.")]
-SupportOpt = Annotated[str, typer.Option(
-    "--support", metavar="auto|none",
-    help="auto: a surface the hand rests on (a desk or a wall in a depth camera's view, "
-         "the largest plane of the scan reaching out round the hand) is found, its points "
-         "left out and the hand kept on its side, and the command says so; none: every "
-         "point is the hand's.")]
-OthersOpt = Annotated[str, typer.Option(
-    "--others", metavar="auto|none",
-    help="auto: pieces of the scan 3 cm or more apart from the hand's (another object, the "
-         "other hand), with at least 5% as many points, are left out, and the command says "
-         "so; none: kept.")]
+
+
+def _auto_or_none(flag: str, help_text: str):
+    """An ``auto|none`` option of ``lisa fit-points`` (read by :func:`_auto`)."""
+    return Annotated[str, typer.Option(flag, metavar="auto|none", help=help_text)]
+
+
+def _auto(flag: str, text: str) -> str | None:
+    """``auto`` -> "auto", ``none`` -> None (the API's values); else a one-line error."""
+    value = text.strip().lower()
+    if value not in ("auto", "none"):
+        raise ValueError(f"{flag}: expected auto or none, got {text!r}")
+    return "auto" if value == "auto" else None
+
+
+SupportOpt = _auto_or_none(
+    "--support", "auto: a surface the hand rests on (a desk or a wall in a depth camera's view, "
+    "the largest plane of the scan reaching out round the hand) is found, its points left out "
+    "and the hand kept on its side, and the command says so; none: every point is the hand's.")
+OthersOpt = _auto_or_none(
+    "--others", "auto: pieces of the scan 3 cm or more apart from the hand's (another object, "
+    "the other hand), with at least 5% as many points, are left out, and the command says so; "
+    "none: kept.")
 
 
 def fit_points(
@@ -91,9 +103,7 @@ def fit_points(
         overrides["num_restarts"] = restarts
     config = FitPointsConfig(**overrides)
     view = _viewpoint(viewpoint)
-    for name, value in (("--support", support), ("--others", others)):
-        if value.strip().lower() not in ("auto", "none"):
-            raise ValueError(f"{name}: expected auto or none, got {value!r}")
+    support_mode, others_mode = _auto("--support", support), _auto("--others", others)
     refine_config = None
     if refine:
         from ..fitting.points.refine import RefineConfig
@@ -102,8 +112,7 @@ def fit_points(
                                                    else {"iters": refine_iters}))
     report = fit_point_file(points, out, model_path=model, gt_path=gt, units=units.value,
                             refine=refine_config, viewpoint=view,
-                            support="auto" if support.strip().lower() == "auto" else None,
-                            others="auto" if others.strip().lower() == "auto" else None,
+                            support=support_mode, others=others_mode,
                             resolution=res, config=config, device=device, side=side.value,
                             progress=progress, log=typer.echo)
     fit = report.fit

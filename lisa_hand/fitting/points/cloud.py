@@ -25,9 +25,9 @@ class TargetCloud:
     known (:mod:`.free_space`): free, [M, 3] world metres, points the sensor saw to be empty,
     and depth, its :class:`~.free_space.DepthImage`; None otherwise. coupling: [4] weights of
     the fingers the sensor could not see (:func:`~.proxy.unseen_fingers`), set by the fit
-    once it has a hand, or None. support: the :class:`~lisa_hand.geometry.planes.Plane` the
-    hand rests on (:mod:`.support`; its normal towards the hand, in this cloud's frame), or
-    None.
+    once it has a hand, or None. support: [2, 3] the plane the hand rests on (:mod:`.support`):
+    a point on it (metres) and its unit normal towards the hand, in this cloud's frame, device
+    and dtype; or None.
     """
 
     def __init__(self, points: torch.Tensor, normals: torch.Tensor | None,

@@ -232,7 +232,8 @@ def with_support(cloud: TargetCloud, plane, side: str, config: FitPointsConfig
         plane = Plane(mirrored[0].numpy(), mirrored[1].numpy())
     beyond = support_points(plane, cloud.points, config.free_space_points, cloud.generator)
     free = beyond if cloud.free is None else torch.cat([cloud.free, beyond])
-    return cloud.replace(free=free, support=plane)
+    bound = torch.as_tensor(np.stack([plane.point, plane.normal])).to(cloud.points)
+    return cloud.replace(free=free, support=bound)
 
 
 def _free_near(cloud: TargetCloud, proxy, config: FitPointsConfig

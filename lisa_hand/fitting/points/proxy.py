@@ -238,8 +238,7 @@ def proxy_energy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch,
         energy = energy + config.free_space_weight * (seen * hand_side).mean(-1)
     if cloud.support is not None and config.support_weight > 0:
         # the hand stays on its side of the surface it rests on (a small margin for noise)
-        normal = torch.as_tensor(cloud.support.normal).to(proxy_points)
-        origin = torch.as_tensor(cloud.support.point).to(proxy_points)
+        origin, normal = cloud.support
         beyond = (-((proxy_points - origin) @ normal) - _SUPPORT_MARGIN_M).clamp(min=0.0)
         energy = energy + config.support_weight * robust_loss(
             beyond, "geman_mcclure", config.coverage_scale_mm * _MM).mean(-1)

@@ -158,18 +158,17 @@ def scan_noise(points: np.ndarray, neighbours: int = 16) -> float:
     surface's curvature adds to it (about 0.2 mm on a finger at a 1.5 mm point spacing); noise
     near the point spacing is underestimated (the nearest points are those at a like height: 2 mm
     read as 1.3 mm at a 1.6 mm spacing)."""
-    squared = _local_planes(points, neighbours)[2]
-    return float(math.sqrt(max(float(np.median(squared)), 0.0) * neighbours
-                           / (neighbours - 3)))
+    return _smoothed(points, neighbours)[1]
 
 
-def _smoothed(points: np.ndarray, neighbours: int = 16) -> np.ndarray:
-    """[N, 3] each point moved onto the plane of its ``neighbours`` nearest points: a depth
+def _smoothed(points: np.ndarray, neighbours: int = 16) -> tuple[np.ndarray, float]:
+    """(each point moved onto the plane of its ``neighbours`` nearest points [N, 3]: a depth
     camera's noise across the surface cut about fourfold, its shape kept at the scale of a
-    finger."""
-    centres, normals, _ = _local_planes(points, neighbours)
+    finger; the scan's noise, :func:`scan_noise`), from one neighbour search."""
+    centres, normals, squared = _local_planes(points, neighbours)
     height = ((points - centres) * normals).sum(1, keepdims=True)
-    return points - height * normals
+    noise = math.sqrt(max(float(np.median(squared)), 0.0) * neighbours / (neighbours - 3))
+    return points - height * normals, noise
 
 
 def _hidden_fraction(points: np.ndarray, direction: np.ndarray, radius: float,
@@ -262,8 +261,7 @@ def estimate_viewpoint(points, config: ViewpointConfig | None = None,
                                                     replace=False)
         cloud = cloud[np.sort(chosen)]
     centre = cloud.mean(0)
-    noise = scan_noise(cloud - centre)
-    centred = _smoothed(cloud - centre)
+    centred, noise = _smoothed(cloud - centre)
     spacing = float(np.median(cKDTree(centred).query(centred, 2)[0][:, 1]))
     radius = config.radius_spacings * max(spacing, 1e-6)
     axis, hidden = _best_axis(centred, radius, config, noise)
