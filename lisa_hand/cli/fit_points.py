@@ -50,7 +50,8 @@ OthersOpt = _auto_or_none(
 def fit_points(
     points: Annotated[Path, typer.Argument(
         metavar="POINTS",
-        help="Point cloud: PLY, OBJ, XYZ, NPY or NPZ (normals optional; a mesh's vertices).")],
+        help="Point cloud: PLY, OBJ, XYZ, NPY or NPZ (normals optional), or a mesh (these, STL, "
+             "OFF, GLB or GLTF), whose vertices are the points.")],
     out: Annotated[Path, typer.Option(
         "--out", help="Output folder: params.json, mesh.ply, keypoints.json, preview.png (the "
                       "fit and the scan's points, coloured by their distance to it) and, with "

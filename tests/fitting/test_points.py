@@ -214,6 +214,25 @@ def test_readers_of_every_format(tmp_path):
     assert mesh_normals is None
 
 
+def test_mesh_files_give_their_distinct_vertices(tmp_path):
+    import trimesh
+
+    box = trimesh.creation.box(extents=(0.1, 0.05, 0.02))  # 8 corners, 12 triangles
+    box.export(tmp_path / "box.stl")  # STL repeats each corner for every triangle: 36 rows
+    box.export(tmp_path / "box.off")
+    scene = trimesh.Scene()
+    scene.add_geometry(box, transform=trimesh.transformations.translation_matrix([0.2, 0, 0]))
+    scene.export(tmp_path / "box.glb")
+    corners = np.sort(box.vertices, axis=0)
+    for name, shift in (("box.stl", 0.0), ("box.off", 0.0), ("box.glb", 0.2)):
+        points, normals = read_point_cloud(tmp_path / name)
+        assert points.shape == (8, 3) and normals is None, name
+        assert np.allclose(np.sort(points, axis=0), corners + [shift, 0, 0], atol=1e-6), name
+    (tmp_path / "bad.stl").write_bytes(b"solid x\nfacet normal 0 0 1\nnot stl\n")
+    with pytest.raises(ValueError, match="bad.stl"):
+        read_point_cloud(tmp_path / "bad.stl")
+
+
 def test_reader_errors_name_the_file(tmp_path):
     np.save(tmp_path / "empty.npy", np.zeros((0, 3)))
     np.save(tmp_path / "flat.npy", np.zeros((10, 2)))

@@ -1,4 +1,5 @@
-"""Point-cloud files for fitting: reading (PLY, OBJ, XYZ, NPY, NPZ) and checking them.
+"""Point-cloud files for fitting: reading (PLY, OBJ, XYZ, NPY, NPZ; STL, OFF, GLB, GLTF meshes)
+and checking them.
 
 :func:`read_point_cloud` returns what a file holds, as it is stored; :func:`prepare_point_cloud`
 turns that into what the fitter accepts (finite points in metres, at most ``max_points``) and
@@ -14,6 +15,9 @@ Formats (normals are optional everywhere):
 * ``.npy``: an ``[N, 3]`` or ``[N, 6]`` (points, normals) array.
 * ``.npz``: ``points`` (or ``vertices``) ``[N, 3]`` and optional ``normals`` ``[N, 3]`` (the
   ``scan.npz`` files of ``lisa synth``).
+* ``.stl``, ``.off``, ``.glb``, ``.gltf``: a mesh's distinct vertices, through trimesh
+  (:func:`lisa_hand.metrics.load_mesh`: vertices repeated at the same position, as STL repeats
+  them for every triangle, are merged; a scene's meshes are placed and joined); no normals.
 """
 
 from __future__ import annotations
@@ -41,7 +45,7 @@ __all__ = [
     "default_point_model",
 ]
 
-POINT_CLOUD_SUFFIXES = (".ply", ".obj", ".xyz", ".npy", ".npz")
+POINT_CLOUD_SUFFIXES = (".ply", ".obj", ".xyz", ".npy", ".npz", ".stl", ".off", ".glb", ".gltf")
 """File extensions :func:`read_point_cloud` understands."""
 
 UNITS = UNIT_CHOICES
@@ -64,7 +68,7 @@ def read_point_cloud(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | 
                          f"one of {', '.join(POINT_CLOUD_SUFFIXES)})")
     require_file(path)
     reader = {".ply": _read_ply, ".obj": _read_obj, ".xyz": _read_xyz, ".npy": _read_npy,
-              ".npz": _read_npz}[suffix]
+              ".npz": _read_npz}.get(suffix, _read_mesh_vertices)
     try:
         points, normals = reader(path)
     except (OSError, EOFError, ValueError, TypeError, IndexError, KeyError,
@@ -137,6 +141,12 @@ def _read_obj(path: Path):
     if normals and len(normals) == len(vertices) and all(len(row) == 3 for row in normals):
         return points, np.array(normals, dtype=np.float64)
     return points, None
+
+
+def _read_mesh_vertices(path: Path):
+    from ...metrics import load_mesh
+
+    return load_mesh(path).vertices, None
 
 
 def _read_ply(path: Path):
