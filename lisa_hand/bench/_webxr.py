@@ -22,7 +22,7 @@ from ..utils.threads import cpu_threads
 
 __all__ = ["WEBXR_POSES", "WEBXR_WRISTS", "pose_webxr_hand", "outer_surface", "webxr_side",
            "webxr_wrist", "extend_forearm", "webxr_wrist_variant", "run_webxr_fits",
-           "table_scan", "run_table_fits"]
+           "table_scan", "wall_scan", "run_scene_fits"]
 
 WEBXR_WRISTS = ("as-is", "forearm", "cut")
 """What the scans do beyond the wrist (see the module docstring)."""
@@ -376,12 +376,57 @@ def table_scan(path: str | Path, pose: str, down: str, seed: int = 0, num_points
     return scan.points, (hand, faces), sensor
 
 
-def run_table_fits(model, path: str | Path, *, seed: int = 0, threads: int = 1,
-                   support: str | None = "auto", viewpoints: str = "auto", config=None,
-                   log=None) -> list[dict]:
-    """Fit ``model`` to :func:`table_scan` scans of the WebXR hand in each pose, palm and back
-    down, with ``support`` ("auto": the table found and left out, the hand kept above it; None:
-    every point fitted) and ``viewpoints`` ("none", "true": the simulated sensor's, "auto").
+WALL_DEPTH_M = (0.4, 0.7)
+"""The hand's centre and the wall behind it in :func:`wall_scan`, metres from the camera."""
+
+
+def wall_scan(path: str | Path, pose: str, seed: int = 0):
+    """A depth camera's frame (:func:`lisa_hand.data.scans.depth_camera_scan`, 320 x 240, 1 mm
+    noise at 40 cm growing with the square of the depth) of the WebXR hand, posed
+    (:data:`WEBXR_POSES`) and turned at random (from ``seed`` and the pose), its centre
+    :data:`WALL_DEPTH_M` [0] in front of the camera, before a wall at [1] that fills the frame:
+    the whole frame, as the camera returns it (about 90% of the points on the wall, 3 mm noise
+    there).
+
+    -> (points [N, 3] metres in the camera's frame, the hand's outer surface (vertices [V, 3]
+    metres, faces [F, 3]), the sensor [3]: the origin)."""
+    from ..data.scans import depth_camera_scan
+    from ..geometry import axis_angle_to_matrix
+
+    posed, faces = pose_webxr_hand(path, pose)
+    vertices, faces = outer_surface(posed, faces)
+    generator = torch.Generator().manual_seed(1000 * seed + list(WEBXR_POSES).index(pose))
+    rotation = axis_angle_to_matrix(3.0 * torch.rand(3, generator=generator,
+                                                     dtype=torch.float64)).numpy()
+    hand = (vertices - vertices.mean(0)) @ rotation.T + np.array([0.0, 0.0, WALL_DEPTH_M[0]])
+    half = 2.0
+    wall = np.array([[-half, -half, WALL_DEPTH_M[1]], [half, -half, WALL_DEPTH_M[1]],
+                     [half, half, WALL_DEPTH_M[1]], [-half, half, WALL_DEPTH_M[1]]])
+    scene = np.concatenate([hand, wall])
+    scene_faces = np.concatenate([faces, np.array([[0, 2, 1], [0, 3, 2]]) + len(hand)])
+    scan = depth_camera_scan(scene, scene_faces, seed=seed)
+    return scan.points, (hand, faces), np.zeros(3)
+
+
+def _scenes(path: str | Path, scene: str, seed: int):
+    """(pose, label, points, (vertices, faces), sensor) of each scan of :func:`run_scene_fits`."""
+    for pose in WEBXR_POSES:
+        if scene == "wall":
+            yield (pose, "depth frame, wall", *wall_scan(path, pose, seed))
+            continue
+        for down in ("palm", "back"):
+            yield (pose, f"table, {down} down", *table_scan(path, pose, down, seed))
+
+
+def run_scene_fits(model, path: str | Path, *, scene: str = "table", seed: int = 0,
+                   threads: int = 1, support: str | None = "auto", viewpoints: str = "auto",
+                   config=None, log=None) -> list[dict]:
+    """Fit ``model`` to scans of the WebXR hand in each pose with more than the hand in them:
+    ``scene`` "table" (:func:`table_scan`, palm and back down) or "wall" (:func:`wall_scan`, a
+    depth camera's whole frame), with ``support`` ("auto": the table or the wall found and left
+    out, the hand kept on its side; None: every point fitted) and ``viewpoints`` ("none", "true":
+    the simulated sensor's, "auto"). Every fit also leaves out other pieces (``others="auto"``,
+    as ``lisa fit-points`` does by default).
     -> one dict per fit: pose, scan ("table, palm down" ...), seconds, the support found (share
     of the points on it, or None), and the four distances (mm) against the hand, both cut at
     the fit's wrist plane."""
@@ -394,25 +439,25 @@ def run_table_fits(model, path: str | Path, *, seed: int = 0, threads: int = 1,
     config = FitPointsConfig(num_threads=threads, seed=seed) if config is None else \
         dataclasses.replace(config, num_threads=threads)
     side = webxr_side(path)
+    if scene not in ("table", "wall"):
+        raise ValueError(f"scene must be 'table' or 'wall', got {scene!r}")
     rows = []
-    for pose in WEBXR_POSES:
-        for down in ("palm", "back"):
-            points, (vertices, faces), sensor = table_scan(path, pose, down, seed)
-            view = {"none": None, "true": sensor, "auto": "auto"}[viewpoints]
-            with cpu_threads(threads):
-                fit = fit_points(model, points, None, config, side=side, viewpoint=view,
-                                 support=support)
-                mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False,
-                                                                    skin_weights=False),
-                                 clip=fit.wrist_plane)
-            distances = mesh_distances(mesh.vertices, mesh.faces, vertices, faces,
-                                       clip=fit.wrist_plane)
-            rows.append({"pose": pose, "wrist": "as-is", "scan": f"table, {down} down",
-                         "support": None if fit.support is None else fit.support.fraction,
-                         "viewpoint": viewpoints, "seconds": fit.seconds,
-                         "beyond_wrist_points": fit.beyond_wrist_points,
-                         **distances.to_dict(),
-                         "scan_points_to_recon_mm": float("nan")})
-            if log is not None:
-                log(rows[-1])
+    for pose, label, points, (vertices, faces), sensor in _scenes(path, scene, seed):
+        view = {"none": None, "true": sensor, "auto": "auto"}[viewpoints]
+        with cpu_threads(threads):
+            fit = fit_points(model, points, None, config, side=side, viewpoint=view,
+                             support=support, others="auto")
+            mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False,
+                                                                skin_weights=False),
+                             clip=fit.wrist_plane)
+        distances = mesh_distances(mesh.vertices, mesh.faces, vertices, faces,
+                                   clip=fit.wrist_plane)
+        rows.append({"pose": pose, "wrist": "as-is", "scan": label,
+                     "support": None if fit.support is None else fit.support.fraction,
+                     "viewpoint": viewpoints, "seconds": fit.seconds,
+                     "beyond_wrist_points": fit.beyond_wrist_points,
+                     **distances.to_dict(),
+                     "scan_points_to_recon_mm": float("nan")})
+        if log is not None:
+            log(rows[-1])
     return rows

@@ -10,7 +10,14 @@ import pytest
 import torch
 import trimesh
 
-from lisa_hand.data.scans import ScanConfig, sample_surface, sdf_samples, simulate_scan
+from lisa_hand.data.scans import (
+    DepthCameraConfig,
+    ScanConfig,
+    depth_camera_scan,
+    sample_surface,
+    sdf_samples,
+    simulate_scan,
+)
 from lisa_hand.handmodel import SurfaceSamples
 
 RADIUS = 0.1
@@ -249,3 +256,48 @@ def test_invalid_inputs(sphere):
         sdf_samples("mesh.ply", vertices, None, 10, 0.01, 0)
     with pytest.raises(ValueError, match="sdf_fn"):
         sdf_samples(lambda p: torch.zeros(len(p), 2), vertices, None, 10, 0.01, 0)
+
+
+def _wall(depth: float, half: float = 5.0):
+    """A square wall ``2 half`` metres across at z = ``depth``, facing the origin."""
+    corners = np.array([[-half, -half, depth], [half, -half, depth], [half, half, depth],
+                        [-half, half, depth]])
+    return corners, np.array([[0, 2, 1], [0, 3, 2]])
+
+
+def test_depth_camera_sees_a_wall_through_every_pixel():
+    config = DepthCameraConfig(width=40, height=30, focal_px=35.0, noise_m=0.0)
+    scan = depth_camera_scan(*_wall(0.7), config)
+    assert scan.points.shape == (40 * 30, 3) and np.array_equal(scan.viewpoint, np.zeros(3))
+    assert np.allclose(scan.points[:, 2], 0.7, atol=1e-6)
+    u = scan.points[:, 0] / scan.points[:, 2] * 35.0 + 20.0  # back to pixel columns
+    assert np.allclose(u.reshape(30, 40), np.arange(40) + 0.5, atol=1e-4)
+    assert np.allclose(scan.normals, [0.0, 0.0, -1.0])  # towards the camera
+    assert len(depth_camera_scan(*_wall(2.0), config).points) == 0  # beyond its range
+
+
+def test_depth_camera_noise_grows_with_the_square_of_the_depth():
+    config = DepthCameraConfig(width=100, height=100, focal_px=400.0, noise_m=1e-3)
+    for depth in (0.4, 0.8):
+        points = depth_camera_scan(*_wall(depth), config, seed=1).points.astype(np.float64)
+        length = np.linalg.norm(points, axis=1)
+        residual = length - depth * length / points[:, 2]  # along the ray, off the wall
+        expected = 1e-3 * (depth / 0.4) ** 2
+        assert np.std(residual) == pytest.approx(expected, rel=0.05), depth
+        assert abs(float(np.mean(residual))) < 0.1 * expected
+
+
+def test_depth_camera_sees_a_sphere_as_a_disc_of_pixels(sphere):
+    vertices, faces = sphere
+    centre = np.array([0.0, 0.0, 0.5])
+    config = DepthCameraConfig(width=160, height=160, focal_px=200.0, noise_m=0.0)
+    scan = depth_camera_scan(vertices + centre, faces, config)
+    distance = np.linalg.norm(scan.points - centre, axis=1)
+    assert np.abs(distance - RADIUS).max() < 2e-3  # on the (faceted) sphere
+    assert (scan.points[:, 2] < 0.5).all()  # only its near half
+    half_angle = math.asin(RADIUS / 0.5)  # the silhouette cone's
+    disc = math.pi * (200.0 * math.tan(half_angle)) ** 2
+    assert len(scan.points) == pytest.approx(disc, rel=0.03)
+    assert ((scan.normals * scan.points).sum(1) < 0).all()
+    with pytest.raises(ValueError, match="width"):
+        DepthCameraConfig(width=0)

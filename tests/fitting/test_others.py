@@ -58,6 +58,15 @@ def test_near_or_small_pieces_stay(hand_scan):
     twin = ball(centre + [0.2, 0.0, 0.0], 0.04, len(points), seed=5)
     unclear = find_others(np.concatenate([points, twin]))
     assert unclear.unclear == 1 and unclear.pieces == 0 and not unclear.removed.any()
+    # a background larger than any hand holding most of the points (a wall 1 m across, 30 cm
+    # behind): it is not the hand, and the hand, a smaller piece, is not left out as apart
+    grid = np.linspace(-0.5, 0.5, 120)
+    wall = np.stack(np.meshgrid(grid, grid), -1).reshape(-1, 2)
+    wall = np.c_[wall + points[:, :2].mean(0), np.full(len(wall), points[:, 2].max() + 0.3)]
+    behind = find_others(np.concatenate([points, wall]))
+    assert behind.oversize == pytest.approx(np.sqrt(2.0), abs=0.02) and not behind.removed.any()
+    assert behind.to_dict()["oversize_m"] == behind.oversize
+    assert find_others(np.concatenate([points, wall]), max_hand_m=2.0).removed[:len(points)].all()
     with pytest.raises(ValueError, match="link_m"):
         find_others(points, link_m=0.0)
     with pytest.raises(ValueError, match=r"\[N, 3\]"):

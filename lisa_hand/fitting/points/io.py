@@ -432,6 +432,10 @@ def _fit_notes(points_path: Path, fit, view, unit: str, config, log) -> dict:
         log(f"{points_path}: {int(apart.removed.sum())} points in {apart.pieces} piece(s) "
             f"{100 * apart.gap_m:.0f} cm or more apart from the hand (another object or hand; "
             f"the largest {apart.largest} points) were left out (--others none keeps them)")
+    if apart is not None and apart.oversize is not None:
+        log(f"{points_path}: the largest piece of the scan is {apart.oversize:.2f} m across, "
+            "larger than a hand (a wall, a person): nothing was left out as apart from the hand; "
+            "crop the scan to the hand")
     if apart is not None and apart.unclear:
         log(f"{points_path}: the scan holds {apart.unclear} more piece(s) 3 cm or more apart "
             "from the largest and nearly as large (another hand, a large object): kept, as "

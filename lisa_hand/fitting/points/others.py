@@ -12,7 +12,9 @@ and the piece with the most points is taken for the hand. Pieces within ``reach_
 from the rest of a fist is one); the others are left out, unless they hold more than
 ``max_share`` of the hand's points: then which piece is the hand is not clear (the other hand,
 a large object), nothing of them is left out, and they are counted (``Others.unclear``) for the
-command to say so. A thing touching the hand (a held cup) is one piece with it and stays.
+command to say so. A thing touching the hand (a held cup) is one piece with it and stays. When the
+largest piece is larger than any hand (``max_hand_m`` across: a room's wall, a person) it is not
+the hand, which then is one of the pieces it would leave out: nothing is (``Others.oversize``).
 """
 
 from __future__ import annotations
@@ -31,6 +33,8 @@ class Others:
     removed: [N] bool, the points of the pieces left out. pieces: how many were. largest:
     points of the largest of them. gap_m: the distance from the hand's piece to the nearest of
     them, metres (inf when none). unclear: far pieces nearly as large as the hand's, kept.
+    oversize: the largest piece's size (the diagonal of its bounding box, metres) when it is
+    larger than a hand (nothing left out), else None.
     """
 
     removed: np.ndarray
@@ -38,22 +42,26 @@ class Others:
     largest: int
     gap_m: float
     unclear: int = 0
+    oversize: float | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready (``params.json``'s "fit")."""
         return {"removed_points": int(self.removed.sum()), "pieces": self.pieces,
-                "largest": self.largest, "gap_m": self.gap_m, "unclear": self.unclear}
+                "largest": self.largest, "gap_m": self.gap_m, "unclear": self.unclear,
+                "oversize_m": self.oversize}
 
 
 def find_others(points, link_m: float = 0.01, reach_m: float = 0.03, min_share: float = 0.05,
-                max_share: float = 0.6) -> Others | None:
+                max_share: float = 0.6, max_hand_m: float = 0.6) -> Others | None:
     """The pieces of a scan apart from its largest one (see the module docstring), or None when
     none is.
 
     points: [N, 3] metres (numpy or torch). link_m: voxel size, metres (points in touching
     voxels are one piece: gaps under about a centimetre are bridged). reach_m: pieces nearer
     the largest than this stay, metres. min_share: pieces with fewer points than this share of
-    the largest's stay; max_share: so do those with more (counted as unclear).
+    the largest's stay; max_share: so do those with more (counted as unclear). max_hand_m: the
+    largest piece is taken for the hand only when its bounding box's diagonal is at most this,
+    metres (a hand and a forearm in a crop: under half a metre).
     """
     from scipy.ndimage import label
     from scipy.spatial import cKDTree
@@ -78,7 +86,12 @@ def find_others(points, link_m: float = 0.01, reach_m: float = 0.03, min_share: 
     point_labels = labels[tuple(cells.T)]
     sizes = np.bincount(point_labels, minlength=count + 1)
     hand = int(np.argmax(sizes))
-    tree = cKDTree(points[point_labels == hand])
+    members = points[point_labels == hand]
+    extent = float(np.linalg.norm(members.max(0) - members.min(0)))
+    if extent > max_hand_m:
+        return Others(removed=np.zeros(len(points), bool), pieces=0, largest=0,
+                      gap_m=float("inf"), oversize=extent)
+    tree = cKDTree(members)
     removed = np.zeros(len(points), bool)
     gaps, left_out, largest, unclear = [], 0, 0, 0
     for piece in range(1, count + 1):

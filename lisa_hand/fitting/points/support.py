@@ -39,7 +39,13 @@ class SupportConfig:
 
     threshold_m: float = 0.0025
     """Points within this distance of a plane are on it (a depth sensor's noise at half a metre,
-    1-2 mm, with room)."""
+    1-2 mm, with room), or within ``noise_spans`` times the plane's own noise when that is
+    larger (:func:`_noise_threshold`), up to ``max_threshold_m``."""
+    noise_spans: float = 2.5
+    """The plane's points lie within this many standard deviations of its noise."""
+    max_threshold_m: float = 0.01
+    """The largest threshold the plane's noise may set (a depth camera's noise grows with the
+    square of the distance: a wall 70 cm away, 3 mm)."""
     iterations: int = 1000
     """RANSAC planes tried: three random points all on a plane holding a fifth of the cloud
     come once in 125 draws, so such a plane is missed once in about 3000 searches."""
@@ -56,8 +62,11 @@ class SupportConfig:
     """Points that must be left off the plane (else there is no hand beside it)."""
 
     def __post_init__(self) -> None:
-        if not self.threshold_m > 0:
-            raise ValueError(f"threshold_m must be > 0 (metres), got {self.threshold_m!r}")
+        if not 0 < self.threshold_m <= self.max_threshold_m:
+            raise ValueError(f"threshold_m must be > 0 (metres) and at most max_threshold_m, "
+                             f"got {self.threshold_m!r} and {self.max_threshold_m!r}")
+        if not self.noise_spans > 0:
+            raise ValueError(f"noise_spans must be > 0, got {self.noise_spans!r}")
         for name in ("iterations", "max_points", "min_hand_points"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -75,18 +84,21 @@ class Support:
     plane: its :class:`~lisa_hand.geometry.planes.Plane`, the normal towards the hand.
     removed: [N] bool, the cloud's points on it or beyond it (left out of the fit).
     fraction: share of the cloud's points on the plane. spread: the area of its points over
-    that of the points off it (convex hulls in the plane).
+    that of the points off it (convex hulls in the plane). threshold_m: the distance within
+    which points were taken to be on it (:func:`_noise_threshold`), metres.
     """
 
     plane: Plane
     removed: np.ndarray
     fraction: float
     spread: float
+    threshold_m: float = SupportConfig.threshold_m
 
     def to_dict(self) -> dict:
         """JSON-ready (``params.json``'s "fit")."""
         return {**self.plane.to_dict(), "removed_points": int(self.removed.sum()),
-                "fraction": self.fraction, "spread": self.spread}
+                "fraction": self.fraction, "spread": self.spread,
+                "threshold_m": self.threshold_m}
 
 
 def _plane_through(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -123,6 +135,21 @@ def _hull_area(points: np.ndarray, normal: np.ndarray) -> float:
         return 0.0
 
 
+def _noise_threshold(distance: np.ndarray, config: SupportConfig) -> float:
+    """The distance (metres) within which points are on a plane: ``config.threshold_m``, or
+    ``noise_spans`` standard deviations of the plane's noise when larger, at most
+    ``max_threshold_m``. distance: [N] signed distances of the cloud's points to the plane. The
+    noise is a robust one (1.4826 times the median absolute distance) of the points within
+    ``max_threshold_m`` of the plane: most of them are the plane's, whose noise sets it, and the
+    few of a hand touching it barely move a median."""
+    band = np.abs(distance[np.abs(distance) <= config.max_threshold_m])
+    if len(band) < 3:
+        return config.threshold_m
+    sigma = 1.4826 * float(np.median(band))
+    return float(min(max(config.threshold_m, config.noise_spans * sigma),
+                     config.max_threshold_m))
+
+
 def find_support(points, config: SupportConfig | None = None, seed: int = 0
                  ) -> Support | None:
     """The support plane of a cloud, or None when it has none (see the module docstring).
@@ -151,14 +178,16 @@ def find_support(points, config: SupportConfig | None = None, seed: int = 0
     if best is None:
         return None
     normal, offset = normals[best], offsets[best]
-    for _ in range(2):  # least squares on the plane's points, then count them again
-        on = np.abs(points @ normal - offset) <= config.threshold_m
+    threshold = config.threshold_m
+    for _ in range(3):  # least squares on the plane's points, its noise, then count again
+        on = np.abs(points @ normal - offset) <= threshold
         if on.sum() < 3:
             return None
         normal, offset = _least_squares_plane(points[on])
+        threshold = _noise_threshold(points @ normal - offset, config)
     distance = points @ normal - offset
-    on = np.abs(distance) <= config.threshold_m
-    off = np.abs(distance) > 3.0 * config.threshold_m
+    on = np.abs(distance) <= threshold
+    off = np.abs(distance) > 3.0 * threshold
     if on.mean() < config.min_fraction or off.sum() < config.min_hand_points:
         return None
     above = float((distance[off] > 0).mean())
@@ -169,9 +198,9 @@ def find_support(points, config: SupportConfig | None = None, seed: int = 0
     spread = _hull_area(points[on], normal) / max(_hull_area(points[off], normal), 1e-12)
     if spread < config.min_spread:
         return None
-    removed = distance <= config.threshold_m
+    removed = distance <= threshold
     return Support(plane=Plane(normal * offset, normal), removed=removed,
-                   fraction=float(on.mean()), spread=float(spread))
+                   fraction=float(on.mean()), spread=float(spread), threshold_m=threshold)
 
 
 def support_points(plane: Plane, hand_points: torch.Tensor, count: int,
