@@ -89,13 +89,18 @@ def fit_points(
     viewpoint: ViewpointOpt = "auto",
     support: SupportOpt = "auto",
     others: OthersOpt = "auto",
+    hand: Annotated[int | None, typer.Option(
+        "--hand", min=0, metavar="N",
+        help="For a scan of several hands apart from each other (both hands, two people's): "
+             "fit only hand N (0 = the one with the most points) into OUT; default: every "
+             "hand, into OUT/hand0, OUT/hand1, ...")] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
     full, with noise and outliers) and write OUT/params.json, OUT/mesh.ply, OUT/keypoints.json and
     OUT/preview.png."""
     from ..fitting.points.fit import FitPointsConfig
-    from ..fitting.points.io import fit_point_file
+    from ..fitting.points.io import count_hands, fit_point_file
 
     overrides = {"seed": seed, "tries": tries}
     if iterations is not None:
@@ -111,11 +116,28 @@ def fit_points(
 
         refine_config = RefineConfig(seed=seed, **({} if refine_iters is None
                                                    else {"iters": refine_iters}))
-    report = fit_point_file(points, out, model_path=model, gt_path=gt, units=units.value,
-                            refine=refine_config, viewpoint=view,
-                            support=support_mode, others=others_mode,
-                            resolution=res, config=config, device=device, side=side.value,
-                            progress=progress, log=typer.echo)
+    count = 1 if hand is not None else count_hands(points, units.value, seed)
+    if count > 1 and gt is not None:
+        raise ValueError(f"{points}: the scan holds {count} hands apart from each other; --gt "
+                         "compares one: pass --hand N with it")
+    if count > 1:
+        typer.echo(f"{points}: {count} hands apart from each other: fitting each into "
+                   f"{out / 'hand0'} ... {out / f'hand{count - 1}'} (--hand N for one)")
+    for index in range(count):
+        one = hand if count == 1 else index
+        if count > 1:
+            typer.echo(f"fitting hand{index}")
+        report = fit_point_file(points, out if count == 1 else out / f"hand{index}",
+                                model_path=model, gt_path=gt, units=units.value,
+                                refine=refine_config, viewpoint=view, support=support_mode,
+                                others=others_mode, hand=one, resolution=res, config=config,
+                                device=device, side=side.value, progress=progress,
+                                log=typer.echo)
+        _said(report, config)
+
+
+def _said(report, config) -> None:
+    """The fit's summary line, the ground truth's distances and the files written."""
     fit = report.fit
     counted = (f"{fit.num_points} of {fit.num_points + fit.beyond_wrist_points}"
                if fit.beyond_wrist_points else f"{fit.num_points}")

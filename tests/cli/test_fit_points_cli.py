@@ -381,11 +381,28 @@ def test_a_thing_apart_from_the_hand_is_left_out_and_said(lisa, files, capsys):
         fit = read_params(out / "params.json").extra["fit"]
         assert (f"{len(thing)} points in 1 piece(s)" in said) == (name == "left"), said
         assert ("others" in fit) == (name == "left")
+    # A thing as large as the hand (as many points, 25 cm away) may be a second hand: each is
+    # fitted on its own, into OUT/hand0 and OUT/hand1, without the other's points.
     large = ball(points.mean(0) + np.array([0.25, 0.0, 0.0]), 0.04, len(points), seed=0)
     np.save(root / "with_large_ball.npy", np.concatenate([points, large]))
     assert lisa(["fit-points", str(root / "with_large_ball.npy"), "--out", str(root / "large"),
                  "--model", str(root / "tiny.pt"), *FAST_ARGS]) == 0
     captured = capsys.readouterr()
-    assert "nearly as large (another hand, a large object): kept" in captured.out + captured.err
-    fit = read_params(root / "large" / "params.json").extra["fit"]
-    assert fit["others"]["unclear"] == 1 and fit["others"]["removed_points"] == 0
+    assert "2 hands apart from each other: fitting each into" in captured.out + captured.err
+    for index in (0, 1):
+        record = read_params(root / "large" / f"hand{index}" / "params.json").extra
+        note = next(n for n in record["input"]["notes"] if n.startswith(f"hand {index} of 2"))
+        left_out = int(note.split("the other hands' ")[1].split(" points")[0])
+        assert 0.9 * len(points) <= left_out <= len(points)  # the other piece (a few strays
+        # of the hand's scan, pieces of their own, stay with the ball)
+        assert "others" not in record["fit"]  # the other piece was never in this fit
+    assert lisa(["fit-points", str(root / "with_large_ball.npy"), "--out", str(root / "one"),
+                 "--hand", "1", "--model", str(root / "tiny.pt"), *FAST_ARGS]) == 0
+    assert (root / "one" / "params.json").is_file() and not (root / "one" / "hand0").exists()
+    capsys.readouterr()
+    for extra, message in ((["--hand", "2"], "--hand 2 asked for, but the scan holds 2 hand"),
+                           (["--gt", str(root / "truth.ply")], "--gt compares one: pass --hand")):
+        assert lisa(["fit-points", str(root / "with_large_ball.npy"), "--out",
+                     str(root / "bad"), "--model", str(root / "tiny.pt"), *extra,
+                     *FAST_ARGS]) == 2
+        assert message in capsys.readouterr().err

@@ -8,7 +8,7 @@ import pytest
 
 from lisa_hand.data.scans import ScanConfig, simulate_scan
 from lisa_hand.fitting.points.fit import FitPointsConfig, fit_points
-from lisa_hand.fitting.points.others import find_others
+from lisa_hand.fitting.points.others import find_others, split_hands
 from tests.fitting.test_points import FAST, sdf_at, surface, tiny_model, true_hand
 
 
@@ -92,3 +92,33 @@ def test_the_fit_leaves_them_out(hand_scan):
     assert moved > 0.005 and bool((left.params.translation == alone.params.translation).all())
     with pytest.raises(ValueError, match="others must be 'auto' or None"):
         fit_points(model, cloud, None, config, others="all")
+
+
+def test_a_scan_of_two_hands_is_split_into_each(hand_scan):
+    points, _, _ = hand_scan
+    assert split_hands(points) is None  # one hand
+    turn = np.array([[-1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])  # mirrored: a left
+    other = (points - points.mean(0)) @ turn.T + points.mean(0) + [0.25, 0.0, 0.0]
+    other = other[: int(0.8 * len(other))]  # fewer points: the second
+    both = np.concatenate([points, other])
+    hands = split_hands(both)
+    assert hands is not None and len(hands) == 2
+    first = np.r_[np.ones(len(points), bool), np.zeros(len(other), bool)]
+    # each mask drops the other hand's piece (all but the few stray points of its scan that
+    # make pieces of their own, which stay for the fit's robust term)
+    assert (hands[0] >= first).all() and hands[0][len(points):].mean() < 0.05
+    assert (hands[1] >= ~first).all() and hands[1][:len(points)].mean() < 0.05
+    # lying on a desk that joins them: the desk is left out before the pieces are made, and
+    # it stays in both masks (each fit finds it again and keeps its hand above it)
+    low = both[:, 1].min() - 0.002
+    grid = np.linspace(-0.25, 0.25, 100)
+    desk = np.stack(np.meshgrid(grid, grid), -1).reshape(-1, 2) + both[:, [0, 2]].mean(0)
+    desk = np.c_[desk[:, 0], np.full(len(desk), low), desk[:, 1]]
+    on_desk = split_hands(np.concatenate([both, desk]))
+    assert on_desk is not None and len(on_desk) == 2
+    assert all(mask[len(both):].all() for mask in on_desk)
+    assert (on_desk[0][:len(both)] == hands[0]).mean() > 0.97  # the same, but for the points
+    # within the desk's threshold, left out with it and kept in both masks
+    # a thing much smaller than the hand is not a hand: nothing to split
+    small = ball(points.mean(0) + [0.25, 0.0, 0.0], 0.02, len(points) // 4, seed=4)
+    assert split_hands(np.concatenate([points, small])) is None

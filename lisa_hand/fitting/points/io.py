@@ -22,6 +22,7 @@ Formats (normals are optional everywhere):
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -42,6 +43,7 @@ __all__ = [
     "read_point_cloud",
     "prepare_point_cloud",
     "fit_point_file",
+    "count_hands",
     "default_point_model",
 ]
 
@@ -313,6 +315,7 @@ def fit_point_file(
     viewpoint: Sequence[float] | str | None = None,
     support: str | None = None,
     others: str | None = None,
+    hand: int | None = None,
 ) -> FitPointsReport:
     """Read a cloud, fit the model, write ``params.json``, ``mesh.ply`` (skinning weights, and
     vertex colours from the mean colour code when the model has colour) and (with ``gt_path``)
@@ -341,6 +344,8 @@ def fit_point_file(
     support: "auto": a surface the hand rests on is found, left out and kept as a bound (logged
         when found), or None (:func:`lisa_hand.fitting.points.fit.fit_points`).
     others: "auto": pieces of the scan well apart from the hand are left out (logged), or None.
+    hand: for a scan of several hands (:func:`count_hands`), the one to fit (0: the largest); the
+        other hands' points are left out (logged). None: the scan is fitted as one hand.
     """
     from ...geometry.pieces import drop_specks
     from ...inference import MeshConfig, mesh_hand
@@ -352,11 +357,7 @@ def fit_point_file(
     model_path = default_point_model() if model_path is None else model_path
     points_path, out_dir = Path(points_path), Path(out_dir)
     config = FitPointsConfig() if config is None else config
-    raw_points, raw_normals = read_point_cloud(points_path)
-    cloud = prepare_point_cloud(raw_points, raw_normals, units=units, seed=config.seed,
-                                min_points=config.min_points, name=str(points_path))
-    for note in cloud.notes:
-        log(f"{points_path}: {note}")
+    cloud = _read_cloud(points_path, units, config, hand, log)
     truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
 
     view = viewpoint  # checked by fit_points
@@ -385,6 +386,53 @@ def fit_point_file(
                                 preview=_preview(mesh, cloud, fit, params.extra["input"], log))
     return FitPointsReport(cloud=cloud, fit=fit, mesh=mesh, metrics=metrics, written=written,
                            refine=refined)
+
+
+def _read_cloud(points_path: Path, units: str, config, hand: int | None, log) -> PointCloud:
+    """The file's cloud, prepared (:func:`prepare_point_cloud`) and, with ``hand``, without the
+    other hands' points (:func:`_one_hand`); each note logged."""
+    raw_points, raw_normals = read_point_cloud(points_path)
+    cloud = prepare_point_cloud(raw_points, raw_normals, units=units, seed=config.seed,
+                                min_points=config.min_points, name=str(points_path))
+    if hand is not None:
+        cloud = _one_hand(cloud, hand, config.seed, str(points_path))
+    for note in cloud.notes:
+        log(f"{points_path}: {note}")
+    return cloud
+
+
+def count_hands(points_path: str | os.PathLike, units: str = "auto", seed: int = 0) -> int:
+    """How many hands the cloud in ``points_path`` holds apart from each other
+    (:func:`lisa_hand.fitting.points.others.split_hands`; 1 when it is not split); errors as
+    :func:`read_point_cloud` and :func:`prepare_point_cloud`."""
+    from .others import split_hands
+
+    cloud = prepare_point_cloud(*read_point_cloud(points_path), units=units, seed=seed,
+                                name=str(points_path))
+    hands = split_hands(cloud.points, seed=seed)
+    return 1 if hands is None else len(hands)
+
+
+def _one_hand(cloud: PointCloud, hand: int, seed: int, name: str) -> PointCloud:
+    """``cloud`` without the points of the hands other than ``hand`` (0: the largest), a note
+    saying so; ValueError naming ``name`` when it holds fewer hands."""
+    from .others import split_hands
+
+    if isinstance(hand, bool) or not isinstance(hand, int) or hand < 0:
+        raise ValueError(f"hand must be an integer >= 0, got {hand!r}")
+    hands = split_hands(cloud.points, seed=seed)
+    count = 1 if hands is None else len(hands)
+    if hand >= count:
+        raise ValueError(f"{name}: --hand {hand} asked for, but the scan holds {count} hand(s) "
+                         f"apart from each other (--hand 0 to {count - 1})")
+    if hands is None:
+        return cloud
+    keep = hands[hand]
+    note = (f"hand {hand} of {count} (largest first): the other hands' {int((~keep).sum())} "
+            "points left out")
+    return dataclasses.replace(cloud, points=cloud.points[keep],
+                               normals=None if cloud.normals is None else cloud.normals[keep],
+                               notes=[*cloud.notes, note])
 
 
 def _preview(mesh, cloud: PointCloud, fit, record: dict, log) -> np.ndarray | None:
