@@ -50,8 +50,9 @@ OthersOpt = _auto_or_none(
 def fit_points(
     points: Annotated[Path, typer.Argument(
         metavar="POINTS",
-        help="Point cloud: PLY, OBJ, XYZ, NPY or NPZ (normals optional), or a mesh (these, STL, "
-             "OFF, GLB or GLTF), whose vertices are the points.")],
+        help="Point cloud: PLY, OBJ, XYZ, NPY or NPZ (normals optional), a mesh (these, STL, "
+             "OFF, GLB or GLTF), whose vertices are the points, or a depth camera's image "
+             "(16-bit PNG or TIFF, with --camera).")],
     out: Annotated[Path, typer.Option(
         "--out", help="Output folder: params.json, mesh.ply, keypoints.json, preview.png (the "
                       "fit and the scan's points, coloured by their distance to it) and, with "
@@ -94,6 +95,18 @@ def fit_points(
         help="For a scan of several hands apart from each other (both hands, two people's): "
              "fit only hand N (0 = the one with the most points) into OUT; default: every "
              "hand, into OUT/hand0, OUT/hand1, ...")] = None,
+    camera: Annotated[Path | None, typer.Option(
+        "--camera", metavar="CAM.json",
+        help="For a depth image: the camera that took it (cameras.json convention: K, width, "
+             "height; R, t to place it in a world frame); its centre is the sensor position.")
+    ] = None,
+    depth_scale: Annotated[float, typer.Option(
+        "--depth-scale",
+        help="For a depth image: metres per unit of its values (0.001: millimetres, as "
+             "RealSense and Kinect cameras write them).")] = 0.001,
+    mask: Annotated[Path | None, typer.Option(
+        "--mask", metavar="MASK.png",
+        help="For a depth image: the hand's pixels (white), the rest left out.")] = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
@@ -116,7 +129,12 @@ def fit_points(
 
         refine_config = RefineConfig(seed=seed, **({} if refine_iters is None
                                                    else {"iters": refine_iters}))
-    count = 1 if hand is not None else count_hands(points, units.value, seed)
+    if not depth_scale > 0:
+        raise ValueError(f"--depth-scale must be > 0 (metres per unit), got {depth_scale!r}")
+    depth = None
+    if camera is not None or mask is not None or depth_scale != 0.001:
+        depth = _depth_frame(points, camera, depth_scale, mask)
+    count = 1 if hand is not None else count_hands(points, units.value, config, depth)
     if count > 1 and gt is not None:
         raise ValueError(f"{points}: the scan holds {count} hands apart from each other; --gt "
                          "compares one: pass --hand N with it")
@@ -130,10 +148,26 @@ def fit_points(
         report = fit_point_file(points, out if count == 1 else out / f"hand{index}",
                                 model_path=model, gt_path=gt, units=units.value,
                                 refine=refine_config, viewpoint=view, support=support_mode,
-                                others=others_mode, hand=one, resolution=res, config=config,
+                                others=others_mode, hand=one, depth=depth, resolution=res,
+                                config=config,
                                 device=device, side=side.value, progress=progress,
                                 log=typer.echo)
         _said(report, config)
+
+
+def _depth_frame(points: Path, camera: Path | None, scale: float, mask: Path | None):
+    """The :class:`~lisa_hand.data.depth.DepthFrame` of the depth options (one-line errors)."""
+    from ..data.depth import DepthFrame
+    from .options import read_cameras
+
+    if camera is None:
+        raise ValueError(f"{points}: --depth-scale and --mask read a depth image with its "
+                         "camera: pass --camera CAM.json too")
+    cameras = read_cameras(camera)
+    if len(cameras) != 1:
+        raise ValueError(f"--camera {camera}: a depth image has one camera, the file holds "
+                         f"{len(cameras)}")
+    return DepthFrame(camera=cameras[0], scale_m=scale, mask=mask)
 
 
 def _said(report, config) -> None:

@@ -406,3 +406,46 @@ def test_a_thing_apart_from_the_hand_is_left_out_and_said(lisa, files, capsys):
                      str(root / "bad"), "--model", str(root / "tiny.pt"), *extra,
                      *FAST_ARGS]) == 2
         assert message in capsys.readouterr().err
+
+
+def test_a_depth_image_is_fitted_with_its_camera(lisa, files, capsys):
+    """A 16-bit depth image (millimetres) of the hand with its camera (cameras.json): its
+    pixels are the points, the camera's centre the sensor; without --camera, one line says what
+    to pass; --mask keeps the hand's pixels."""
+    import imageio.v3 as iio
+
+    from lisa_hand.data.raycast import MeshRayCaster
+
+    root, _ = files
+    truth = load_mesh(root / "truth.ply")
+    centre = np.asarray(truth.vertices, np.float64).mean(0)
+    sensor = centre - np.array([0.0, 0.0, 0.4])  # R = I, t = -sensor: the camera 40 cm away
+    width, height, focal = 80, 60, 150.0
+    u, v = np.meshgrid(np.arange(width) + 0.5, np.arange(height) + 0.5)
+    rays = np.stack([(u - width / 2) / focal, (v - height / 2) / focal, np.ones_like(u)],
+                    -1).reshape(-1, 3)
+    unit = rays / np.linalg.norm(rays, axis=1, keepdims=True)
+    hits = MeshRayCaster(truth.vertices, truth.faces).intersect(
+        np.tile(sensor, (len(unit), 1)), unit)
+    depth = np.where(hits.hit, hits.distances * unit[:, 2], 0.0).reshape(height, width)
+    iio.imwrite(root / "depth.png", np.round(depth * 1000).astype(np.uint16))
+    iio.imwrite(root / "mask.png", ((depth > 0) * 255).astype(np.uint8))
+    (root / "cam.json").write_text(json.dumps([{
+        "K": [[focal, 0, width / 2], [0, focal, height / 2], [0, 0, 1]],
+        "R": np.eye(3).tolist(), "t": (-sensor).tolist(), "width": width, "height": height}]))
+    pixels = int((depth > 0).sum())
+    assert pixels > 200
+    for name, extra in (("whole", []), ("masked", ["--mask", str(root / "mask.png")])):
+        assert lisa(["fit-points", str(root / "depth.png"), "--out", str(root / name),
+                     "--camera", str(root / "cam.json"), "--model", str(root / "tiny.pt"),
+                     *extra, *FAST_ARGS]) == 0
+        said = capsys.readouterr().out
+        assert f"read {pixels} pixels with a depth" in said
+        record = read_params(root / name / "params.json").extra["input"]
+        assert np.allclose(record["viewpoint_m"], sensor, atol=1e-6)
+    assert lisa(["fit-points", str(root / "depth.png"), "--out", str(root / "bad"),
+                 "--model", str(root / "tiny.pt"), *FAST_ARGS]) == 2
+    assert "pass --camera CAM.json" in capsys.readouterr().err
+    assert lisa(["fit-points", str(root / "scan.npz"), "--out", str(root / "bad"), "--camera",
+                 str(root / "cam.json"), "--model", str(root / "tiny.pt"), *FAST_ARGS]) == 2
+    assert "are for a depth image" in capsys.readouterr().err

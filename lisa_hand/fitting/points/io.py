@@ -316,6 +316,7 @@ def fit_point_file(
     support: str | None = None,
     others: str | None = None,
     hand: int | None = None,
+    depth: Any = None,
 ) -> FitPointsReport:
     """Read a cloud, fit the model, write ``params.json``, ``mesh.ply`` (skinning weights, and
     vertex colours from the mean colour code when the model has colour) and (with ``gt_path``)
@@ -346,6 +347,9 @@ def fit_point_file(
     others: "auto": pieces of the scan well apart from the hand are left out (logged), or None.
     hand: for a scan of several hands (:func:`count_hands`), the one to fit (0: the largest); the
         other hands' points are left out (logged). None: the scan is fitted as one hand.
+    depth: a :class:`lisa_hand.data.depth.DepthFrame` when ``points_path`` is a depth image
+        (:data:`lisa_hand.data.depth.DEPTH_SUFFIXES`): its points, in metres, are fitted, and
+        its camera's centre is the sensor position (unless ``viewpoint`` gives one).
     """
     from ...geometry.pieces import drop_specks
     from ...inference import MeshConfig, mesh_hand
@@ -357,7 +361,9 @@ def fit_point_file(
     model_path = default_point_model() if model_path is None else model_path
     points_path, out_dir = Path(points_path), Path(out_dir)
     config = FitPointsConfig() if config is None else config
-    cloud = _read_cloud(points_path, units, config, hand, log)
+    cloud, sensor = _read_cloud(points_path, units, config, hand, log, depth)
+    if sensor is not None and viewpoint == "auto":
+        viewpoint = sensor / LENGTH_UNITS[cloud.unit]  # in the cloud's units, as given ones
     truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
 
     view = viewpoint  # checked by fit_points
@@ -388,28 +394,47 @@ def fit_point_file(
                            refine=refined)
 
 
-def _read_cloud(points_path: Path, units: str, config, hand: int | None, log) -> PointCloud:
+def _read_cloud(points_path: Path, units: str, config, hand: int | None, log, depth=None
+                ) -> tuple[PointCloud, np.ndarray | None]:
     """The file's cloud, prepared (:func:`prepare_point_cloud`) and, with ``hand``, without the
-    other hands' points (:func:`_one_hand`); each note logged."""
-    raw_points, raw_normals = read_point_cloud(points_path)
+    other hands' points (:func:`_one_hand`), each note logged; and a depth image's sensor
+    position (metres; None for a cloud)."""
+    from ...data.depth import DEPTH_SUFFIXES, read_depth_cloud
+
+    sensor, notes = None, []
+    if points_path.suffix.lower() in DEPTH_SUFFIXES:
+        if depth is None:
+            raise ValueError(f"{points_path}: a depth image is read with its camera: pass "
+                             "--camera CAM.json (K, width, height) and, unless it is in "
+                             "millimetres, --depth-scale")
+        raw_points, sensor, note = read_depth_cloud(points_path, depth)
+        raw_normals, units, notes = None, "m", [note]
+    else:
+        if depth is not None:
+            raise ValueError(f"{points_path}: --camera, --depth-scale and --mask are for a depth "
+                             f"image ({', '.join(DEPTH_SUFFIXES)}), not a point cloud")
+        raw_points, raw_normals = read_point_cloud(points_path)
     cloud = prepare_point_cloud(raw_points, raw_normals, units=units, seed=config.seed,
                                 min_points=config.min_points, name=str(points_path))
+    cloud.notes[:0] = notes
     if hand is not None:
         cloud = _one_hand(cloud, hand, config.seed, str(points_path))
     for note in cloud.notes:
         log(f"{points_path}: {note}")
-    return cloud
+    return cloud, sensor
 
 
-def count_hands(points_path: str | os.PathLike, units: str = "auto", seed: int = 0) -> int:
-    """How many hands the cloud in ``points_path`` holds apart from each other
-    (:func:`lisa_hand.fitting.points.others.split_hands`; 1 when it is not split); errors as
-    :func:`read_point_cloud` and :func:`prepare_point_cloud`."""
+def count_hands(points_path: str | os.PathLike, units: str = "auto", config=None,
+                depth=None) -> int:
+    """How many hands the cloud in ``points_path`` (a depth image with ``depth``, as
+    :func:`fit_point_file` reads it) holds apart from each other
+    (:func:`lisa_hand.fitting.points.others.split_hands`; 1 when it is not split)."""
+    from .fit import FitPointsConfig
     from .others import split_hands
 
-    cloud = prepare_point_cloud(*read_point_cloud(points_path), units=units, seed=seed,
-                                name=str(points_path))
-    hands = split_hands(cloud.points, seed=seed)
+    config = FitPointsConfig() if config is None else config
+    cloud, _ = _read_cloud(Path(points_path), units, config, None, lambda line: None, depth)
+    hands = split_hands(cloud.points, seed=config.seed)
     return 1 if hands is None else len(hands)
 
 
