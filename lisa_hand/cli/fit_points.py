@@ -47,6 +47,24 @@ OthersOpt = _auto_or_none(
     "none: kept.")
 
 
+HandOpt = Annotated[int | None, typer.Option(
+    "--hand", min=0, metavar="N",
+    help="For a scan of several hands apart from each other (both hands, two people's): fit "
+         "only hand N (0 = the one with the most points) into OUT; default: every hand, into "
+         "OUT/hand0, OUT/hand1, ...")]
+CameraOpt = Annotated[Path | None, typer.Option(
+    "--camera", metavar="CAM.json",
+    help="For a depth image: the camera that took it (cameras.json convention: K, width, "
+         "height; R, t to place it in a world frame); its centre is the sensor position.")]
+DepthScaleOpt = Annotated[float, typer.Option(
+    "--depth-scale",
+    help="For a depth image: metres per unit of its values (0.001: millimetres, as RealSense "
+         "and Kinect cameras write them).")]
+MaskOpt = Annotated[Path | None, typer.Option(
+    "--mask", metavar="MASK.png",
+    help="For a depth image: the hand's pixels (white), the rest left out.")]
+
+
 def fit_points(
     points: Annotated[Path, typer.Argument(
         metavar="POINTS",
@@ -90,23 +108,10 @@ def fit_points(
     viewpoint: ViewpointOpt = "auto",
     support: SupportOpt = "auto",
     others: OthersOpt = "auto",
-    hand: Annotated[int | None, typer.Option(
-        "--hand", min=0, metavar="N",
-        help="For a scan of several hands apart from each other (both hands, two people's): "
-             "fit only hand N (0 = the one with the most points) into OUT; default: every "
-             "hand, into OUT/hand0, OUT/hand1, ...")] = None,
-    camera: Annotated[Path | None, typer.Option(
-        "--camera", metavar="CAM.json",
-        help="For a depth image: the camera that took it (cameras.json convention: K, width, "
-             "height; R, t to place it in a world frame); its centre is the sensor position.")
-    ] = None,
-    depth_scale: Annotated[float, typer.Option(
-        "--depth-scale",
-        help="For a depth image: metres per unit of its values (0.001: millimetres, as "
-             "RealSense and Kinect cameras write them).")] = 0.001,
-    mask: Annotated[Path | None, typer.Option(
-        "--mask", metavar="MASK.png",
-        help="For a depth image: the hand's pixels (white), the rest left out.")] = None,
+    hand: HandOpt = None,
+    camera: CameraOpt = None,
+    depth_scale: DepthScaleOpt = 0.001,
+    mask: MaskOpt = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
@@ -129,11 +134,7 @@ def fit_points(
 
         refine_config = RefineConfig(seed=seed, **({} if refine_iters is None
                                                    else {"iters": refine_iters}))
-    if not depth_scale > 0:
-        raise ValueError(f"--depth-scale must be > 0 (metres per unit), got {depth_scale!r}")
-    depth = None
-    if camera is not None or mask is not None or depth_scale != 0.001:
-        depth = _depth_frame(points, camera, depth_scale, mask)
+    depth = _depth_frame(points, camera, depth_scale, mask)
     count = 1 if hand is not None else count_hands(points, units.value, config, depth)
     if count > 1 and gt is not None:
         raise ValueError(f"{points}: the scan holds {count} hands apart from each other; --gt "
@@ -149,17 +150,21 @@ def fit_points(
                                 model_path=model, gt_path=gt, units=units.value,
                                 refine=refine_config, viewpoint=view, support=support_mode,
                                 others=others_mode, hand=one, depth=depth, resolution=res,
-                                config=config,
-                                device=device, side=side.value, progress=progress,
-                                log=typer.echo)
+                                config=config, device=device, side=side.value,
+                                progress=progress, log=typer.echo)
         _said(report, config)
 
 
 def _depth_frame(points: Path, camera: Path | None, scale: float, mask: Path | None):
-    """The :class:`~lisa_hand.data.depth.DepthFrame` of the depth options (one-line errors)."""
+    """The :class:`~lisa_hand.data.depth.DepthFrame` of the depth options, or None when none is
+    given (one-line errors)."""
     from ..data.depth import DepthFrame
     from .options import read_cameras
 
+    if not scale > 0:
+        raise ValueError(f"--depth-scale must be > 0 (metres per unit), got {scale!r}")
+    if camera is None and mask is None and scale == 0.001:
+        return None
     if camera is None:
         raise ValueError(f"{points}: --depth-scale and --mask read a depth image with its "
                          "camera: pass --camera CAM.json too")

@@ -345,14 +345,10 @@ def fit_point_file(
     support: "auto": a surface the hand rests on is found, left out and kept as a bound (logged
         when found), or None (:func:`lisa_hand.fitting.points.fit.fit_points`).
     others: "auto": pieces of the scan well apart from the hand are left out (logged), or None.
-    hand: for a scan of several hands (:func:`count_hands`), the one to fit (0: the largest); the
-        other hands' points are left out (logged). None: the scan is fitted as one hand.
-    depth: a :class:`lisa_hand.data.depth.DepthFrame` when ``points_path`` is a depth image
-        (:data:`lisa_hand.data.depth.DEPTH_SUFFIXES`): its points, in metres, are fitted, and
-        its camera's centre is the sensor position (unless ``viewpoint`` gives one).
+    hand: of a scan of several hands (:func:`count_hands`), the one to fit (0: the largest), the
+        others' points left out; None: the scan is one hand. depth: a :class:`lisa_hand.data.
+        depth.DepthFrame` for a depth image (its camera's centre the sensor for "auto").
     """
-    from ...geometry.pieces import drop_specks
-    from ...inference import MeshConfig, mesh_hand
     from ...model.trained import model_label
     from ..outputs import ground_truth_metrics, prepare_fit, write_fit_outputs
     from .fit import FitPointsConfig, fit_points
@@ -362,12 +358,11 @@ def fit_point_file(
     points_path, out_dir = Path(points_path), Path(out_dir)
     config = FitPointsConfig() if config is None else config
     cloud, sensor = _read_cloud(points_path, units, config, hand, log, depth)
-    if sensor is not None and viewpoint == "auto":
-        viewpoint = sensor / LENGTH_UNITS[cloud.unit]  # in the cloud's units, as given ones
     truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
-
-    view = viewpoint  # checked by fit_points
-    if viewpoint is not None and not isinstance(viewpoint, str):
+    view = viewpoint  # checked by fit_points; a depth image's sensor, in metres, for "auto"
+    if sensor is not None and viewpoint == "auto":
+        view = sensor
+    elif viewpoint is not None and not isinstance(viewpoint, str):
         view = np.asarray(viewpoint, dtype=np.float64) * LENGTH_UNITS[cloud.unit]
     fit = fit_points(model, cloud.points, cloud.normals, config, side=side, viewpoint=view,
                      support=support, others=others, progress=progress)
@@ -381,17 +376,26 @@ def fit_point_file(
         model, refined = _refined(model, fit, cloud, params.side, refine, progress, log,
                                   points_path)
         params.model = str((out_dir / "model.pt").resolve())
-    mesh, specks = drop_specks(mesh_hand(model, params, resolution,
-                                         MeshConfig(colors=model.has_color),
-                                         clip=fit.wrist_plane))
-    if specks.count:
-        log(specks.note(f"{out_dir / 'mesh.ply'}"))
+    mesh = _mesh_without_specks(model, params, resolution, fit.wrist_plane, out_dir, log)
     metrics = None if truth is None else ground_truth_metrics(mesh, truth, fit.wrist_plane)
     written = write_fit_outputs(out_dir, params, mesh, metrics,
                                 model=None if refined is None else model,
                                 preview=_preview(mesh, cloud, fit, params.extra["input"], log))
     return FitPointsReport(cloud=cloud, fit=fit, mesh=mesh, metrics=metrics, written=written,
                            refine=refined)
+
+
+def _mesh_without_specks(model, params, resolution: int, clip, out_dir: Path, log):
+    """The fitted hand's mesh (colours, skinning weights) cut at ``clip``, without specks
+    (:func:`lisa_hand.geometry.pieces.drop_specks`; logged when any)."""
+    from ...geometry.pieces import drop_specks
+    from ...inference import MeshConfig, mesh_hand
+
+    mesh, specks = drop_specks(mesh_hand(model, params, resolution,
+                                         MeshConfig(colors=model.has_color), clip=clip))
+    if specks.count:
+        log(specks.note(f"{out_dir / 'mesh.ply'}"))
+    return mesh
 
 
 def _read_cloud(points_path: Path, units: str, config, hand: int | None, log, depth=None
