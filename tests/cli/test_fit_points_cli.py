@@ -446,6 +446,11 @@ def test_a_depth_image_is_fitted_with_its_camera(lisa, files, capsys):
     assert lisa(["fit-points", str(root / "depth.png"), "--out", str(root / "bad"),
                  "--model", str(root / "tiny.pt"), *FAST_ARGS]) == 2
     assert "pass --camera CAM.json" in capsys.readouterr().err
+    room = np.where(depth > 0, depth, 3.0)  # a room 3 m behind the hand: over 2 m across
+    iio.imwrite(root / "room.png", np.round(room * 1000).astype(np.uint16))
+    assert lisa(["fit-points", str(root / "room.png"), "--out", str(root / "bad"), "--camera",
+                 str(root / "cam.json"), "--model", str(root / "tiny.pt"), *FAST_ARGS]) == 2
+    assert "(the room behind the hand): pass --mask" in capsys.readouterr().err
     assert lisa(["fit-points", str(root / "scan.npz"), "--out", str(root / "bad"), "--camera",
                  str(root / "cam.json"), "--model", str(root / "tiny.pt"), *FAST_ARGS]) == 2
     assert "are for a depth image" in capsys.readouterr().err

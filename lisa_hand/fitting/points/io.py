@@ -418,8 +418,15 @@ def _read_cloud(points_path: Path, units: str, config, hand: int | None, log, de
             raise ValueError(f"{points_path}: --camera, --depth-scale and --mask are for a depth "
                              f"image ({', '.join(DEPTH_SUFFIXES)}), not a point cloud")
         raw_points, raw_normals = read_point_cloud(points_path)
-    cloud = prepare_point_cloud(raw_points, raw_normals, units=units, seed=config.seed,
-                                min_points=config.min_points, name=str(points_path))
+    try:
+        cloud = prepare_point_cloud(raw_points, raw_normals, units=units, seed=config.seed,
+                                    min_points=config.min_points, name=str(points_path))
+    except ValueError as error:
+        if sensor is None or "too large" not in str(error):
+            raise
+        raise ValueError(f"{points_path}: the depth image's points reach over "
+                         f"{np.ptp(raw_points, axis=0).max():.1f} m (the room behind the hand): "
+                         "pass --mask MASK.png with the hand's pixels") from None
     cloud.notes[:0] = notes
     if hand is not None:
         cloud = _one_hand(cloud, hand, config.seed, str(points_path))
