@@ -429,7 +429,7 @@ def run_scene_fits(model, path: str | Path, *, scene: str = "table", seed: int =
     as ``lisa fit-points`` does by default).
     -> one dict per fit: pose, scan ("table, palm down" ...), seconds, the support found (share
     of the points on it, or None), and the four distances (mm) against the hand, both cut at
-    the fit's wrist plane."""
+    the fit's wrist plane (inf when that cut leaves none of the hand: a fit far off)."""
     import dataclasses
 
     from ..fitting.points.fit import FitPointsConfig, fit_points
@@ -450,13 +450,17 @@ def run_scene_fits(model, path: str | Path, *, scene: str = "table", seed: int =
             mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False,
                                                                 skin_weights=False),
                              clip=fit.wrist_plane)
-        distances = mesh_distances(mesh.vertices, mesh.faces, vertices, faces,
-                                   clip=fit.wrist_plane)
+        try:
+            distances = mesh_distances(mesh.vertices, mesh.faces, vertices, faces,
+                                       clip=fit.wrist_plane).to_dict()
+        except ValueError:  # a fit far off (with support=None: on the wall) cuts the hand away
+            distances = dict.fromkeys(("v2v_recon_to_scan_mm", "v2s_recon_to_scan_mm",
+                                       "v2v_scan_to_recon_mm", "v2s_scan_to_recon_mm"),
+                                      float("inf"))
         rows.append({"pose": pose, "wrist": "as-is", "scan": label,
                      "support": None if fit.support is None else fit.support.fraction,
                      "viewpoint": viewpoints, "seconds": fit.seconds,
-                     "beyond_wrist_points": fit.beyond_wrist_points,
-                     **distances.to_dict(),
+                     "beyond_wrist_points": fit.beyond_wrist_points, **distances,
                      "scan_points_to_recon_mm": float("nan")})
         if log is not None:
             log(rows[-1])
