@@ -115,8 +115,9 @@ def fit_points(
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
-    full, with noise and outliers) and write OUT/params.json, OUT/mesh.ply, OUT/keypoints.json and
-    OUT/preview.png."""
+    full, with noise and outliers; a mesh file; a depth image with --camera) and write
+    OUT/params.json, OUT/mesh.ply, OUT/keypoints.json and OUT/preview.png (a scan of several
+    hands apart: each into OUT/hand0, OUT/hand1, ...)."""
     from ..fitting.points.fit import FitPointsConfig
     from ..fitting.points.io import count_hands, fit_point_file
 
