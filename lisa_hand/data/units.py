@@ -4,8 +4,9 @@ Files rarely say their unit. A hand is a known size, so its bounding box tells: 
 a hand's axis-aligned box is about 0.1-0.3 m, that is 10-30 in centimetres and 100-300 in
 millimetres. :func:`decide_length_unit` reads the unit from that size, or checks a unit the user
 gave, and refuses with one line (naming the file and the ``--units`` to pass) when the size fits
-no unit. The readers of point clouds (:func:`lisa_hand.fitting.points.io.prepare_point_cloud`), of
-ground-truth meshes (:func:`lisa_hand.fitting.outputs.read_ground_truth`) and ``lisa metrics``
+no unit. The readers of point clouds
+(:func:`lisa_hand.fitting.points.inputs.prepare_point_cloud`), of ground-truth meshes
+(:func:`lisa_hand.fitting.outputs.read_ground_truth`) and ``lisa metrics``
 (:func:`lisa_hand.metrics.compare_mesh_files`) all use this one rule.
 
 Two ranges of the diagonal, in metres:

@@ -325,6 +325,15 @@ def test_a_failed_preview_leaves_the_fit_written(lisa, files, capsys, monkeypatc
     assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "params.json"]
 
 
+def _fitted(lisa, capsys, root, cloud: str, out: str, extra: list[str]) -> tuple[str, dict]:
+    """``lisa fit-points ROOT/CLOUD --out ROOT/OUT`` with the tiny model and ``extra``, which
+    must succeed -> (what it said, ``params.json``'s "fit")."""
+    assert lisa(["fit-points", str(root / cloud), "--out", str(root / out), "--model",
+                 str(root / "tiny.pt"), *extra, *FAST_ARGS]) == 0
+    captured = capsys.readouterr()
+    return captured.out + captured.err, read_params(root / out / "params.json").extra["fit"]
+
+
 def test_a_surface_the_hand_rests_on_is_left_out_and_said(lisa, files, capsys):
     """A one-view scan of the hand in front of a wall: by default (``--support auto``) the
     wall's points are left out, one line says so, params.json records the plane and the preview
@@ -344,12 +353,7 @@ def test_a_surface_the_hand_rests_on_is_left_out_and_said(lisa, files, capsys):
                                                      viewpoint=tuple(sensor)), seed=0)
     np.save(root / "walled.npy", scan.points)
     for name, extra in (("kept", ["--support", "none"]), ("left", [])):
-        out = root / f"wall_{name}"
-        assert lisa(["fit-points", str(root / "walled.npy"), "--out", str(out), "--model",
-                     str(root / "tiny.pt"), *extra, *FAST_ARGS]) == 0
-        captured = capsys.readouterr()
-        said = captured.out + captured.err
-        fit = read_params(out / "params.json").extra["fit"]
+        said, fit = _fitted(lisa, capsys, root, "walled.npy", f"wall_{name}", extra)
         assert ("a surface the hand rests on" in said) == (name == "left"), said
         assert ("support_plane" in fit) == (name == "left")
         if name == "left":
@@ -373,12 +377,7 @@ def test_a_thing_apart_from_the_hand_is_left_out_and_said(lisa, files, capsys):
     thing = ball(points.mean(0) + np.array([0.25, 0.0, 0.0]), 0.04, len(points) // 2, seed=0)
     np.save(root / "with_ball.npy", np.concatenate([points, thing]))
     for name, extra in (("kept", ["--others", "none"]), ("left", [])):
-        out = root / f"ball_{name}"
-        assert lisa(["fit-points", str(root / "with_ball.npy"), "--out", str(out), "--model",
-                     str(root / "tiny.pt"), *extra, *FAST_ARGS]) == 0
-        captured = capsys.readouterr()
-        said = captured.out + captured.err
-        fit = read_params(out / "params.json").extra["fit"]
+        said, fit = _fitted(lisa, capsys, root, "with_ball.npy", f"ball_{name}", extra)
         assert (f"{len(thing)} points in 1 piece(s)" in said) == (name == "left"), said
         assert ("others" in fit) == (name == "left")
     # A thing as large as the hand (as many points, 25 cm away) may be a second hand: each is

@@ -83,7 +83,7 @@ def _to_tensor(value, name: str, dtype: torch.dtype, device: torch.device) -> to
         raise ValueError(f"{name} must have shape [N, 3], got {list(value.shape)}")
     if not torch.isfinite(value).all():
         raise ValueError(f"{name} holds NaN or inf (drop those points first, e.g. with "
-                         "lisa_hand.fitting.points.io.prepare_point_cloud)")
+                         "lisa_hand.fitting.points.inputs.prepare_point_cloud)")
     return value.detach().to(device=device, dtype=dtype)
 
 

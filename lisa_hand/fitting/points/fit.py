@@ -430,7 +430,7 @@ def fit_points(
     """Fit a trained LISA model to a point cloud of one hand (see the module docstring).
 
     model: a :class:`lisa_hand.model.trained.TrainedModel`.
-    points: [N, 3] world metres, finite (:func:`lisa_hand.fitting.points.io.prepare_point_cloud`
+    points: [N, 3] world metres, finite (:func:`lisa_hand.fitting.points.inputs.prepare_point_cloud`
         checks files and converts units). Any position and orientation; partial is fine.
     normals: [N, 3] outward normals or None; they add the offset-point term.
     config: :class:`FitPointsConfig` (defaults when None).

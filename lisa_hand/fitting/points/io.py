@@ -1,39 +1,27 @@
-"""Point-cloud files for fitting: reading (PLY, OBJ, XYZ, NPY, NPZ; STL, OFF, GLB, GLTF meshes)
-and checking them.
-
-:func:`read_point_cloud` returns what a file holds, as it is stored; :func:`prepare_point_cloud`
-turns that into what the fitter accepts (finite points in metres, at most ``max_points``) and
-says in plain words what it changed, so that the command line can print it.
-
-Formats (normals are optional everywhere):
-
-* ``.ply``: the vertex element's ``x y z`` and, when present, ``nx ny nz`` (ASCII or binary);
-  faces, colours and other properties are ignored (a mesh's vertices are its points).
-* ``.obj``: the ``v`` lines (first three numbers); the ``vn`` lines are the normals when there
-  is one per vertex (point-cloud exports), else they are ignored.
-* ``.xyz``: text, one point a line, ``x y z`` or ``x y z nx ny nz``; ``#`` starts a comment.
-* ``.npy``: an ``[N, 3]`` or ``[N, 6]`` (points, normals) array.
-* ``.npz``: ``points`` (or ``vertices``) ``[N, 3]`` and optional ``normals`` ``[N, 3]`` (the
-  ``scan.npz`` files of ``lisa synth``).
-* ``.stl``, ``.off``, ``.glb``, ``.gltf``: a mesh's distinct vertices, through trimesh
-  (:func:`lisa_hand.metrics.load_mesh`: vertices repeated at the same position, as STL repeats
-  them for every triangle, are merged; a scene's meshes are placed and joined); no normals.
+"""From a point-cloud file to a fitted hand on disk (``lisa fit-points``): :func:`fit_point_file`
+reads the file (:mod:`.inputs`), fits it and writes the fit's files, all or nothing.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import os
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ...data.meshio import read_ply_vertices
-from ...data.units import LENGTH_UNITS, UNIT_CHOICES, decide_length_unit
-from ...utils.io import require_file
+from ...data.units import LENGTH_UNITS
+from .inputs import (
+    POINT_CLOUD_SUFFIXES,
+    UNITS,
+    PointCloud,
+    count_hands,
+    prepare_point_cloud,
+    read_cloud_file,
+    read_point_cloud,
+)
 
 __all__ = [
     "POINT_CLOUD_SUFFIXES",
@@ -46,217 +34,6 @@ __all__ = [
     "count_hands",
     "default_point_model",
 ]
-
-POINT_CLOUD_SUFFIXES = (".ply", ".obj", ".xyz", ".npy", ".npz", ".stl", ".off", ".glb", ".gltf")
-"""File extensions :func:`read_point_cloud` understands."""
-
-UNITS = UNIT_CHOICES
-"""Length units of an input cloud: metres, centimetres, millimetres, or guessed from its size
-(:func:`lisa_hand.data.units.decide_length_unit`)."""
-
-
-def read_point_cloud(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | None]:
-    """Read a point cloud as stored (see the module docstring for the formats).
-
-    -> (points [N, 3] float64 in the file's units, normals [N, 3] float64 or None). Values are
-    not checked beyond their shape (NaN stays NaN; see :func:`prepare_point_cloud`).
-    Raises FileNotFoundError for a missing file, IsADirectoryError for a folder and ValueError
-    naming the file for an unknown extension, a corrupt file or an empty cloud.
-    """
-    path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in POINT_CLOUD_SUFFIXES:
-        raise ValueError(f"{path}: unsupported point-cloud file type {path.suffix!r} (expected "
-                         f"one of {', '.join(POINT_CLOUD_SUFFIXES)})")
-    require_file(path)
-    reader = {".ply": _read_ply, ".obj": _read_obj, ".xyz": _read_xyz, ".npy": _read_npy,
-              ".npz": _read_npz}.get(suffix, _read_mesh_vertices)
-    try:
-        points, normals = reader(path)
-    except (OSError, EOFError, ValueError, TypeError, IndexError, KeyError,
-            UnicodeDecodeError) as exc:
-        message = str(exc)
-        if message.startswith(str(path)):
-            raise ValueError(message) from None
-        raise ValueError(f"{path}: cannot read this {suffix[1:].upper()} file "
-                         f"({type(exc).__name__}: {message})") from None
-    points = np.asarray(points, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"{path}: points must have shape [N, 3], got {list(points.shape)}")
-    if points.shape[0] == 0:
-        raise ValueError(f"{path}: the point cloud is empty (no points)")
-    if normals is not None:
-        normals = np.asarray(normals, dtype=np.float64)
-        if normals.shape != points.shape:
-            raise ValueError(f"{path}: normals have shape {list(normals.shape)}, the points "
-                             f"{list(points.shape)}")
-    return np.ascontiguousarray(points), (None if normals is None
-                                          else np.ascontiguousarray(normals))
-
-
-def _columns(array: np.ndarray, path: Path, what: str) -> tuple[np.ndarray, np.ndarray | None]:
-    """[N, 3] points or [N, 6] points and normals from one array."""
-    array = np.asarray(array)
-    if array.ndim != 2 or array.shape[1] not in (3, 6):
-        raise ValueError(f"{path}: {what} must have shape [N, 3] or [N, 6] (points, normals), "
-                         f"got {list(array.shape)}")
-    if not np.issubdtype(array.dtype, np.number):
-        raise ValueError(f"{path}: {what} must be numbers, got dtype {array.dtype}")
-    return array[:, :3], (array[:, 3:6] if array.shape[1] == 6 else None)
-
-
-def _read_npy(path: Path):
-    return _columns(np.load(path, allow_pickle=False), path, "the array")
-
-
-def _read_xyz(path: Path):
-    table = np.loadtxt(path, ndmin=2, comments="#")
-    if table.size == 0:
-        return np.zeros((0, 3)), None
-    return _columns(table, path, "the table")
-
-
-def _read_npz(path: Path):
-    with np.load(path, allow_pickle=False) as archive:
-        key = next((k for k in ("points", "vertices") if k in archive.files), None)
-        if key is None:
-            raise ValueError(f"{path}: expected an array named 'points' or 'vertices', found "
-                             f"{archive.files}")
-        points = archive[key]
-        if points.ndim != 2 or points.shape[1] != 3:
-            raise ValueError(f"{path}: '{key}' must have shape [N, 3], got {list(points.shape)}")
-        normals = archive["normals"] if "normals" in archive.files else None
-    return points, normals
-
-
-def _read_obj(path: Path):
-    vertices, normals = [], []
-    with open(path, encoding="utf-8") as handle:
-        for line in handle:
-            if line.startswith("v "):
-                vertices.append(line.split()[1:4])
-            elif line.startswith("vn "):
-                normals.append(line.split()[1:4])
-    if any(len(row) < 3 for row in vertices):
-        raise ValueError(f"{path}: a 'v' line has fewer than 3 coordinates")
-    points = np.array(vertices, dtype=np.float64).reshape(-1, 3)
-    if normals and len(normals) == len(vertices) and all(len(row) == 3 for row in normals):
-        return points, np.array(normals, dtype=np.float64)
-    return points, None
-
-
-def _read_mesh_vertices(path: Path):
-    from ...metrics import load_mesh
-
-    return load_mesh(path).vertices, None
-
-
-def _read_ply(path: Path):
-    # The vertex element only (the mesh reader's parser; faces and other elements are skipped).
-    vertex = read_ply_vertices(path)
-    columns = vertex.dtype.names
-    points = np.stack([vertex[axis] for axis in "xyz"], axis=1)
-    normals = None
-    if all(name in columns for name in ("nx", "ny", "nz")):
-        normals = np.stack([vertex[name] for name in ("nx", "ny", "nz")], axis=1)
-    return points, normals
-
-
-@dataclass
-class PointCloud:
-    """A cloud ready for fitting (:func:`prepare_point_cloud`)."""
-
-    points: np.ndarray
-    """[N, 3] float64 metres, finite."""
-    normals: np.ndarray | None
-    """[N, 3] float64 unit outward normals, or None."""
-    unit: str
-    """The unit the input was read in: "m", "cm" or "mm"."""
-    unit_detected: bool
-    """True when ``unit`` was guessed (``units="auto"``)."""
-    num_input: int
-    """Points in the input, before anything was dropped."""
-    notes: list[str] = field(default_factory=list)
-    """What was changed, one sentence each (dropped points, unit conversion, subsampling)."""
-
-
-def prepare_point_cloud(
-    points: np.ndarray,
-    normals: np.ndarray | None = None,
-    *,
-    units: str = "auto",
-    max_points: int = 5_000_000,
-    min_points: int = 20,
-    seed: int = 0,
-    name: str = "points",
-) -> PointCloud:
-    """Check a cloud and bring it to metres.
-
-    points: [N, 3] in ``units``; normals: [N, 3] or None (they need not be unit length).
-    units: "m", "cm", "mm" or "auto": :func:`lisa_hand.data.units.decide_length_unit` reads
-        the unit from the hand's size (a note says which, when not metres) or checks the given
-        one; a size that is no hand's in that unit (or in any, with "auto") is an error naming
-        the ``--units`` that fits.
-    max_points: a larger cloud is randomly subsampled to this many points (the fitter draws a
-        few hundred points per iteration; more only costs memory).
-    min_points: fewer finite points than this is an error.
-    name: how errors call the cloud (the file path, for the command line).
-
-    Documented fallbacks (each adds a sentence to ``notes``): points with NaN or inf
-    coordinates are dropped (depth sensors write NaN for missing pixels); normals are dropped
-    when any kept one is not finite or has zero length.
-    """
-    if units not in UNITS:
-        raise ValueError(f"units must be one of {UNITS}, got {units!r}")
-    points = np.asarray(points, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"{name}: points must have shape [N, 3], got {list(points.shape)}")
-    num_input = points.shape[0]
-    if num_input == 0:
-        raise ValueError(f"{name}: the point cloud is empty (no points)")
-    if normals is not None:
-        normals = np.asarray(normals, dtype=np.float64)
-        if normals.shape != points.shape:
-            raise ValueError(f"{name}: normals must have the points' shape {list(points.shape)},"
-                             f" got {list(normals.shape)}")
-    notes: list[str] = []
-    finite = np.isfinite(points).all(axis=1)
-    if not finite.all():
-        kept = int(finite.sum())
-        if kept < min_points:
-            raise ValueError(f"{name}: only {kept} of {num_input} points have finite "
-                             f"coordinates (NaN or inf), fewer than the {min_points} needed")
-        points = points[finite]
-        normals = None if normals is None else normals[finite]
-        notes.append(f"dropped {num_input - kept} of {num_input} points with NaN or inf "
-                     "coordinates")
-    if points.shape[0] < min_points:
-        raise ValueError(f"{name}: {points.shape[0]} points, fewer than the {min_points} "
-                         "needed to fit a hand")
-    if normals is not None:
-        lengths = np.linalg.norm(normals, axis=1)
-        if not (np.isfinite(lengths).all() and (lengths > 1e-12).all()):
-            notes.append("ignored the normals: some are NaN, inf or zero")
-            normals = None
-        else:
-            normals = normals / lengths[:, None]
-
-    length = decide_length_unit(points, units, name=name, what="the cloud")
-    unit = length.unit
-    if unit != "m":
-        points = points * length.metres_per_unit
-    if length.note is not None:
-        notes.append(length.note)
-
-    if points.shape[0] > max_points:
-        rng = np.random.default_rng(seed)
-        keep = np.sort(rng.choice(points.shape[0], size=max_points, replace=False))
-        notes.append(f"randomly subsampled {points.shape[0]} points to {max_points}")
-        points = points[keep]
-        normals = None if normals is None else normals[keep]
-    return PointCloud(points=np.ascontiguousarray(points), normals=normals, unit=unit,
-                      unit_detected=units == "auto", num_input=num_input, notes=notes)
-
 
 # ---------------------------------------------------------------------------------------------
 # From a file to a fitted hand on disk (``lisa fit-points``)
@@ -357,7 +134,7 @@ def fit_point_file(
     model_path = default_point_model() if model_path is None else model_path
     points_path, out_dir = Path(points_path), Path(out_dir)
     config = FitPointsConfig() if config is None else config
-    cloud, sensor = _read_cloud(points_path, units, config, hand, log, depth)
+    cloud, sensor = read_cloud_file(points_path, units, config, hand, log, depth)
     truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
     view = viewpoint  # checked by fit_points; a depth image's sensor, in metres, for "auto"
     if sensor is not None and viewpoint == "auto":
@@ -396,79 +173,6 @@ def _mesh_without_specks(model, params, resolution: int, clip, out_dir: Path, lo
     if specks.count:
         log(specks.note(f"{out_dir / 'mesh.ply'}"))
     return mesh
-
-
-def _read_cloud(points_path: Path, units: str, config, hand: int | None, log, depth=None
-                ) -> tuple[PointCloud, np.ndarray | None]:
-    """The file's cloud, prepared (:func:`prepare_point_cloud`) and, with ``hand``, without the
-    other hands' points (:func:`_one_hand`), each note logged; and a depth image's sensor
-    position (metres; None for a cloud)."""
-    from ...data.depth import DEPTH_SUFFIXES, read_depth_cloud
-
-    sensor, notes = None, []
-    if points_path.suffix.lower() in DEPTH_SUFFIXES:
-        if depth is None:
-            raise ValueError(f"{points_path}: a depth image is read with its camera: pass "
-                             "--camera CAM.json (K, width, height) and, unless it is in "
-                             "millimetres, --depth-scale")
-        raw_points, sensor, note = read_depth_cloud(points_path, depth)
-        raw_normals, units, notes = None, "m", [note]
-    else:
-        if depth is not None:
-            raise ValueError(f"{points_path}: --camera, --depth-scale and --mask are for a depth "
-                             f"image ({', '.join(DEPTH_SUFFIXES)}), not a point cloud")
-        raw_points, raw_normals = read_point_cloud(points_path)
-    try:
-        cloud = prepare_point_cloud(raw_points, raw_normals, units=units, seed=config.seed,
-                                    min_points=config.min_points, name=str(points_path))
-    except ValueError as error:
-        if sensor is None or "too large" not in str(error):
-            raise
-        raise ValueError(f"{points_path}: the depth image's points reach over "
-                         f"{np.ptp(raw_points, axis=0).max():.1f} m (the room behind the hand): "
-                         "pass --mask MASK.png with the hand's pixels") from None
-    cloud.notes[:0] = notes
-    if hand is not None:
-        cloud = _one_hand(cloud, hand, config.seed, str(points_path))
-    for note in cloud.notes:
-        log(f"{points_path}: {note}")
-    return cloud, sensor
-
-
-def count_hands(points_path: str | os.PathLike, units: str = "auto", config=None,
-                depth=None) -> int:
-    """How many hands the cloud in ``points_path`` (a depth image with ``depth``, as
-    :func:`fit_point_file` reads it) holds apart from each other
-    (:func:`lisa_hand.fitting.points.others.split_hands`; 1 when it is not split)."""
-    from .fit import FitPointsConfig
-    from .others import split_hands
-
-    config = FitPointsConfig() if config is None else config
-    cloud, _ = _read_cloud(Path(points_path), units, config, None, lambda line: None, depth)
-    hands = split_hands(cloud.points, seed=config.seed)
-    return 1 if hands is None else len(hands)
-
-
-def _one_hand(cloud: PointCloud, hand: int, seed: int, name: str) -> PointCloud:
-    """``cloud`` without the points of the hands other than ``hand`` (0: the largest), a note
-    saying so; ValueError naming ``name`` when it holds fewer hands."""
-    from .others import split_hands
-
-    if isinstance(hand, bool) or not isinstance(hand, int) or hand < 0:
-        raise ValueError(f"hand must be an integer >= 0, got {hand!r}")
-    hands = split_hands(cloud.points, seed=seed)
-    count = 1 if hands is None else len(hands)
-    if hand >= count:
-        raise ValueError(f"{name}: --hand {hand} asked for, but the scan holds {count} hand(s) "
-                         f"apart from each other (--hand 0 to {count - 1})")
-    if hands is None:
-        return cloud
-    keep = hands[hand]
-    note = (f"hand {hand} of {count} (largest first): the other hands' {int((~keep).sum())} "
-            "points left out")
-    return dataclasses.replace(cloud, points=cloud.points[keep],
-                               normals=None if cloud.normals is None else cloud.normals[keep],
-                               notes=[*cloud.notes, note])
 
 
 def _preview(mesh, cloud: PointCloud, fit, record: dict, log) -> np.ndarray | None:
