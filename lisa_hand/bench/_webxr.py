@@ -408,11 +408,67 @@ def wall_scan(path: str | Path, pose: str, seed: int = 0):
     return scan.points, (hand, faces), np.zeros(3)
 
 
+PERSON_DEPTH_M = 0.45
+"""How far before the depth camera the hand's centre is held in :func:`person_scan`, metres."""
+PERSON_ARM_M = 0.3
+"""The forearm of :func:`person_scan`, from the wrist to where it enters the body, metres."""
+PERSON_TORSO_M = (0.4, 0.6, 0.25)
+"""The body of :func:`person_scan`: a box this wide, tall and deep, metres."""
+
+
+def person_scan(path: str | Path, pose: str, seed: int = 0):
+    """A depth camera's frame of a person holding the WebXR hand out towards it: the hand posed
+    (:data:`WEBXR_POSES`), its forearm extended :data:`PERSON_ARM_M` (:func:`extend_forearm`)
+    pointing away from the camera, within 60 degrees of its axis and turned at random about
+    itself (from ``seed`` and the pose), the hand's centre :data:`PERSON_DEPTH_M` before the
+    camera, and the arm entering a body (a :data:`PERSON_TORSO_M` box, its front 5 cm before
+    the arm's end, the arm's end 10 cm off its middle): the whole frame, as the camera returns
+    it (:func:`lisa_hand.data.scans.depth_camera_scan`), one connected piece over a metre across.
+
+    -> (points [N, 3] metres in the camera's frame, the hand and forearm's outer surface
+    (vertices [V, 3] metres, faces [F, 3]), the sensor [3]: the origin)."""
+    from scipy.spatial.transform import Rotation
+
+    from ..data.scans import depth_camera_scan
+    from ..geometry import axis_angle_to_matrix
+
+    posed, faces = pose_webxr_hand(path, pose)
+    wrist, forearm = webxr_wrist(path)
+    vertices, faces = outer_surface(*extend_forearm(posed, faces, wrist, forearm,
+                                                    length=PERSON_ARM_M))
+    rng = np.random.default_rng(1000 * seed + list(WEBXR_POSES).index(pose))
+    tilt, azimuth, roll = np.arccos(rng.uniform(0.5, 1.0)), rng.uniform(0, 2 * np.pi), \
+        rng.uniform(0, 2 * np.pi)
+    away = np.array([np.sin(tilt) * np.cos(azimuth), np.sin(tilt) * np.sin(azimuth),
+                     np.cos(tilt)])
+    align = Rotation.align_vectors(away[None], forearm[None])[0].as_matrix()
+    spin = axis_angle_to_matrix(torch.as_tensor(away * roll)).numpy()
+    rotation = spin @ align
+    hand_centre = posed.mean(0)
+    place = np.array([0.0, 0.0, PERSON_DEPTH_M])
+    body = (vertices - hand_centre) @ rotation.T + place
+    arm_end = (wrist + (FOREARM_START_M + PERSON_ARM_M) * forearm - hand_centre) @ rotation.T \
+        + place
+    width, height, depth = PERSON_TORSO_M
+    centre = arm_end + np.array([0.1, 0.1, depth / 2 - 0.05])
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)]) \
+        * np.array([width, height, depth]) / 2 + centre
+    box = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                    [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    scene = np.concatenate([body, corners])
+    scene_faces = np.concatenate([faces, box + len(body)])
+    scan = depth_camera_scan(scene, scene_faces, seed=seed)
+    return scan.points, (body, faces), np.zeros(3)
+
+
 def _scenes(path: str | Path, scene: str, seed: int):
     """(pose, label, points, (vertices, faces), sensor) of each scan of :func:`run_scene_fits`."""
     for pose in WEBXR_POSES:
         if scene == "wall":
             yield (pose, "depth frame, wall", *wall_scan(path, pose, seed))
+            continue
+        if scene == "person":
+            yield (pose, "depth frame, person", *person_scan(path, pose, seed))
             continue
         for down in ("palm", "back"):
             yield (pose, f"table, {down} down", *table_scan(path, pose, down, seed))
@@ -420,13 +476,15 @@ def _scenes(path: str | Path, scene: str, seed: int):
 
 def run_scene_fits(model, path: str | Path, *, scene: str = "table", seed: int = 0,
                    threads: int = 1, support: str | None = "auto", viewpoints: str = "auto",
-                   config=None, log=None) -> list[dict]:
+                   others: str | None = "auto", config=None, log=None) -> list[dict]:
     """Fit ``model`` to scans of the WebXR hand in each pose with more than the hand in them:
-    ``scene`` "table" (:func:`table_scan`, palm and back down) or "wall" (:func:`wall_scan`, a
-    depth camera's whole frame), with ``support`` ("auto": the table or the wall found and left
+    ``scene`` "table" (:func:`table_scan`, palm and back down), "wall" (:func:`wall_scan`, a
+    depth camera's whole frame) or "person" (:func:`person_scan`, a depth camera's frame of a
+    person holding the hand out), with ``support`` ("auto": the table or the wall found and left
     out, the hand kept on its side; None: every point fitted) and ``viewpoints`` ("none", "true":
-    the simulated sensor's, "auto"). Every fit also leaves out other pieces (``others="auto"``,
-    as ``lisa fit-points`` does by default).
+    the simulated sensor's, "auto"). ``others`` ("auto", as ``lisa fit-points`` by default:
+    pieces apart from the hand left out, the part nearest the sensor kept of a scan larger than
+    a hand; None: not).
     -> one dict per fit: pose, scan ("table, palm down" ...), seconds, the support found (share
     of the points on it, or None), and the four distances (mm) against the hand, both cut at
     the fit's wrist plane (inf when that cut leaves none of the hand: a fit far off)."""
@@ -439,14 +497,14 @@ def run_scene_fits(model, path: str | Path, *, scene: str = "table", seed: int =
     config = FitPointsConfig(num_threads=threads, seed=seed) if config is None else \
         dataclasses.replace(config, num_threads=threads)
     side = webxr_side(path)
-    if scene not in ("table", "wall"):
-        raise ValueError(f"scene must be 'table' or 'wall', got {scene!r}")
+    if scene not in ("table", "wall", "person"):
+        raise ValueError(f"scene must be 'table', 'wall' or 'person', got {scene!r}")
     rows = []
     for pose, label, points, (vertices, faces), sensor in _scenes(path, scene, seed):
         view = {"none": None, "true": sensor, "auto": "auto"}[viewpoints]
         with cpu_threads(threads):
             fit = fit_points(model, points, None, config, side=side, viewpoint=view,
-                             support=support, others="auto")
+                             support=support, others=others)
             mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False,
                                                                 skin_weights=False),
                              clip=fit.wrist_plane)

@@ -352,6 +352,13 @@ def main(argv: list[str] | None = None) -> None:
                              "40 cm, 3 mm on the wall): auto (the flag alone: the wall found and "
                              "left out, as lisa fit-points --support auto) or none; their "
                              "viewpoint as --webxr-viewpoint")
+    parser.add_argument("--webxr-person", nargs="?", const="auto", default=None,
+                        choices=("auto", "none"),
+                        help="also fit a depth camera's whole frame of a person holding the "
+                             "WebXR hand out 45 cm from it, the forearm leading to the body "
+                             "behind: auto (the flag alone: the part nearest the sensor kept, "
+                             "as lisa fit-points --others auto) or none (every point fitted); "
+                             "their viewpoint as --webxr-viewpoint")
     parser.add_argument("--only-webxr", action="store_true",
                         help="skip the self-consistency benchmark")
     args = parser.parse_args(argv)
@@ -386,11 +393,14 @@ def main(argv: list[str] | None = None) -> None:
                                           threads=args.threads, wrists=wrists, refine=refine,
                                           viewpoints=args.webxr_viewpoint,
                                           log=shown_row)
-        for scene, choice in (("table", args.webxr_table), ("wall", args.webxr_wall)):
+        for scene, choice in (("table", args.webxr_table), ("wall", args.webxr_wall),
+                              ("person", args.webxr_person)):
             if choice is not None:
+                off = None if choice == "none" else "auto"
                 numbers["webxr"] += run_scene_fits(
                     model, args.webxr, scene=scene, seed=args.seed, threads=args.threads,
-                    support=None if choice == "none" else "auto",
+                    support="auto" if scene == "person" else off,
+                    others=off if scene == "person" else "auto",
                     viewpoints=args.webxr_viewpoint, log=shown_row)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)

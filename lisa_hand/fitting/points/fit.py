@@ -451,7 +451,9 @@ def fit_points(
         are looked for with its points (the whole view). None: every point is the hand's.
     others: "auto": pieces of the scan well apart from the hand (another object, the other
         hand; :func:`.others.find_others`) are left out (``FitResult.others``), after the
-        support's points; None: kept.
+        support's points; when the scan is larger than a hand (a person) and the viewpoint is
+        known, only the part nearest the sensor is kept (:func:`.others.nearest_part`);
+        None: kept.
     progress: show a progress bar. callback: called with a :class:`FitStep` after every
         iteration (for benchmarks and logging; its hands are of ``side``).
     -> :class:`FitResult`. Runs on ``config.device`` (default: the model's), in the model's dtype.
@@ -479,8 +481,9 @@ def fit_points(
         viewpoint = estimate.position if estimate.one_view else None
     if found is not None:
         points, normals = _kept(points, ~found.removed), _kept(normals, ~found.removed)
-    apart = None if others is None else find_others(points)
-    if apart is not None and apart.pieces:
+    apart = None if others is None else find_others(
+        points, sensor=None if viewpoint is None else _as_numpy(viewpoint))
+    if apart is not None and apart.removed.any():
         points, normals = _kept(points, ~apart.removed), _kept(normals, ~apart.removed)
 
     def fit_one(one_side: str, one_config: FitPointsConfig, bar) -> FitResult:
@@ -493,6 +496,13 @@ def fit_points(
     result.viewpoint, result.support, result.others = estimate, found, apart
     result.params.extra["fit"] = result.summary()
     return result
+
+
+def _as_numpy(values) -> np.ndarray:
+    """numpy float64 of a tensor (any device) or a sequence."""
+    if isinstance(values, torch.Tensor):
+        values = values.detach().cpu()
+    return np.asarray(values, np.float64)
 
 
 def _kept(values, keep: np.ndarray):

@@ -22,6 +22,7 @@ from .inputs import (
     read_cloud_file,
     read_point_cloud,
 )
+from .others import HAND_REACH_M
 
 __all__ = [
     "POINT_CLOUD_SUFFIXES",
@@ -220,7 +221,14 @@ def _fit_notes(points_path: Path, fit, view, unit: str, config, log) -> dict:
         log(f"{points_path}: {int(apart.removed.sum())} points in {apart.pieces} piece(s) "
             f"{100 * apart.gap_m:.0f} cm or more apart from the hand (another object or hand; "
             f"the largest {apart.largest} points) were left out (--others none keeps them)")
-    if apart is not None and apart.oversize is not None:
+    if apart is not None and apart.oversize is not None and apart.nearest_m is not None:
+        kept = len(apart.removed) - int(apart.removed.sum())
+        log(f"{points_path}: the largest piece of the scan is {apart.oversize:.2f} m across, "
+            f"larger than a hand (a person, a room): the hand was taken to be what is nearest "
+            f"the sensor ({apart.nearest_m:.2f} m away), {kept} of {len(apart.removed)} points "
+            f"within {100 * HAND_REACH_M:.0f} cm of it along the surface; if that is not the "
+            "hand, crop the scan (a depth image: --mask) (--others none keeps every point)")
+    elif apart is not None and apart.oversize is not None:
         log(f"{points_path}: the largest piece of the scan is {apart.oversize:.2f} m across, "
             "larger than a hand (a wall, a person): nothing was left out as apart from the hand; "
             "crop the scan to the hand")

@@ -14,7 +14,13 @@ from the rest of a fist is one); the others are left out, unless they hold more 
 a large object), nothing of them is left out, and they are counted (``Others.unclear``) for the
 command to say so. A thing touching the hand (a held cup) is one piece with it and stays. When the
 largest piece is larger than any hand (``max_hand_m`` across: a room's wall, a person) it is not
-the hand, which then is one of the pieces it would leave out: nothing is (``Others.oversize``).
+the hand, which then is one of the pieces it would leave out: nothing is (``Others.oversize``),
+unless the sensor's position is known (a depth camera's frame, or a one-view scan's viewpoint
+found from its points): then the hand is taken to be what is nearest the sensor, as depth-based
+hand trackers assume of a hand held out before a person: :func:`nearest_part` keeps the points
+within ``hand_reach_m`` of the scan's nearest point *along the scan's surface* (shortest paths
+through the occupied voxels, scipy's ``dijkstra``), so that the hand and a stub of the forearm
+stay and the body the arm leads to does not, however the hand is turned (``Others.nearest_m``).
 
 A scan of two hands apart (both hands, two people's) is split by :func:`split_hands`, for each hand
 to be fitted on its own (``lisa fit-points`` into ``OUT/hand0``, ``OUT/hand1``, or ``--hand N``).
@@ -26,7 +32,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Others", "find_others", "split_hands"]
+__all__ = ["HAND_REACH_M", "Others", "find_others", "nearest_part", "split_hands"]
+
+HAND_REACH_M = 0.25
+"""How far along the scan's surface from its point nearest the sensor a hand is taken to reach
+(:func:`nearest_part`), metres: an adult hand from fingertip to wrist is 0.17-0.22 m; the
+rest is a stub of the forearm, which the fit's wrist cut leaves out."""
 
 
 @dataclass(frozen=True)
@@ -37,7 +48,10 @@ class Others:
     points of the largest of them. gap_m: the distance from the hand's piece to the nearest of
     them, metres (inf when none). unclear: far pieces nearly as large as the hand's, kept.
     oversize: the largest piece's size (the diagonal of its bounding box, metres) when it is
-    larger than a hand (nothing left out), else None.
+    larger than a hand (nothing left out, unless the sensor was known), else None.
+    nearest_m: when the hand was taken as the part of the scan nearest the sensor
+    (:func:`nearest_part`; ``removed`` is the rest), the distance from the sensor to the scan's
+    nearest point, metres; else None.
     """
 
     removed: np.ndarray
@@ -46,12 +60,13 @@ class Others:
     gap_m: float
     unclear: int = 0
     oversize: float | None = None
+    nearest_m: float | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready (``params.json``'s "fit")."""
         return {"removed_points": int(self.removed.sum()), "pieces": self.pieces,
                 "largest": self.largest, "gap_m": self.gap_m, "unclear": self.unclear,
-                "oversize_m": self.oversize}
+                "oversize_m": self.oversize, "nearest_m": self.nearest_m}
 
 
 def _as_points(points) -> np.ndarray:
@@ -66,7 +81,7 @@ def _as_points(points) -> np.ndarray:
 def _pieces(points: np.ndarray, link_m: float) -> tuple[np.ndarray, np.ndarray] | None:
     """The scan's pieces: points [N, 3] metres binned into ``link_m`` voxels, touching voxels
     (26 neighbours) joined -> (labels [N] int, 1..P; sizes [P + 1], points a label, 0 for
-    label 0), or None for fewer than two pieces (or a cloud tens of metres across)."""
+    label 0), or None for fewer than two points (or a cloud tens of metres across)."""
     from scipy.ndimage import label
 
     if len(points) < 2:
@@ -78,8 +93,6 @@ def _pieces(points: np.ndarray, link_m: float) -> tuple[np.ndarray, np.ndarray] 
     grid = np.zeros(tuple(shape), bool)
     grid[tuple(cells.T)] = True
     labels, count = label(grid, structure=np.ones((3, 3, 3), bool))
-    if count < 2:
-        return None
     point_labels = labels[tuple(cells.T)]
     return point_labels, np.bincount(point_labels, minlength=count + 1)
 
@@ -90,7 +103,8 @@ def _extent(points: np.ndarray) -> float:
 
 
 def find_others(points, link_m: float = 0.01, reach_m: float = 0.03, min_share: float = 0.05,
-                max_share: float = 0.6, max_hand_m: float = 0.6) -> Others | None:
+                max_share: float = 0.6, max_hand_m: float = 0.6, sensor=None,
+                hand_reach_m: float = HAND_REACH_M) -> Others | None:
     """The pieces of a scan apart from its largest one (see the module docstring), or None when
     none is.
 
@@ -99,7 +113,11 @@ def find_others(points, link_m: float = 0.01, reach_m: float = 0.03, min_share: 
     the largest than this stay, metres. min_share: pieces with fewer points than this share of
     the largest's stay; max_share: so do those with more (counted as unclear). max_hand_m: the
     largest piece is taken for the hand only when its bounding box's diagonal is at most this,
-    metres (a hand and a forearm in a crop: under half a metre).
+    metres (a hand and a forearm in a crop: under half a metre). sensor: [3] metres, the
+    sensor's position, or None; with it a scan whose largest piece is larger than a hand, or
+    whose piece nearest the sensor reaches on along its surface further than ``max_hand_m``
+    from its nearest point (an arm leading to a body), keeps only the part nearest the sensor
+    (:func:`nearest_part` with ``hand_reach_m``, metres).
     """
     from scipy.spatial import cKDTree
 
@@ -114,7 +132,13 @@ def find_others(points, link_m: float = 0.01, reach_m: float = 0.03, min_share: 
     hand = int(np.argmax(sizes))
     members = points[point_labels == hand]
     extent = _extent(members)
-    if extent > max_hand_m:
+    if sensor is not None:
+        kept, span = nearest_part(points, sensor, link_m, hand_reach_m)
+        if max(extent, span) > max_hand_m:
+            nearest = float(np.linalg.norm(points[kept] - np.asarray(sensor), axis=1).min())
+            return Others(removed=~kept, pieces=0, largest=0, gap_m=float("inf"),
+                          oversize=max(extent, span), nearest_m=nearest)
+    elif extent > max_hand_m:
         return Others(removed=np.zeros(len(points), bool), pieces=0, largest=0,
                       gap_m=float("inf"), oversize=extent)
     tree = cKDTree(members)
@@ -138,6 +162,66 @@ def find_others(points, link_m: float = 0.01, reach_m: float = 0.03, min_share: 
         return None
     return Others(removed=removed, pieces=left_out, largest=largest,
                   gap_m=min(gaps) if gaps else float("inf"), unclear=unclear)
+
+
+def nearest_part(points, sensor, link_m: float = 0.01, reach_m: float = HAND_REACH_M,
+                 min_points: int = 50) -> tuple[np.ndarray, float]:
+    """The part of a scan nearest its sensor (a hand held out before a person; module
+    docstring): the points of the piece nearest the sensor within ``reach_m`` of its nearest
+    point along the scan's surface, and those of other pieces within ``reach_m`` of that point
+    (a fingertip seen apart from its finger).
+
+    points: [N, 3] metres (numpy or torch). sensor: [3] metres. link_m: voxel size, metres (the
+    points are binned into voxels, each joined to its 26 neighbours at their centres' distance).
+    reach_m: metres (a hand from fingertip to wrist: about 0.2). min_points: the nearest point
+    is taken from pieces of at least this many points (a speck or a flying pixel before the
+    hand is not it). -> (kept [N] bool, span: how far the nearest piece reaches along its
+    surface from its nearest point, metres).
+    """
+    from scipy.sparse.csgraph import dijkstra
+
+    if not (link_m > 0 and reach_m > 0):
+        raise ValueError(f"link_m and reach_m must be > 0, got {link_m!r}, {reach_m!r}")
+    points = _as_points(points)
+    sensor = np.asarray(sensor, np.float64).reshape(3)
+    graph, point_voxel = _voxel_graph(points, link_m)
+    pieces = _pieces(points, link_m)
+    labels, sizes = pieces if pieces is not None else (np.ones(len(points), np.int64),
+                                                       np.array([0, len(points)]))
+    eligible = sizes[labels] >= min(min_points, int(sizes.max()))
+    distance = np.linalg.norm(points - sensor, axis=1)
+    start = np.flatnonzero(eligible)[np.argmin(distance[eligible])]
+    along = dijkstra(graph, directed=False, indices=int(point_voxel[start]))[point_voxel]
+    near = np.linalg.norm(points - points[start], axis=1) <= reach_m
+    kept = (along <= reach_m) | (near & (labels != labels[start]))
+    return kept, float(along[np.isfinite(along)].max())
+
+
+def _voxel_graph(points: np.ndarray, link_m: float):
+    """The occupied ``link_m`` voxels of points [N, 3] metres as a graph, each joined to its 26
+    neighbours at their centres' distance -> (sparse [M, M] metres, each point's voxel [N])."""
+    from scipy.sparse import coo_matrix
+
+    cells = np.floor((points - points.min(0)) / link_m).astype(np.int64)
+    shape = cells.max(0) + 2
+    keys = (cells[:, 0] * shape[1] + cells[:, 1]) * shape[2] + cells[:, 2]
+    voxels, point_voxel = np.unique(keys, return_inverse=True)
+    coords = np.stack([voxels // (shape[1] * shape[2]), voxels // shape[2] % shape[1],
+                       voxels % shape[2]], 1)
+    rows, cols, lengths = [], [], []
+    for offset in np.argwhere(np.ones((3, 3, 3), bool)) - 1:
+        if tuple(offset) <= (0, 0, 0):  # each pair once: the 13 offsets after (0, 0, 0)
+            continue
+        moved = coords + offset
+        key = (moved[:, 0] * shape[1] + moved[:, 1]) * shape[2] + moved[:, 2]
+        found = np.searchsorted(voxels, key).clip(max=len(voxels) - 1)
+        hit = (moved >= 0).all(1) & (voxels[found] == key)
+        rows.append(np.flatnonzero(hit))
+        cols.append(found[hit])
+        lengths.append(np.full(int(hit.sum()), link_m * float(np.linalg.norm(offset))))
+    graph = coo_matrix((np.concatenate(lengths), (np.concatenate(rows), np.concatenate(cols))),
+                       shape=(len(voxels), len(voxels))).tocsr()
+    return graph, point_voxel.reshape(-1)
 
 
 def split_hands(points, link_m: float = 0.01, reach_m: float = 0.03, max_share: float = 0.6,
