@@ -453,3 +453,35 @@ def test_a_depth_image_is_fitted_with_its_camera(lisa, files, capsys):
     assert lisa(["fit-points", str(root / "scan.npz"), "--out", str(root / "bad"), "--camera",
                  str(root / "cam.json"), "--model", str(root / "tiny.pt"), *FAST_ARGS]) == 2
     assert "are for a depth image" in capsys.readouterr().err
+
+
+def test_a_hand_before_a_body_is_taken_nearest_the_sensor(lisa, files, capsys):
+    """A scan of the hand held out before a person (an arm into a round body, one piece over a
+    metre across) with its sensor known (--viewpoint): the part nearest the sensor is fitted,
+    and one line says so; without the sensor, one line says to crop."""
+    from lisa_hand.data.scans import simulate_scan
+    from tests.fitting.test_others import ball, rod
+
+    root, _ = files
+    truth = load_mesh(root / "truth.ply")
+    sensor = np.asarray(truth.vertices, np.float64).mean(0) - np.array([0.0, 0.0, 0.4])
+    points = simulate_scan(truth.vertices, truth.faces, ScanConfig(
+        num_points=1500, partial=True, viewpoint=tuple(sensor)), seed=3).points
+    back = points[np.argmax(points[:, 2])]
+    body = ball(back + [0.0, 0.0, 0.6], 0.3, 30000, seed=6)
+    body = body[body[:, 2] < back[2] + 0.6]
+    cloud = np.concatenate([points, rod(back, back + [0.0, 0.0, 0.3], 0.004), body])
+    np.save(root / "person.npy", cloud)
+    view = ",".join(f"{v:.6f}" for v in sensor)
+    assert lisa(["fit-points", str(root / "person.npy"), "--out", str(root / "person"),
+                 "--model", str(root / "tiny.pt"), "--viewpoint", view, *FAST_ARGS]) == 0
+    said = capsys.readouterr().out
+    others = read_params(root / "person" / "params.json").extra["fit"]["others"]
+    kept = len(cloud) - others["removed_points"]
+    assert len(points) <= kept < len(points) + 150  # the hand and a stub of the arm
+    assert (f"the hand was taken to be what is nearest the sensor "
+            f"({others['nearest_m']:.2f} m away), {kept} of {len(cloud)} points") in said
+    assert lisa(["fit-points", str(root / "person.npy"), "--out", str(root / "blind"),
+                 "--model", str(root / "tiny.pt"), "--viewpoint", "none", *FAST_ARGS]) == 0
+    assert "larger than a hand (a wall, a person): nothing was left out" in \
+        capsys.readouterr().out
