@@ -143,8 +143,8 @@ def _with_labels(picture: np.ndarray, size: int, from_sensor: bool) -> np.ndarra
     first = "from the sensor" if from_sensor else "front"
     for index, title in enumerate((first, "turned 90 degrees", "from behind")):
         draw.text((index * size + 8, 6), title, fill=(0, 0, 0))
-    draw.text((8, size + 8), "scan points by their distance to the fitted surface "
-              "(grey: left out, beyond the wrist or on a support)", fill=(0, 0, 0))
+    draw.text((8, size + 8), "scan points by their distance to the fitted surface (grey: left "
+              "out: beyond the wrist, on a support or apart from the hand)", fill=(0, 0, 0))
     draw.text((x0 - 14, size + 8), "0", fill=(0, 0, 0))
     draw.text((x0 + 204, size + 8), f"{_SCALE_MM:g}+ mm", fill=(0, 0, 0))
     return np.asarray(image)
