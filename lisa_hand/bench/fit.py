@@ -311,6 +311,30 @@ def _self_consistency(args) -> dict:
     return numbers
 
 
+def _add_scene_args(parser: argparse.ArgumentParser) -> None:
+    """The bench's flags of WebXR scans with more than the hand in them (table, wall, person)."""
+    parser.add_argument("--webxr-table", nargs="?", const="auto", default=None,
+                        choices=("auto", "none"),
+                        help="also fit one-view scans of the WebXR hand lying on a table, palm "
+                             "and back down, the table in the scan: auto (the flag alone: the "
+                             "table found and left out, as lisa fit-points --support auto) or "
+                             "none (every point fitted); their viewpoint as --webxr-viewpoint")
+    parser.add_argument("--webxr-wall", nargs="?", const="auto", default=None,
+                        choices=("auto", "none"),
+                        help="also fit a depth camera's whole frame of the WebXR hand 40 cm "
+                             "away, a wall 30 cm behind it (320 x 240 pixels, 1 mm noise at "
+                             "40 cm, 3 mm on the wall): auto (the flag alone: the wall found and "
+                             "left out, as lisa fit-points --support auto) or none; their "
+                             "viewpoint as --webxr-viewpoint")
+    parser.add_argument("--webxr-person", nargs="?", const="auto", default=None,
+                        choices=("auto", "none"),
+                        help="also fit a depth camera's whole frame of a person holding the "
+                             "WebXR hand out 45 cm from it, the forearm leading to the body "
+                             "behind: auto (the flag alone: the part nearest the sensor kept, "
+                             "as lisa fit-points --others auto) or none (every point fitted); "
+                             "their viewpoint as --webxr-viewpoint")
+
+
 def main(argv: list[str] | None = None) -> None:
     """``python -m lisa_hand.bench fit [--json FILE] [--model CKPT] ...``"""
     parser = argparse.ArgumentParser(prog="python -m lisa_hand.bench fit",
@@ -339,26 +363,7 @@ def main(argv: list[str] | None = None) -> None:
                              "none), true (the simulated sensor's, as lisa fit-points "
                              "--viewpoint X,Y,Z; the flag alone) or auto (found from the scan, "
                              "as lisa fit-points does by default)")
-    parser.add_argument("--webxr-table", nargs="?", const="auto", default=None,
-                        choices=("auto", "none"),
-                        help="also fit one-view scans of the WebXR hand lying on a table, palm "
-                             "and back down, the table in the scan: auto (the flag alone: the "
-                             "table found and left out, as lisa fit-points --support auto) or "
-                             "none (every point fitted); their viewpoint as --webxr-viewpoint")
-    parser.add_argument("--webxr-wall", nargs="?", const="auto", default=None,
-                        choices=("auto", "none"),
-                        help="also fit a depth camera's whole frame of the WebXR hand 40 cm "
-                             "away, a wall 30 cm behind it (320 x 240 pixels, 1 mm noise at "
-                             "40 cm, 3 mm on the wall): auto (the flag alone: the wall found and "
-                             "left out, as lisa fit-points --support auto) or none; their "
-                             "viewpoint as --webxr-viewpoint")
-    parser.add_argument("--webxr-person", nargs="?", const="auto", default=None,
-                        choices=("auto", "none"),
-                        help="also fit a depth camera's whole frame of a person holding the "
-                             "WebXR hand out 45 cm from it, the forearm leading to the body "
-                             "behind: auto (the flag alone: the part nearest the sensor kept, "
-                             "as lisa fit-points --others auto) or none (every point fitted); "
-                             "their viewpoint as --webxr-viewpoint")
+    _add_scene_args(parser)
     parser.add_argument("--only-webxr", action="store_true",
                         help="skip the self-consistency benchmark")
     args = parser.parse_args(argv)
