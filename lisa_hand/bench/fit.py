@@ -312,27 +312,23 @@ def _self_consistency(args) -> dict:
 
 
 def _add_scene_args(parser: argparse.ArgumentParser) -> None:
-    """The bench's flags of WebXR scans with more than the hand in them (table, wall, person)."""
-    parser.add_argument("--webxr-table", nargs="?", const="auto", default=None,
-                        choices=("auto", "none"),
-                        help="also fit one-view scans of the WebXR hand lying on a table, palm "
-                             "and back down, the table in the scan: auto (the flag alone: the "
-                             "table found and left out, as lisa fit-points --support auto) or "
-                             "none (every point fitted); their viewpoint as --webxr-viewpoint")
-    parser.add_argument("--webxr-wall", nargs="?", const="auto", default=None,
-                        choices=("auto", "none"),
-                        help="also fit a depth camera's whole frame of the WebXR hand 40 cm "
-                             "away, a wall 30 cm behind it (320 x 240 pixels, 1 mm noise at "
-                             "40 cm, 3 mm on the wall): auto (the flag alone: the wall found and "
-                             "left out, as lisa fit-points --support auto) or none; their "
-                             "viewpoint as --webxr-viewpoint")
-    parser.add_argument("--webxr-person", nargs="?", const="auto", default=None,
-                        choices=("auto", "none"),
-                        help="also fit a depth camera's whole frame of a person holding the "
-                             "WebXR hand out 45 cm from it, the forearm leading to the body "
-                             "behind: auto (the flag alone: the part nearest the sensor kept, "
-                             "as lisa fit-points --others auto) or none (every point fitted); "
-                             "their viewpoint as --webxr-viewpoint")
+    """The bench's flags of WebXR scans with more than the hand in them (table, wall, person):
+    each takes auto (the flag alone: as lisa fit-points does by default) or none."""
+    scenes = {
+        "table": "one-view scans of the WebXR hand lying on a table, palm and back down, the "
+                 "table in the scan: auto (the table found and left out, as lisa fit-points "
+                 "--support auto) or none (every point fitted)",
+        "wall": "a depth camera's whole frame of the WebXR hand 40 cm away, a wall 30 cm behind "
+                "it (320 x 240 pixels, 1 mm noise at 40 cm, 3 mm on the wall): auto (the wall "
+                "found and left out, as lisa fit-points --support auto) or none",
+        "person": "a depth camera's whole frame of a person holding the WebXR hand out 45 cm "
+                  "from it, the forearm leading to the body behind: auto (the part nearest the "
+                  "sensor kept, as lisa fit-points --others auto) or none (every point fitted)",
+    }
+    for scene, text in scenes.items():
+        parser.add_argument(f"--webxr-{scene}", nargs="?", const="auto", default=None,
+                            choices=("auto", "none"),
+                            help=f"also fit {text}; their viewpoint as --webxr-viewpoint")
 
 
 def main(argv: list[str] | None = None) -> None:
