@@ -8,8 +8,9 @@ What fitting, meshing, rendering and animation load. It comes from one of
   (``lisa_hand/assets/lisa_geometry_v2.pt``, a geometric prior on 203 subjects of the open hand
   model v2: no colour; the default of ``lisa fit-points``), ``"geometry"``
   (``lisa_hand/assets/lisa_geometry.pt``, the same on hand model v1: the prior LISA-full was
-  trained from, and the point fits' model until 2026-12-04) or ``"full_v2"``
-  (``lisa_hand/assets/lisa_full_v2.pt``, LISA-full trained on hand model v2);
+  trained from, and the point fits' model until 2026-12-04), ``"full_v2"``
+  (``lisa_hand/assets/lisa_full_v2.pt``, LISA-full trained on hand model v2) or ``"full_8k"``
+  (``lisa_hand/assets/lisa_full_8k.pt``, the ``"default"`` recipe trained 8000 steps);
 * a file written by :func:`export_trained` (``python -m lisa_hand.model.trained RUN --out FILE``);
 * a training run: a ``lisa train`` run (geometry and colour) or a ``lisa train-prior`` run
   (geometry only), as its folder or its checkpoint file.
@@ -121,10 +122,12 @@ class TrainedModel:
 
 
 SHIPPED_MODELS = {"default": "lisa_pretrained.pt", "geometry": "lisa_geometry.pt",
-                  "geometry_v2": "lisa_geometry_v2.pt", "full_v2": "lisa_full_v2.pt"}
+                  "geometry_v2": "lisa_geometry_v2.pt", "full_v2": "lisa_full_v2.pt",
+                  "full_8k": "lisa_full_8k.pt"}
 """The models in ``lisa_hand/assets`` by the name ``--model`` and ``params.json`` give them:
 "default" is LISA-full (images: geometry and colour) trained on the open hand model v1 from the
-"geometry" prior, "full_v2" the same recipe on v2 hands from the "geometry_v2" prior;
+"geometry" prior (3200 steps), "full_8k" the same on the same data with 8000 steps and a cosine
+learning-rate decay, "full_v2" the 3200-step recipe on v2 hands from the "geometry_v2" prior;
 "geometry" and "geometry_v2" are geometric priors (``lisa train-prior`` on 203 subjects of the
 open hand model v1 and v2: the SDF and skinning networks only, no colour). A name always means
 the same weights (a ``params.json`` holds a shape code of that model's space), so a retrained
