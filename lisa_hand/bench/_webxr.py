@@ -423,7 +423,7 @@ def person_scan(path: str | Path, pose: str, seed: int = 0):
     itself (from ``seed`` and the pose), the hand's centre :data:`PERSON_DEPTH_M` before the
     camera, and the arm entering a body (a :data:`PERSON_TORSO_M` box, its front 5 cm before
     the arm's end, the arm's end 10 cm off its middle): the whole frame, as the camera returns
-    it (:func:`lisa_hand.data.scans.depth_camera_scan`), one connected piece over a metre across.
+    it (:func:`lisa_hand.data.scans.depth_camera_scan`), one connected piece 0.6-1 m across.
 
     -> (points [N, 3] metres in the camera's frame, the hand and forearm's outer surface
     (vertices [V, 3] metres, faces [F, 3]), the sensor [3]: the origin)."""

@@ -389,3 +389,30 @@ def test_a_one_view_scan_fits_closer_with_its_sensor_position():
     assert with_view[0] < without[0] + 0.1, results
     assert with_view[2] < 0.5 * without[2], results
     assert with_view[0] < 3.0 and with_view[1] < 3.0, results
+
+
+def test_the_bench_person_frame_is_one_piece_whose_nearest_part_is_the_hand():
+    """The bench's depth frame of a person holding the hand out (bench fit --webxr-person): hand,
+    arm and body are one piece too large for a hand, and what lies within HAND_REACH_M of the
+    nearest point along the surface is the hand and a stub of its forearm, not the body."""
+    import point_cloud_utils as pcu
+
+    from lisa_hand.bench._webxr import person_scan
+    from lisa_hand.fitting.points.others import _pieces, find_others
+
+    for pose in ("rest", "fist"):
+        points, (vertices, faces), sensor = person_scan(WEBXR / "right_hand.npz", pose)
+        points = points.astype(np.float64)
+        _, sizes = _pieces(points, 0.01)
+        assert sizes.max() > 0.95 * len(points)  # one piece, but for stray noise
+        found = find_others(points, sensor=sensor)
+        assert found.oversize > 0.6 and 1500 < (~found.removed).sum() < 0.3 * len(points)
+        # the kept points lie on the hand and its forearm (to the depth noise, 1.3 mm at 45 cm),
+        # and the hand-and-arm points the camera saw within 20 cm of the nearest kept one are kept
+        off, _, _ = pcu.closest_points_on_mesh(points, np.asarray(vertices, np.float64),
+                                               np.asarray(faces, np.int64))
+        assert np.quantile(off[~found.removed], 0.99) < 0.005
+        kept = points[~found.removed]
+        near = np.linalg.norm(points - kept[np.argmin(np.linalg.norm(kept, axis=1))], axis=1)
+        assert (~found.removed)[(off < 0.005) & (near < 0.2)].mean() > 0.99
+        assert found.removed[off > 0.02].all()  # the body
