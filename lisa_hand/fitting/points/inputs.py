@@ -79,18 +79,25 @@ def read_point_cloud(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | 
             raise ValueError(message) from None
         raise ValueError(f"{path}: cannot read this {suffix[1:].upper()} file "
                          f"({type(exc).__name__}: {message})") from None
+    points, normals = _checked_cloud(points, normals, str(path))
+    return np.ascontiguousarray(points), (None if normals is None
+                                          else np.ascontiguousarray(normals))
+
+
+def _checked_cloud(points, normals, name: str) -> tuple[np.ndarray, np.ndarray | None]:
+    """points [N, 3] and normals [N, 3] or None as float64, checked (N >= 1; a ValueError
+    naming ``name`` if not)."""
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"{path}: points must have shape [N, 3], got {list(points.shape)}")
+        raise ValueError(f"{name}: points must have shape [N, 3], got {list(points.shape)}")
     if points.shape[0] == 0:
-        raise ValueError(f"{path}: the point cloud is empty (no points)")
+        raise ValueError(f"{name}: the point cloud is empty (no points)")
     if normals is not None:
         normals = np.asarray(normals, dtype=np.float64)
         if normals.shape != points.shape:
-            raise ValueError(f"{path}: normals have shape {list(normals.shape)}, the points "
-                             f"{list(points.shape)}")
-    return np.ascontiguousarray(points), (None if normals is None
-                                          else np.ascontiguousarray(normals))
+            raise ValueError(f"{name}: normals must have the points' shape {list(points.shape)},"
+                             f" got {list(normals.shape)}")
+    return points, normals
 
 
 def _columns(array: np.ndarray, path: Path, what: str) -> tuple[np.ndarray, np.ndarray | None]:
@@ -207,17 +214,8 @@ def prepare_point_cloud(
     """
     if units not in UNITS:
         raise ValueError(f"units must be one of {UNITS}, got {units!r}")
-    points = np.asarray(points, dtype=np.float64)
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"{name}: points must have shape [N, 3], got {list(points.shape)}")
+    points, normals = _checked_cloud(points, normals, name)
     num_input = points.shape[0]
-    if num_input == 0:
-        raise ValueError(f"{name}: the point cloud is empty (no points)")
-    if normals is not None:
-        normals = np.asarray(normals, dtype=np.float64)
-        if normals.shape != points.shape:
-            raise ValueError(f"{name}: normals must have the points' shape {list(points.shape)},"
-                             f" got {list(normals.shape)}")
     notes: list[str] = []
     finite = np.isfinite(points).all(axis=1)
     if not finite.all():
