@@ -7,6 +7,7 @@ import sys
 
 import typer
 
+from ..training.distributed import end_process, group_was_created
 from . import (
     animate,
     blend,
@@ -76,12 +77,27 @@ def main(argv: list[str] | None = None) -> None:
     traceback instead.
     """
     try:
-        app(args=argv)
-    except (ValueError, TypeError, OSError, UserError) as exc:
-        if os.environ.get("LISA_DEBUG"):
-            raise
-        print(f"lisa: error: {error_line(exc)}", file=sys.stderr)
-        raise SystemExit(2) from None
+        try:
+            app(args=argv)
+        except (ValueError, TypeError, OSError, UserError) as exc:
+            if os.environ.get("LISA_DEBUG"):
+                raise
+            print(f"lisa: error: {error_line(exc)}", file=sys.stderr)
+            raise SystemExit(2) from None
+    except SystemExit as done:
+        if group_was_created():  # a torchrun worker: end without the interpreter's teardown
+            end_process(_exit_status(done.code))
+        raise
+
+
+def _exit_status(code: object) -> int:
+    """The process status ``SystemExit(code)`` gives: None 0, an int itself, else 1 (printed)."""
+    if code is None:
+        return 0
+    if isinstance(code, int):
+        return code
+    print(code, file=sys.stderr)
+    return 1
 
 
 if __name__ == "__main__":

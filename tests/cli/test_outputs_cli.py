@@ -171,3 +171,26 @@ def test_error_line_is_one_line_naming_the_path():
     assert cli_main.error_line(raised) == "/: Is a directory"
     assert cli_main.error_line(ValueError("first\n  second\n")) == "first; second"
     assert cli_main.error_line(FileNotFoundError("x.ply: no such file")) == "x.ply: no such file"
+
+
+@pytest.mark.parametrize("argv, status", [(["--help"], 0), (["fit-points", "nope.ply"], 2)])
+def test_a_torchrun_worker_ends_through_end_process(monkeypatch, capsys, argv, status):
+    """Under torchrun (a process group created), main() ends the process with the command's
+    status through end_process (no interpreter teardown with gloo's threads alive); otherwise it
+    raises SystemExit as usual."""
+    ended = []
+
+    def fake_end(code):
+        ended.append(code)
+        raise SystemExit(code)  # the real one never returns
+
+    monkeypatch.setattr(cli_main, "end_process", fake_end)
+    with pytest.raises(SystemExit):
+        cli_main.main(argv)
+    assert ended == []
+    monkeypatch.setattr(cli_main, "group_was_created", lambda: True)
+    with pytest.raises(SystemExit):
+        cli_main.main(argv)
+    assert ended == [status]
+    assert [cli_main._exit_status(code) for code in (None, 0, 3)] == [0, 0, 3]
+    assert cli_main._exit_status("bye") == 1 and capsys.readouterr().err.endswith("bye\n")

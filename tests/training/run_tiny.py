@@ -11,7 +11,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from lisa_hand.training.distributed import cleanup, init_distributed
+from lisa_hand.training.distributed import cleanup, end_process, group_was_created, init_distributed
 from lisa_hand.training.images import train_images
 from lisa_hand.training.prior import train_prior
 from lisa_hand.utils.threads import single_thread_worker
@@ -41,6 +41,8 @@ def main(argv: list[str] | None = None) -> None:
                              resume=False, dist=dist)
     finally:
         cleanup(dist)
+    if group_was_created():  # a torchrun worker (see end_process)
+        end_process(0)
 
 
 if __name__ == "__main__":

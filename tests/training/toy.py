@@ -21,7 +21,15 @@ import torch
 from torch import nn
 
 from lisa_hand.training.config import TrainerConfig
-from lisa_hand.training.distributed import cleanup, global_mean, init_distributed, shard, unwrap
+from lisa_hand.training.distributed import (
+    cleanup,
+    end_process,
+    global_mean,
+    group_was_created,
+    init_distributed,
+    shard,
+    unwrap,
+)
 from lisa_hand.training.engine import StepContext, StepInfo, train
 from lisa_hand.utils.threads import single_thread_worker
 
@@ -120,6 +128,8 @@ def main(argv: list[str] | None = None) -> None:
                 torch.save(model.state_dict(), out / "final.pt")
     finally:
         cleanup(dist)
+    if group_was_created():  # a torchrun worker (see end_process)
+        end_process(0)
 
 
 if __name__ == "__main__":
