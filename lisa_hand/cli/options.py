@@ -85,9 +85,10 @@ def image_fit_overrides(*, seed: int, threads: int, shape_fit: ShapeFit, guard: 
 FitModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model: exported file, run folder or checkpoint, or a shipped "
                     "model's name: 'default' (LISA-full, hand model v1), 'full_8k' (the same "
-                    "trained 8000 steps: closer, 4.5 MiB more), 'full_v2' (LISA-full "
-                    "trained on hand model v2), 'geometry_v2' or 'geometry' (the geometric "
-                    "priors, hand model v2 / v1) (default: 'default').")]
+                    "trained 8000 steps: closer), 'full_14k' (14000 steps: sharper novel views), "
+                    "'full_v2' (LISA-full trained on hand model v2), 'geometry_v2' or "
+                    "'geometry' (the geometric priors, hand model v2 / v1) (default: "
+                    "'default').")]
 
 PointModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model: exported file, run folder or checkpoint, or a shipped "
@@ -102,8 +103,8 @@ ParamsArg = Annotated[Path, typer.Argument(
          "'lisa blend'.")]
 ModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model (exported file, or a 'lisa train' / 'lisa train-prior' run); "
-                    "default: the one PARAMS names ('default', 'full_8k', 'full_v2', 'geometry', "
-                    "'geometry_v2': the shipped ones).")]
+                    "default: the one PARAMS names ('default', 'full_8k', 'full_14k', 'full_v2', "
+                    "'geometry', 'geometry_v2': the shipped ones).")]
 DeviceOpt = Annotated[str, typer.Option(
     "--device", help="auto (CUDA when available), cpu, cuda or cuda:N.")]
 

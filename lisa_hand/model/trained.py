@@ -123,11 +123,12 @@ class TrainedModel:
 
 SHIPPED_MODELS = {"default": "lisa_pretrained.pt", "geometry": "lisa_geometry.pt",
                   "geometry_v2": "lisa_geometry_v2.pt", "full_v2": "lisa_full_v2.pt",
-                  "full_8k": "lisa_full_8k.pt"}
+                  "full_8k": "lisa_full_8k.pt", "full_14k": "lisa_full_14k.pt"}
 """The models in ``lisa_hand/assets`` by the name ``--model`` and ``params.json`` give them:
 "default" is LISA-full (images: geometry and colour) trained on the open hand model v1 from the
 "geometry" prior (3200 steps), "full_8k" the same on the same data with 8000 steps and a cosine
-learning-rate decay, "full_v2" the 3200-step recipe on v2 hands from the "geometry_v2" prior;
+learning-rate decay, "full_14k" that run resumed to 14000 steps (the cosine spread over them),
+"full_v2" the 3200-step recipe on v2 hands from the "geometry_v2" prior;
 "geometry" and "geometry_v2" are geometric priors (``lisa train-prior`` on 203 subjects of the
 open hand model v1 and v2: the SDF and skinning networks only, no colour). A name always means
 the same weights (a ``params.json`` holds a shape code of that model's space), so a retrained

@@ -136,14 +136,15 @@ def test_headlight_shading_is_trained_exported_and_rendered(tiny_data, tmp_path,
 
 
 def test_shipped_models_by_name(tmp_path, monkeypatch):
-    """'default', 'full_8k', 'full_v2', 'geometry' and 'geometry_v2' name the five shipped files
-    (LISA-full with colour on hand models v1, 3200 and 8000 steps, and v2, the geometric priors
-    of hand models v1 and v2 without);
+    """'default', 'full_8k', 'full_14k', 'full_v2', 'geometry' and 'geometry_v2' name the six
+    shipped files (LISA-full with colour on hand models v1, 3200, 8000 and 14000 steps, and v2,
+    the geometric priors of hand models v1 and v2 without);
     a file or folder of that name in the working directory wins; params.json records the name,
     else the absolute path."""
     from lisa_hand.model.trained import SHIPPED_MODELS, model_label, shipped_model_path
 
-    assert set(SHIPPED_MODELS) == {"default", "full_8k", "full_v2", "geometry", "geometry_v2"}
+    assert set(SHIPPED_MODELS) == {"default", "full_8k", "full_14k", "full_v2", "geometry",
+                                   "geometry_v2"}
     full = load_trained("default")
     assert full.has_color and full.source == str(shipped_model_path("default"))
     full_v2 = load_trained("full_v2")
@@ -154,6 +155,9 @@ def test_shipped_models_by_name(tmp_path, monkeypatch):
     longer = load_trained("full_8k")  # the default's recipe and data, 8000 steps
     assert longer.has_color and longer.subject_ids == full.subject_ids
     assert longer.config == full.config and not torch.equal(longer.shape_codes, full.shape_codes)
+    longest = load_trained("full_14k")  # the 8000-step run resumed to 14000 steps
+    assert longest.subject_ids == full.subject_ids and longest.config == full.config
+    assert not torch.equal(longest.shape_codes, longer.shape_codes)
     priors = [load_trained(name) for name in ("geometry", "geometry_v2")]
     for name, geometry in zip(("geometry", "geometry_v2"), priors, strict=True):
         assert not geometry.has_color and geometry.color_codes is None
