@@ -64,6 +64,12 @@ MaskOpt = Annotated[Path | None, typer.Option(
     "--mask", metavar="MASK.png",
     help="For a depth image: the hand's pixels (white), the rest left out.")]
 
+ColourOpt = Annotated[Path | None, typer.Option(
+    "--rgb", metavar="COLOUR.png",
+    help="For a depth image: the colour image taken with it, aligned to the depth camera (the "
+         "same pixels; RealSense: rs.align to depth): the hand is found in it (MediaPipe, the "
+         "[photo] extra), its pixels kept and, with --side auto, its side taken.")]
+
 
 def fit_points(
     points: Annotated[Path, typer.Argument(
@@ -112,6 +118,7 @@ def fit_points(
     camera: CameraOpt = None,
     depth_scale: DepthScaleOpt = 0.001,
     mask: MaskOpt = None,
+    rgb: ColourOpt = None,
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
@@ -135,7 +142,7 @@ def fit_points(
 
         refine_config = RefineConfig(seed=seed, **({} if refine_iters is None
                                                    else {"iters": refine_iters}))
-    depth = _depth_frame(points, camera, depth_scale, mask)
+    depth, side = _depth_frame(points, camera, depth_scale, mask, rgb, side)
     count = 1 if hand is not None else count_hands(points, units.value, config, depth)
     if count > 1 and gt is not None:
         raise ValueError(f"{points}: the scan holds {count} hands apart from each other; --gt "
@@ -156,24 +163,37 @@ def fit_points(
         _said(report, config)
 
 
-def _depth_frame(points: Path, camera: Path | None, scale: float, mask: Path | None):
-    """The :class:`~lisa_hand.data.depth.DepthFrame` of the depth options, or None when none is
-    given (one-line errors)."""
+def _depth_frame(points: Path, camera: Path | None, scale: float, mask: Path | None,
+                 rgb: Path | None, side: AutoSide):
+    """(the :class:`~lisa_hand.data.depth.DepthFrame` of the depth options, or None when none is
+    given; the side to fit: with --rgb and --side auto, the one found) (one-line errors)."""
     from ..data.depth import DepthFrame
     from .options import read_cameras
 
     if not scale > 0:
         raise ValueError(f"--depth-scale must be > 0 (metres per unit), got {scale!r}")
-    if camera is None and mask is None and scale == 0.001:
-        return None
+    if camera is None and mask is None and rgb is None and scale == 0.001:
+        return None, side
     if camera is None:
-        raise ValueError(f"{points}: --depth-scale and --mask read a depth image with its "
-                         "camera: pass --camera CAM.json too")
+        raise ValueError(f"{points}: --depth-scale, --mask and --rgb read a depth image with "
+                         "its camera: pass --camera CAM.json too")
     cameras = read_cameras(camera)
     if len(cameras) != 1:
         raise ValueError(f"--camera {camera}: a depth image has one camera, the file holds "
                          f"{len(cameras)}")
-    return DepthFrame(camera=cameras[0], scale_m=scale, mask=mask)
+    frame = DepthFrame(camera=cameras[0], scale_m=scale, mask=mask)
+    return (frame, side) if rgb is None else _colour_hand(points, frame, rgb, side)
+
+
+def _colour_hand(points: Path, depth, rgb: Path, side: AutoSide):
+    """--rgb: the depth frame masked to the hand found in the colour image, and the side to fit
+    (the detected one for --side auto)."""
+    from ..fitting.points.rgbd import with_colour_hand
+
+    wanted = None if side.value == "auto" else side.value
+    depth, found = with_colour_hand(points, depth, rgb, side=wanted)
+    typer.echo(found.note)
+    return depth, AutoSide(found.side) if wanted is None else side
 
 
 def _said(report, config) -> None:

@@ -116,8 +116,9 @@ class DepthFrame:
     """The camera that took it, at the image's size."""
     scale_m: float = 0.001
     """Metres per unit of the image's values (0.001: millimetres)."""
-    mask: Path | None = None
-    """A mask image of the hand's pixels (white), or None: every pixel with a depth."""
+    mask: Path | np.ndarray | None = None
+    """A mask image of the hand's pixels (white), or those pixels as an [H, W] bool array (the
+    image's size), or None: every pixel with a depth."""
 
 
 def read_depth_cloud(path: str | os.PathLike, frame: DepthFrame
@@ -126,9 +127,17 @@ def read_depth_cloud(path: str | os.PathLike, frame: DepthFrame
     world metres, a sentence saying what was read)."""
     depth = read_depth_image(path, frame.scale_m)
     size = (depth.shape[1], depth.shape[0])
-    mask = None if frame.mask is None else read_mask_image(frame.mask, size)
+    mask = frame.mask
+    if isinstance(mask, np.ndarray):
+        if mask.shape != depth.shape:
+            raise ValueError(f"{path}: the mask is {mask.shape[1]}x{mask.shape[0]} pixels, the "
+                             f"depth image {size[0]}x{size[1]}")
+        mask = mask.astype(bool)
+    elif mask is not None:
+        mask = read_mask_image(mask, size)
     points, centre = depth_points(depth, frame.camera, mask, name=str(path))
-    within = "" if mask is None else f" inside the mask {frame.mask}"
+    within = ("" if frame.mask is None else " inside the hand's mask"
+              if isinstance(frame.mask, np.ndarray) else f" inside the mask {frame.mask}")
     note = (f"read {len(points)} pixels with a depth{within} from a {size[0]}x{size[1]} depth "
             f"image ({frame.scale_m:g} m a unit), the sensor at its camera's centre")
     return points, centre, note

@@ -407,15 +407,13 @@ def test_a_thing_apart_from_the_hand_is_left_out_and_said(lisa, files, capsys):
         assert message in capsys.readouterr().err
 
 
-def test_a_depth_image_is_fitted_with_its_camera(lisa, files, capsys):
-    """A 16-bit depth image (millimetres) of the hand with its camera (cameras.json): its
-    pixels are the points, the camera's centre the sensor; without --camera, one line says what
-    to pass; --mask keeps the hand's pixels."""
+def _depth_camera_files(root):
+    """root/depth.png (16-bit millimetres, 80 x 60), root/mask.png and root/cam.json of a camera
+    40 cm before the test hand (R = I) -> (depth [60, 80] metres, sensor [3] metres)."""
     import imageio.v3 as iio
 
     from lisa_hand.data.raycast import MeshRayCaster
 
-    root, _ = files
     truth = load_mesh(root / "truth.ply")
     centre = np.asarray(truth.vertices, np.float64).mean(0)
     sensor = centre - np.array([0.0, 0.0, 0.4])  # R = I, t = -sensor: the camera 40 cm away
@@ -432,6 +430,17 @@ def test_a_depth_image_is_fitted_with_its_camera(lisa, files, capsys):
     (root / "cam.json").write_text(json.dumps([{
         "K": [[focal, 0, width / 2], [0, focal, height / 2], [0, 0, 1]],
         "R": np.eye(3).tolist(), "t": (-sensor).tolist(), "width": width, "height": height}]))
+    return depth, sensor
+
+
+def test_a_depth_image_is_fitted_with_its_camera(lisa, files, capsys):
+    """A 16-bit depth image (millimetres) of the hand with its camera (cameras.json): its
+    pixels are the points, the camera's centre the sensor; without --camera, one line says what
+    to pass; --mask keeps the hand's pixels."""
+    import imageio.v3 as iio
+
+    root, _ = files
+    depth, sensor = _depth_camera_files(root)
     pixels = int((depth > 0).sum())
     assert pixels > 200
     for name, extra in (("whole", []), ("masked", ["--mask", str(root / "mask.png")])):
@@ -485,3 +494,39 @@ def test_a_hand_before_a_body_is_taken_nearest_the_sensor(lisa, files, capsys):
                  "--model", str(root / "tiny.pt"), "--viewpoint", "none", *FAST_ARGS]) == 0
     assert "larger than a hand (a wall, a person): nothing was left out" in \
         capsys.readouterr().out
+
+
+def test_the_hand_in_the_colour_image_says_which_pixels(lisa, files, capsys, monkeypatch):
+    """--rgb: the hand found in the colour image beside the depth image (a stand-in detector
+    here: a skeleton over the hand's pixels, called a left hand) keeps its pixels out of a room
+    3 m behind it and gives its side to --side auto; with --mask or without --camera, one line."""
+    import imageio.v3 as iio
+
+    from lisa_hand.fitting.points import rgbd
+    from tests.fitting.test_rgbd import Found, hand_keypoints
+
+    root, _ = files
+    depth, _ = _depth_camera_files(root)
+    room = np.where(depth > 0, depth, 3.0)
+    iio.imwrite(root / "room.png", np.round(room * 1000).astype(np.uint16))
+    iio.imwrite(root / "colour.png", np.full((60, 80, 3), 90, np.uint8))
+    rows, cols = np.nonzero(depth > 0)
+    size = 0.45 * (rows.max() - rows.min())  # wrist at the bottom, fingertips near the top
+    hand = Found(hand_keypoints(cols.mean(), rows.max(), size), "left")
+    monkeypatch.setattr(rgbd, "detect_hands", lambda image: [hand])
+    monkeypatch.setattr(rgbd, "photo_extra_missing", lambda: None)
+    base = ["fit-points", str(root / "room.png"), "--camera", str(root / "cam.json"), "--model",
+            str(root / "tiny.pt"), "--rgb", str(root / "colour.png"), *FAST_ARGS, "--side", "auto"]
+    assert lisa([*base, "--out", str(root / "rgbd")]) == 0
+    said = capsys.readouterr().out
+    kept = rgbd.find_colour_hand(root / "colour.png", (80, 60), detect=lambda image: [hand]).mask
+    assert f"found a left hand in the colour image {root / 'colour.png'}" in said
+    kept &= room < 1.0  # the room 3 m behind, taken in by the mask's margin, dropped by depth
+    assert f"read {int(kept.sum())} pixels with a depth inside the hand's mask" in said
+    assert (kept & (depth > 0)).sum() > 0.8 * (depth > 0).sum()  # most of the hand (a stand-in)
+    assert read_params(root / "rgbd" / "params.json").side == "left"
+    assert lisa([*base, "--out", str(root / "bad"), "--mask", str(root / "mask.png")]) == 2
+    assert "a colour image and a mask both say" in capsys.readouterr().err
+    assert lisa(["fit-points", str(root / "room.png"), "--out", str(root / "bad"), "--rgb",
+                 str(root / "colour.png"), *FAST_ARGS]) == 2
+    assert "--rgb read a depth image with its camera: pass --camera" in capsys.readouterr().err
