@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.ndimage import distance_transform_edt
 
 from ...data.depth import DepthFrame, read_depth_image
 from ...data.photo import read_photo
@@ -43,6 +44,8 @@ class ColourHand:
 
     mask: np.ndarray
     """[H, W] bool: the hand's pixels (grown by :data:`HAND_MARGIN`)."""
+    skeleton: np.ndarray
+    """[H, W] bool: the detected skeleton as drawn, before it was grown."""
     side: str
     """"right" or "left", as the detector called it."""
     keypoints: np.ndarray
@@ -88,11 +91,12 @@ def find_colour_hand(colour: str | os.PathLike, size: tuple[int, int], *,
     keypoints = np.asarray(chosen.keypoints, dtype=np.float64)
     height, width = size[1], size[0]
     drawn = keypoint_mask((height, width), keypoints)
-    mask = _grown(drawn, HAND_MARGIN * max(sizes))
+    mask = distance_transform_edt(~drawn) <= HAND_MARGIN * max(sizes)
     others = f", the largest of {len(hands)}" if len(hands) > 1 else ""
     note = (f"found a {chosen.side} hand in the colour image {path}{others} (MediaPipe, score "
             f"{chosen.score:.2f}): a mask of {int(mask.sum())} of its {width * height} pixels")
-    return ColourHand(mask=mask, side=chosen.side, keypoints=keypoints, note=note)
+    return ColourHand(mask=mask, skeleton=drawn, side=chosen.side, keypoints=keypoints,
+                      note=note)
 
 
 def with_colour_hand(depth_path: str | os.PathLike, frame: DepthFrame,
@@ -108,7 +112,7 @@ def with_colour_hand(depth_path: str | os.PathLike, frame: DepthFrame,
                          "hand's: pass one of them")
     depth = read_depth_image(depth_path, frame.scale_m)
     found = find_colour_hand(colour, (depth.shape[1], depth.shape[0]), side=side, detect=detect)
-    drawn = keypoint_mask(depth.shape, found.keypoints) & (depth > 0)
+    drawn = found.skeleton & (depth > 0)
     if not drawn.any():
         raise ValueError(f"{depth_path}: no pixel of the hand found in {colour} has a depth "
                          "(is the colour image aligned to the depth camera?)")
@@ -122,11 +126,3 @@ def with_colour_hand(depth_path: str | os.PathLike, frame: DepthFrame,
     found = dataclasses.replace(found, mask=mask, note=note)
     return dataclasses.replace(frame, mask=mask), found
 
-
-def _grown(mask: np.ndarray, radius_px: float) -> np.ndarray:
-    """mask [H, W] bool grown by ``radius_px`` pixels (Euclidean)."""
-    from scipy.ndimage import distance_transform_edt
-
-    if radius_px <= 0 or not mask.any():
-        return mask.copy()
-    return distance_transform_edt(~mask) <= radius_px
