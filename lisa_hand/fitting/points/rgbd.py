@@ -91,7 +91,8 @@ def find_colour_hand(colour: str | os.PathLike, size: tuple[int, int], *,
     keypoints = np.asarray(chosen.keypoints, dtype=np.float64)
     height, width = size[1], size[0]
     drawn = keypoint_mask((height, width), keypoints)
-    mask = distance_transform_edt(~drawn) <= HAND_MARGIN * max(sizes)
+    # (the distance transform of an image with no drawn pixel is not a distance: keep none)
+    mask = (distance_transform_edt(~drawn) <= HAND_MARGIN * max(sizes)) & drawn.any()
     others = f", the largest of {len(hands)}" if len(hands) > 1 else ""
     note = (f"found a {chosen.side} hand in the colour image {path}{others} (MediaPipe, score "
             f"{chosen.score:.2f}): a mask of {int(mask.sum())} of its {width * height} pixels")
