@@ -60,6 +60,14 @@ class SupportConfig:
     """The plane's points must spread over this many times the area of the points off it."""
     min_hand_points: int = 200
     """Points that must be left off the plane (else there is no hand beside it)."""
+    min_surround: float = 0.75
+    """Share of the directions round the hand (:data:`sectors` of them, in the plane) in which
+    the plane's points must reach ``reach_m`` or more beyond the hand's: a desk or a wall
+    surrounds the hand, a flat part of the hand (with a forearm, a long one) does not."""
+    sectors: int = 12
+    """Directions (equal sectors of the plane round the hand) of the ``min_surround`` test."""
+    reach_m: float = 0.03
+    """How far past the hand the plane's points must reach in a direction, metres."""
 
     def __post_init__(self) -> None:
         if not 0 < self.threshold_m <= self.max_threshold_m:
@@ -117,6 +125,35 @@ def _least_squares_plane(points: np.ndarray) -> tuple[np.ndarray, float]:
     return normal, float(normal @ centre)
 
 
+def _in_plane(points: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """[M, 3] points -> [M, 2] their coordinates in the plane of ``normal`` (metres)."""
+    axis = np.eye(3)[int(np.argmin(np.abs(normal)))]
+    first = np.cross(normal, axis)
+    first /= np.linalg.norm(first)
+    second = np.cross(normal, first)
+    return np.stack([points @ first, points @ second], 1)
+
+
+def _surround(on: np.ndarray, off: np.ndarray, normal: np.ndarray, sectors: int,
+              margin: float) -> float:
+    """Share of the ``sectors`` directions round the points off the plane (``off`` [M, 3], the
+    hand, projected into the plane, about their centre) in which the plane's points (``on``
+    [K, 3]) reach ``margin`` metres or more beyond them: 1 for a desk or a wall round the hand,
+    about half or less for a flat part of the hand itself."""
+    on_flat, off_flat = _in_plane(on, normal), _in_plane(off, normal)
+    centre = off_flat.mean(0)
+
+    def reach(flat: np.ndarray) -> np.ndarray:
+        offset = flat - centre
+        angle = np.arctan2(offset[:, 1], offset[:, 0])
+        sector = np.floor((angle + np.pi) / (2.0 * np.pi) * sectors).astype(np.int64) % sectors
+        farthest = np.zeros(sectors)
+        np.maximum.at(farthest, sector, np.linalg.norm(offset, axis=1))
+        return farthest
+
+    return float(np.mean(reach(on_flat) >= reach(off_flat) + margin))
+
+
 def _hull_area(points: np.ndarray, normal: np.ndarray) -> float:
     """Area (metres^2) of the convex hull of ``points`` [M, 3] projected into the plane of
     ``normal``; 0 for fewer than three points or a degenerate set."""
@@ -124,11 +161,7 @@ def _hull_area(points: np.ndarray, normal: np.ndarray) -> float:
 
     if len(points) < 3:
         return 0.0
-    axis = np.eye(3)[int(np.argmin(np.abs(normal)))]
-    first = np.cross(normal, axis)
-    first /= np.linalg.norm(first)
-    second = np.cross(normal, first)
-    flat = np.stack([points @ first, points @ second], 1)
+    flat = _in_plane(points, normal)
     try:
         return float(ConvexHull(flat).volume)  # a 2D hull's "volume" is its area
     except QhullError:
@@ -197,6 +230,9 @@ def find_support(points, config: SupportConfig | None = None, seed: int = 0
         normal, offset, distance = -normal, -offset, -distance
     spread = _hull_area(points[on], normal) / max(_hull_area(points[off], normal), 1e-12)
     if spread < config.min_spread:
+        return None
+    surround = _surround(points[on], points[off], normal, config.sectors, config.reach_m)
+    if surround < config.min_surround:
         return None
     removed = distance <= threshold
     return Support(plane=Plane(normal * offset, normal), removed=removed,
