@@ -45,6 +45,12 @@ OthersOpt = _auto_or_none(
     "--others", "auto: pieces of the scan 3 cm or more apart from the hand's (another object, "
     "the other hand), with at least 5% as many points, are left out, and the command says so; "
     "none: kept.")
+ColoursOpt = _auto_or_none(
+    "--colours", "auto: a scan with colours (PLY red/green/blue, OBJ 'v x y z r g b', NPZ "
+    "'colors', a GLB's vertex colours or texture, a depth image's --rgb image) colours "
+    "mesh.ply: each vertex the colour of the scan points within a few point spacings, the "
+    "surface the scan did not show interpolated from what it showed; none: the model's colours "
+    "(grey for a geometric prior).")
 
 
 HandOpt = Annotated[int | None, typer.Option(
@@ -119,6 +125,7 @@ def fit_points(
     depth_scale: DepthScaleOpt = 0.001,
     mask: MaskOpt = None,
     rgb: ColourOpt = None,
+    colours: ColoursOpt = "auto",
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
@@ -126,7 +133,7 @@ def fit_points(
     OUT/params.json, OUT/mesh.ply, OUT/keypoints.json and OUT/preview.png (a scan of several
     hands apart: each into OUT/hand0, OUT/hand1, ...)."""
     from ..fitting.points.fit import FitPointsConfig
-    from ..fitting.points.io import count_hands, fit_point_file
+    from ..fitting.points.io import count_hands
 
     overrides = {"seed": seed, "tries": tries}
     if iterations is not None:
@@ -134,7 +141,7 @@ def fit_points(
     if restarts is not None:
         overrides["num_restarts"] = restarts
     config = FitPointsConfig(**overrides)
-    view = _viewpoint(viewpoint)
+    view, colour_mode = _viewpoint(viewpoint), _auto("--colours", colours) or "none"
     support_mode, others_mode = _auto("--support", support), _auto("--others", others)
     refine_config = None
     if refine:
@@ -144,23 +151,29 @@ def fit_points(
                                                    else {"iters": refine_iters}))
     depth, side = _depth_frame(points, camera, depth_scale, mask, rgb, side)
     count = 1 if hand is not None else count_hands(points, units.value, config, depth)
-    if count > 1 and gt is not None:
+    _fit_each(points, out, count, hand, model_path=model, gt_path=gt,
+              units=units.value, refine=refine_config, viewpoint=view, support=support_mode,
+              others=others_mode, depth=depth, resolution=res, config=config, device=device,
+              side=side.value, progress=progress, log=typer.echo, colours=colour_mode)
+
+
+def _fit_each(points: Path, out: Path, count: int, hand: int | None, **options):
+    """Fit hand ``hand`` of the scan into ``out`` (``count`` 1), or each of its ``count`` hands
+    into ``out/handN``, saying what it does (``options``: :func:`fit_point_file`'s)."""
+    from ..fitting.points.io import fit_point_file
+
+    if count > 1 and options["gt_path"] is not None:
         raise ValueError(f"{points}: the scan holds {count} hands apart from each other; --gt "
                          "compares one: pass --hand N with it")
     if count > 1:
         typer.echo(f"{points}: {count} hands apart from each other: fitting each into "
                    f"{out / 'hand0'} ... {out / f'hand{count - 1}'} (--hand N for one)")
     for index in range(count):
-        one = hand if count == 1 else index
         if count > 1:
             typer.echo(f"fitting hand{index}")
         report = fit_point_file(points, out if count == 1 else out / f"hand{index}",
-                                model_path=model, gt_path=gt, units=units.value,
-                                refine=refine_config, viewpoint=view, support=support_mode,
-                                others=others_mode, hand=one, depth=depth, resolution=res,
-                                config=config, device=device, side=side.value,
-                                progress=progress, log=typer.echo)
-        _said(report, config)
+                                hand=hand if count == 1 else index, **options)
+        _said(report, options["config"])
 
 
 def _depth_frame(points: Path, camera: Path | None, scale: float, mask: Path | None,
@@ -186,12 +199,15 @@ def _depth_frame(points: Path, camera: Path | None, scale: float, mask: Path | N
 
 
 def _colour_hand(points: Path, depth, rgb: Path, side: AutoSide):
-    """--rgb: the depth frame masked to the hand found in the colour image, and the side to fit
-    (the detected one for --side auto)."""
+    """--rgb: the depth frame masked to the hand found in the colour image (which also colours
+    the points), and the side to fit (the detected one for --side auto)."""
+    import dataclasses
+
     from ..fitting.points.rgbd import with_colour_hand
 
     wanted = None if side.value == "auto" else side.value
     depth, found = with_colour_hand(points, depth, rgb, side=wanted)
+    depth = dataclasses.replace(depth, colour=rgb)
     typer.echo(found.note)
     return depth, AutoSide(found.side) if wanted is None else side
 

@@ -119,6 +119,9 @@ class DepthFrame:
     mask: Path | np.ndarray | None = None
     """A mask image of the hand's pixels (white), or those pixels as an [H, W] bool array (the
     image's size), or None: every pixel with a depth."""
+    colour: Path | None = None
+    """The colour image registered to the depth camera (RGB-D), whose pixels colour the points,
+    or None."""
 
 
 def read_depth_cloud(path: str | os.PathLike, frame: DepthFrame

@@ -525,8 +525,43 @@ def test_the_hand_in_the_colour_image_says_which_pixels(lisa, files, capsys, mon
     assert f"read {int(kept.sum())} pixels with a depth inside the hand's mask" in said
     assert (kept & (depth > 0)).sum() > 0.8 * (depth > 0).sum()  # most of the hand (a stand-in)
     assert read_params(root / "rgbd" / "params.json").side == "left"
+    colours = load_mesh(root / "rgbd" / "mesh.ply").colors  # the colour image's grey
+    assert colours is not None and np.all(colours == 90)
     assert lisa([*base, "--out", str(root / "bad"), "--mask", str(root / "mask.png")]) == 2
     assert "a colour image and a mask both say" in capsys.readouterr().err
     assert lisa(["fit-points", str(root / "room.png"), "--out", str(root / "bad"), "--rgb",
                  str(root / "colour.png"), *FAST_ARGS]) == 2
     assert "--rgb read a depth image with its camera: pass --camera" in capsys.readouterr().err
+
+
+def test_a_coloured_scan_colours_the_mesh(lisa, files, capsys):
+    """A PLY scan whose points carry colours (red along x, green along y): mesh.ply's vertices
+    near the scan take them, the command says how much of the surface it saw, params.json
+    records it; --colours none leaves the model's own colours."""
+    import trimesh
+
+    root, points = files
+    low, high = points.min(0), points.max(0)
+
+    def paint(at):
+        return np.stack([(at[:, 0] - low[0]) / (high[0] - low[0]),
+                         (at[:, 1] - low[1]) / (high[1] - low[1]), np.full(len(at), 0.5)], 1)
+
+    colours = np.round(255 * paint(points)).astype(np.uint8)
+    trimesh.PointCloud(points, colors=colours).export(root / "coloured.ply")
+    out = root / "coloured"
+    assert lisa(["fit-points", str(root / "coloured.ply"), "--out", str(out), "--model",
+                 str(root / "tiny.pt"), *FAST_ARGS]) == 0
+    said = capsys.readouterr().out
+    record = read_params(out / "params.json").extra["input"]["colours"]
+    assert record["used"] and 0.3 < record["seen_share"] <= 1.0
+    assert f"coloured from the scan's colours ({100 * record['seen_share']:.0f}% of" in said
+    mesh = load_mesh(out / "mesh.ply")
+    near = np.linalg.norm(mesh.vertices[:, None] - points[None], axis=-1).min(1) < 0.002
+    error = np.abs(mesh.colors[near] / 255.0 - paint(mesh.vertices[near]))
+    assert near.sum() > 50 and np.median(error) < 0.05
+    assert lisa(["fit-points", str(root / "coloured.ply"), "--out", str(root / "plain"),
+                 "--model", str(root / "tiny.pt"), "--colours", "none", *FAST_ARGS]) == 0
+    assert "coloured from the scan" not in capsys.readouterr().out
+    assert "colours" not in read_params(root / "plain" / "params.json").extra["input"]
+    assert not np.array_equal(load_mesh(root / "plain" / "mesh.ply").colors, mesh.colors)

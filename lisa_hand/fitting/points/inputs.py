@@ -10,7 +10,8 @@ other hands of a scan of several left out: :func:`count_hands`).
 Formats (normals are optional everywhere):
 
 * ``.ply``: the vertex element's ``x y z`` and, when present, ``nx ny nz`` (ASCII or binary);
-  faces, colours and other properties are ignored (a mesh's vertices are its points).
+  faces and other properties are ignored (a mesh's vertices are its points); colours are read
+  by :mod:`.colours`, as for the other formats that hold them.
 * ``.obj``: the ``v`` lines (first three numbers); the ``vn`` lines are the normals when there
   is one per vertex (point-cloud exports), else they are ignored.
 * ``.xyz``: text, one point a line, ``x y z`` or ``x y z nx ny nz``; ``#`` starts a comment.
@@ -184,12 +185,15 @@ class PointCloud:
     """Points in the input, before anything was dropped."""
     notes: list[str] = field(default_factory=list)
     """What was changed, one sentence each (dropped points, unit conversion, subsampling)."""
+    colors: np.ndarray | None = None
+    """[N, 3] float32 in [0, 1], the points' colours (:mod:`.colours`), or None."""
 
 
 def prepare_point_cloud(
     points: np.ndarray,
     normals: np.ndarray | None = None,
     *,
+    colors: np.ndarray | None = None,
     units: str = "auto",
     max_points: int = 5_000_000,
     min_points: int = 20,
@@ -198,7 +202,8 @@ def prepare_point_cloud(
 ) -> PointCloud:
     """Check a cloud and bring it to metres.
 
-    points: [N, 3] in ``units``; normals: [N, 3] or None (they need not be unit length).
+    points: [N, 3] in ``units``; normals: [N, 3] or None (they need not be unit length);
+    colors: [N, 3] in [0, 1] or None, kept with their points.
     units: "m", "cm", "mm" or "auto": :func:`lisa_hand.data.units.decide_length_unit` reads
         the unit from the hand's size (a note says which, when not metres) or checks the given
         one; a size that is no hand's in that unit (or in any, with "auto") is an error naming
@@ -216,6 +221,11 @@ def prepare_point_cloud(
         raise ValueError(f"units must be one of {UNITS}, got {units!r}")
     points, normals = _checked_cloud(points, normals, name)
     num_input = points.shape[0]
+    if colors is not None:
+        colors = np.asarray(colors, np.float32)
+        if colors.shape != points.shape:
+            raise ValueError(f"{name}: colours must have the points' shape "
+                             f"{list(points.shape)}, got {list(colors.shape)}")
     notes: list[str] = []
     finite = np.isfinite(points).all(axis=1)
     if not finite.all():
@@ -225,6 +235,7 @@ def prepare_point_cloud(
                              f"coordinates (NaN or inf), fewer than the {min_points} needed")
         points = points[finite]
         normals = None if normals is None else normals[finite]
+        colors = None if colors is None else colors[finite]
         notes.append(f"dropped {num_input - kept} of {num_input} points with NaN or inf "
                      "coordinates")
     if points.shape[0] < min_points:
@@ -251,8 +262,10 @@ def prepare_point_cloud(
         notes.append(f"randomly subsampled {points.shape[0]} points to {max_points}")
         points = points[keep]
         normals = None if normals is None else normals[keep]
+        colors = None if colors is None else colors[keep]
     return PointCloud(points=np.ascontiguousarray(points), normals=normals, unit=unit,
-                      unit_detected=units == "auto", num_input=num_input, notes=notes)
+                      unit_detected=units == "auto", num_input=num_input, notes=notes,
+                      colors=colors)
 
 
 def read_cloud_file(points_path: Path, units: str, config, hand: int | None, log, depth=None
@@ -263,8 +276,9 @@ def read_cloud_file(points_path: Path, units: str, config, hand: int | None, log
     a depth image (:data:`lisa_hand.data.depth.DEPTH_SUFFIXES`), else None. config: a
     :class:`~lisa_hand.fitting.points.fit.FitPointsConfig` (its seed and min_points)."""
     from ...data.depth import DEPTH_SUFFIXES, read_depth_cloud
+    from .colours import depth_point_colours, read_point_colours
 
-    sensor, notes = None, []
+    sensor, notes, colours = None, [], None
     if points_path.suffix.lower() in DEPTH_SUFFIXES:
         if depth is None:
             raise ValueError(f"{points_path}: a depth image is read with its camera: pass "
@@ -272,14 +286,18 @@ def read_cloud_file(points_path: Path, units: str, config, hand: int | None, log
                              "millimetres, --depth-scale")
         raw_points, sensor, note = read_depth_cloud(points_path, depth)
         raw_normals, units, notes = None, "m", [note]
+        if depth.colour is not None:
+            colours = depth_point_colours(raw_points, depth, depth.colour)
     else:
         if depth is not None:
             raise ValueError(f"{points_path}: --camera, --depth-scale and --mask are for a depth "
                              f"image ({', '.join(DEPTH_SUFFIXES)}), not a point cloud")
         raw_points, raw_normals = read_point_cloud(points_path)
+        colours = read_point_colours(points_path, len(raw_points))
     try:
-        cloud = prepare_point_cloud(raw_points, raw_normals, units=units, seed=config.seed,
-                                    min_points=config.min_points, name=str(points_path))
+        cloud = prepare_point_cloud(raw_points, raw_normals, colors=colours, units=units,
+                                    seed=config.seed, min_points=config.min_points,
+                                    name=str(points_path))
     except ValueError as error:
         if sensor is None or "too large" not in str(error):
             raise
@@ -327,5 +345,6 @@ def _one_hand(cloud: PointCloud, hand: int, seed: int, name: str) -> PointCloud:
             "points left out")
     return dataclasses.replace(cloud, points=cloud.points[keep],
                                normals=None if cloud.normals is None else cloud.normals[keep],
+                               colors=None if cloud.colors is None else cloud.colors[keep],
                                notes=[*cloud.notes, note])
 

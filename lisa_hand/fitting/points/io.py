@@ -95,6 +95,7 @@ def fit_point_file(
     others: str | None = None,
     hand: int | None = None,
     depth: Any = None,
+    colours: str = "auto",
 ) -> FitPointsReport:
     """Read a cloud, fit the model, write ``params.json``, ``mesh.ply`` (skinning weights, and
     vertex colours from the mean colour code when the model has colour) and (with ``gt_path``)
@@ -126,12 +127,14 @@ def fit_point_file(
     hand: of a scan of several hands (:func:`count_hands`), the one to fit (0: the largest), the
         others' points left out; None: the scan is one hand. depth: a :class:`lisa_hand.data.
         depth.DepthFrame` for a depth image (its camera's centre the sensor for "auto").
+    colours: "auto": a scan's colours colour ``mesh.ply`` (:mod:`.colours`; logged); "none".
     """
     from ...model.trained import model_label
     from ..outputs import ground_truth_metrics, prepare_fit, write_fit_outputs
     from .fit import FitPointsConfig, fit_points
 
     log = log or (lambda line: None)
+    _check_choice("colours", colours, ("auto", "none"))
     model_path = default_point_model() if model_path is None else model_path
     points_path, out_dir = Path(points_path), Path(out_dir)
     config = FitPointsConfig() if config is None else config
@@ -155,12 +158,20 @@ def fit_point_file(
                                   points_path)
         params.model = str((out_dir / "model.pt").resolve())
     mesh = _mesh_without_specks(model, params, resolution, fit.wrist_plane, out_dir, log)
+    if colours == "auto" and cloud.colors is not None:
+        params.extra["input"]["colours"] = _scan_coloured(mesh, cloud, fit, out_dir, log)
     metrics = None if truth is None else ground_truth_metrics(mesh, truth, fit.wrist_plane)
     written = write_fit_outputs(out_dir, params, mesh, metrics,
                                 model=None if refined is None else model,
                                 preview=_preview(mesh, cloud, fit, params.extra["input"], log))
     return FitPointsReport(cloud=cloud, fit=fit, mesh=mesh, metrics=metrics, written=written,
                            refine=refined)
+
+
+def _check_choice(name: str, value: Any, choices: Sequence[str]) -> None:
+    """A ValueError unless ``value`` is one of ``choices``."""
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {', '.join(map(repr, choices))}, got {value!r}")
 
 
 def _mesh_without_specks(model, params, resolution: int, clip, out_dir: Path, log):
@@ -174,6 +185,34 @@ def _mesh_without_specks(model, params, resolution: int, clip, out_dir: Path, lo
     if specks.count:
         log(specks.note(f"{out_dir / 'mesh.ply'}"))
     return mesh
+
+
+def _hand_points(cloud: PointCloud, fit) -> np.ndarray:
+    """[N] bool: the cloud's points the fit took as the hand's (not a support's, another
+    piece's, or beyond the fitted wrist's cut)."""
+    points = np.asarray(cloud.points, np.float64)
+    kept = np.ones(len(points), bool) if fit.support is None else ~fit.support.removed
+    if fit.others is not None:
+        kept[np.flatnonzero(kept)[fit.others.removed]] = False
+    if fit.wrist_plane is not None:
+        kept &= fit.wrist_plane.keeps(points)
+    return kept
+
+
+def _scan_coloured(mesh, cloud: PointCloud, fit, out_dir: Path, log) -> dict:
+    """``mesh`` coloured by the scan's colours (:func:`.colours.transfer_colours`, from the
+    hand's points only; logged) -> what ``params.json``'s input record says of it."""
+    from .colours import transfer_colours
+
+    kept = _hand_points(cloud, fit)
+    found = transfer_colours(mesh.vertices, mesh.faces, cloud.points[kept], cloud.colors[kept])
+    if found is None:
+        log(f"{out_dir / 'mesh.ply'}: no scan point near the fitted surface to colour it")
+        return {"used": False}
+    mesh.colors = found.colors
+    log(found.note(out_dir / "mesh.ply"))
+    return {"used": True, "seen_share": round(found.seen_share, 4),
+            "radius_mm": round(1000.0 * found.radius_m, 3)}
 
 
 def _preview(mesh, cloud: PointCloud, fit, record: dict, log) -> np.ndarray | None:
@@ -192,11 +231,7 @@ def _preview(mesh, cloud: PointCloud, fit, record: dict, log) -> np.ndarray | No
     faces = np.asarray(mesh.faces, np.int64)
     try:
         distances, _, _ = pcu.closest_points_on_mesh(points, vertices, faces)
-        kept = np.ones(len(points), bool) if fit.support is None else ~fit.support.removed
-        if fit.others is not None:
-            kept[np.flatnonzero(kept)[fit.others.removed]] = False
-        if fit.wrist_plane is not None:
-            kept &= fit.wrist_plane.keeps(points)
+        kept = _hand_points(cloud, fit)
         return fit_preview(vertices, faces, points, 1000.0 * distances, kept=kept,
                            viewpoint=record.get("viewpoint_m"))
     except Exception as error:  # a picture is not worth the fit: write the rest

@@ -1,0 +1,281 @@
+"""A coloured scan's colours on the fitted hand's mesh (``lisa fit-points`` on a scan with colour).
+
+Phone scanning apps, photogrammetry and depth cameras with a colour sensor give every point a
+colour; the point fit itself uses only positions. :func:`transfer_colours` gives each vertex of
+the fitted mesh the colour of the scan near it: the inverse-distance mean of its
+:data:`NEIGHBOURS` nearest scan points within ``radius`` (:func:`colour_radius`: three times the
+scan's median point spacing, at least 2 mm). The surface the scan did not show (the hidden side
+of a one-view scan, between curled fingers) takes colours interpolated from what it did show:
+harmonic over the mesh's edges (:func:`harmonic_fill`: every such vertex the mean of its
+neighbours, the seen vertices fixed), so colours run on smoothly instead of stopping at a seam;
+a piece of the mesh that touches no seen vertex gets the seen vertices' mean colour.
+
+Read colours (:func:`read_point_colours`, aligned with
+:func:`lisa_hand.fitting.points.inputs.read_point_cloud`'s points):
+
+* ``.ply``: the vertex element's ``red green blue`` (or ``r g b``; ``diffuse_red`` ...), 8-bit
+  or 16-bit integers or floats in [0, 1];
+* ``.obj``: ``v x y z r g b`` lines (floats in [0, 1]; the common vertex-colour extension);
+* ``.npz``: ``colors`` or ``colours`` ``[N, 3]`` (uint8, or floats in [0, 1]);
+* ``.glb``, ``.gltf``, ``.off``: the meshes' vertex colours, or their texture sampled at each
+  vertex (trimesh's ``to_color``);
+* a depth image with its registered colour image (``--rgb``): the colour image's pixel under
+  each point (:func:`depth_point_colours`).
+
+``.xyz`` and ``.npy`` files hold points (and normals) only.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["NEIGHBOURS", "MIN_RADIUS_M", "ScanColours", "read_point_colours",
+           "as_unit_colours", "depth_point_colours", "colour_radius", "harmonic_fill",
+           "transfer_colours"]
+
+NEIGHBOURS = 8
+"""Scan points averaged for a vertex's colour (those within the radius)."""
+MIN_RADIUS_M = 0.002
+"""The smallest radius within which a scan point colours a vertex, metres."""
+_SPACINGS = 3.0  # the radius in median point spacings
+_PLY_CHANNELS = (("red", "green", "blue"), ("r", "g", "b"),
+                 ("diffuse_red", "diffuse_green", "diffuse_blue"))
+
+
+@dataclass(frozen=True, eq=False)
+class ScanColours:
+    """The colours a scan gives a mesh (:func:`transfer_colours`)."""
+
+    colors: np.ndarray
+    """[V, 3] uint8 RGB, one per mesh vertex."""
+    seen: np.ndarray
+    """[V] bool: coloured by scan points (the rest interpolated)."""
+    radius_m: float
+    """The radius used, metres."""
+
+    @property
+    def seen_share(self) -> float:
+        """Share of the vertices coloured by scan points."""
+        return float(self.seen.mean()) if self.seen.size else 0.0
+
+    def note(self, path: Any) -> str:
+        """One sentence for the command line."""
+        return (f"{path}: coloured from the scan's colours ({100 * self.seen_share:.0f}% of the "
+                f"vertices within {1000 * self.radius_m:.1f} mm of a scan point; the rest "
+                "interpolated over the surface)")
+
+
+def as_unit_colours(values: Any, name: str = "colours") -> np.ndarray:
+    """Colours as stored -> [N, 3] float32 in [0, 1]: 8-bit and 16-bit integers are scaled, floats
+    above 1 are read as 0-255; a fourth (alpha) column is dropped. ValueError naming ``name``
+    for another shape or values outside those ranges."""
+    values = np.asarray(values)
+    if values.ndim != 2 or values.shape[1] not in (3, 4):
+        raise ValueError(f"{name}: colours must have shape [N, 3] (or [N, 4] with alpha), got "
+                         f"{list(values.shape)}")
+    values = values[:, :3]
+    if values.dtype == np.uint8:
+        return values.astype(np.float32) / 255.0
+    if values.dtype == np.uint16:
+        return values.astype(np.float32) / 65535.0
+    if not np.issubdtype(values.dtype, np.number):
+        raise ValueError(f"{name}: colours must be numbers, got dtype {values.dtype}")
+    values = values.astype(np.float64)
+    if not np.isfinite(values).all() or values.min(initial=0.0) < 0.0:
+        raise ValueError(f"{name}: colours must be finite and not negative")
+    top = values.max(initial=0.0)
+    if top > 255.0:
+        raise ValueError(f"{name}: colours reach {top:g}: expected [0, 1] or [0, 255]")
+    return (values / (255.0 if top > 1.0 else 1.0)).astype(np.float32)
+
+
+def _ply_colours(path: Path) -> np.ndarray | None:
+    from ...data.meshio import read_ply_vertices
+
+    vertex = read_ply_vertices(path)
+    names = vertex.dtype.names or ()
+    for channels in _PLY_CHANNELS:
+        if all(channel in names for channel in channels):
+            stacked = np.stack([vertex[channel] for channel in channels], axis=1)
+            return as_unit_colours(stacked, str(path))
+    return None
+
+
+def _obj_colours(path: Path) -> np.ndarray | None:
+    rows = []
+    with open(path, encoding="utf-8") as handle:
+        for line in handle:
+            if line.startswith("v "):
+                rows.append(line.split()[1:])
+    if not rows or any(len(row) < 6 for row in rows):
+        return None  # positions only (or only some vertices coloured: not a coloured scan)
+    return as_unit_colours(np.array([row[3:6] for row in rows], dtype=np.float64), str(path))
+
+
+def _npz_colours(path: Path) -> np.ndarray | None:
+    with np.load(path, allow_pickle=False) as archive:
+        key = next((k for k in ("colors", "colours") if k in archive.files), None)
+        return None if key is None else as_unit_colours(archive[key], f"{path} '{key}'")
+
+
+def _mesh_file_colours(path: Path) -> np.ndarray | None:
+    import trimesh
+
+    loaded = trimesh.load(path, process=True)
+    meshes = ([g for g in loaded.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
+              if isinstance(loaded, trimesh.Scene) else [loaded])
+    parts = []
+    for mesh in meshes:
+        if not isinstance(mesh, trimesh.Trimesh) or mesh.visual is None:
+            return None
+        if mesh.visual.kind is None:
+            return None  # no colour at all (trimesh would invent its default grey)
+        visual = mesh.visual.to_color() if hasattr(mesh.visual, "to_color") else mesh.visual
+        parts.append(np.asarray(visual.vertex_colors)[:, :3])
+    return as_unit_colours(np.concatenate(parts).astype(np.uint8), str(path)) if parts else None
+
+
+def read_point_colours(path: str | os.PathLike, count: int) -> np.ndarray | None:
+    """The colours of the ``count`` points that
+    :func:`lisa_hand.fitting.points.inputs.read_point_cloud` read from ``path`` -> [count, 3]
+    float32 in [0, 1], or None when the file has none (or not one per point: a mesh whose
+    vertices were merged differently). Errors name the file (colours out of range)."""
+    path = Path(path)
+    reader = {".ply": _ply_colours, ".obj": _obj_colours, ".npz": _npz_colours,
+              ".glb": _mesh_file_colours, ".gltf": _mesh_file_colours,
+              ".off": _mesh_file_colours}.get(path.suffix.lower())
+    if reader is None:
+        return None
+    try:
+        colours = reader(path)
+    except ValueError as error:
+        raise ValueError(f"{error} (--colours none fits the points without them)") from None
+    except Exception as error:  # trimesh raises many types for files it reads in part
+        raise ValueError(f"{path}: cannot read the colours ({type(error).__name__}: {error}; "
+                         "--colours none fits the points without them)") from None
+    if colours is None or len(colours) != count:
+        return None
+    return colours
+
+
+def depth_point_colours(points: np.ndarray, frame: Any, colour_path: str | os.PathLike
+                        ) -> np.ndarray:
+    """The colour under each point of a depth image in its registered colour image.
+
+    points: [N, 3] world metres (:func:`lisa_hand.data.depth.read_depth_cloud`'s). frame: the
+    :class:`lisa_hand.data.depth.DepthFrame` they were read with; colour_path: the colour image
+    aligned to the depth camera (scaled to the depth image's size when its shape is the same).
+    -> [N, 3] float32 in [0, 1]."""
+    from PIL import Image
+
+    from ...data.photo import read_photo
+
+    camera = frame.camera
+    size = (int(camera.width), int(camera.height))
+    photo = read_photo(colour_path, max_side=max(16, max(size), 8192))
+    image = photo.image
+    if (image.shape[1], image.shape[0]) != size:
+        height, width = image.shape[:2]
+        if abs(width / height - size[0] / size[1]) > 0.01:
+            raise ValueError(f"{colour_path}: the colour image is {width}x{height} pixels, the "
+                             f"depth image {size[0]}x{size[1]}: register it to the depth camera")
+        pil = Image.fromarray(np.clip(np.round(image * 255.0), 0, 255).astype(np.uint8))
+        image = np.asarray(pil.resize(size, Image.BILINEAR), np.float32) / 255.0
+    K = camera.K.double().cpu().numpy()
+    R = camera.R.double().cpu().numpy()
+    t = camera.t.double().cpu().numpy()
+    in_camera = np.asarray(points, np.float64) @ R.T + t
+    pixels = in_camera @ K.T
+    pixels = pixels[:, :2] / pixels[:, 2:3]
+    columns = np.clip(np.floor(pixels[:, 0]).astype(np.int64), 0, size[0] - 1)
+    rows = np.clip(np.floor(pixels[:, 1]).astype(np.int64), 0, size[1] - 1)
+    return np.ascontiguousarray(image[rows, columns, :3], np.float32)
+
+
+def colour_radius(points: np.ndarray) -> float:
+    """Within how far a scan point colours a vertex: :data:`_SPACINGS` times the median distance
+    from a point to its nearest neighbour, at least :data:`MIN_RADIUS_M` (metres)."""
+    from scipy.spatial import cKDTree
+
+    points = np.asarray(points, np.float64)
+    if len(points) < 2:
+        return MIN_RADIUS_M
+    distances, _ = cKDTree(points).query(points, k=2)
+    return max(MIN_RADIUS_M, _SPACINGS * float(np.median(distances[:, 1])))
+
+
+def harmonic_fill(faces: np.ndarray, values: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """Values at the unknown vertices of a mesh interpolated from the known ones.
+
+    faces: [F, 3] vertex indices; values: [V, C] (the unknown rows are ignored); known: [V] bool.
+    -> [V, C] float64: known rows as given, each unknown one the mean of its edge neighbours
+    (the graph Laplace equation, Dirichlet at the known vertices); unknown vertices of a piece
+    with no known vertex get the known rows' mean. ValueError when no vertex is known.
+    """
+    from scipy.sparse import coo_matrix, diags
+    from scipy.sparse.csgraph import connected_components
+    from scipy.sparse.linalg import spsolve
+
+    values = np.asarray(values, np.float64)
+    known = np.asarray(known, bool)
+    count = len(values)
+    filled = values.copy()
+    if not known.any():
+        raise ValueError("harmonic_fill needs at least one known vertex")
+    if known.all():
+        return filled
+    faces = np.asarray(faces, np.int64).reshape(-1, 3)
+    edges = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    edges = np.concatenate([edges, edges[:, ::-1]])
+    adjacency = coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])),
+                           shape=(count, count)).tocsr()
+    adjacency.data[:] = 1.0  # an edge shared by two faces counts once
+    mean = values[known].mean(axis=0)
+    _, labels = connected_components(adjacency, directed=False)
+    reached = np.isin(labels, np.unique(labels[known]))
+    solve = ~known & reached
+    filled[~known & ~reached] = mean
+    if solve.any():
+        laplacian = (diags(np.asarray(adjacency.sum(axis=1)).ravel()) - adjacency).tocsr()
+        system = laplacian[solve][:, solve].tocsc()
+        right = -(laplacian[solve][:, known] @ values[known])
+        solution = spsolve(system, right)
+        filled[solve] = np.asarray(solution).reshape(int(solve.sum()), -1)
+    return filled
+
+
+def transfer_colours(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
+                     colours: np.ndarray, radius: float | None = None) -> ScanColours | None:
+    """The scan's colours on a mesh (see the module docstring).
+
+    vertices: [V, 3] metres; faces: [F, 3]; points: [N, 3] metres, the scan points that belong
+    to the hand; colours: [N, 3] in [0, 1]; radius: metres (None: :func:`colour_radius`).
+    -> :class:`ScanColours`, or None when no vertex lies within the radius of a point.
+    """
+    from scipy.spatial import cKDTree
+
+    vertices = np.asarray(vertices, np.float64)
+    points = np.asarray(points, np.float64)
+    colours = np.asarray(colours, np.float64)
+    if len(points) == 0 or len(vertices) == 0:
+        return None
+    radius = colour_radius(points) if radius is None else float(radius)
+    k = min(NEIGHBOURS, len(points))
+    distances, index = cKDTree(points).query(vertices, k=k)
+    distances, index = distances.reshape(len(vertices), k), index.reshape(len(vertices), k)
+    within = distances <= radius
+    seen = within.any(axis=1)
+    if not seen.any():
+        return None
+    weights = within / np.maximum(distances, 1e-2 * radius)
+    values = np.zeros((len(vertices), 3))
+    values[seen] = (np.einsum("vk,vkc->vc", weights[seen], colours[index[seen]])
+                    / weights[seen].sum(axis=1, keepdims=True))
+    filled = harmonic_fill(faces, values, seen)
+    colors = np.clip(np.round(255.0 * filled), 0, 255).astype(np.uint8)
+    return ScanColours(colors=colors, seen=seen, radius_m=radius)
