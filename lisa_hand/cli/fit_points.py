@@ -150,7 +150,8 @@ def fit_points(
         refine_config = RefineConfig(seed=seed, **({} if refine_iters is None
                                                    else {"iters": refine_iters}))
     depth, side = _depth_frame(points, camera, depth_scale, mask, rgb, side)
-    count = 1 if hand is not None else count_hands(points, units.value, config, depth)
+    count = 1 if hand is not None else count_hands(points, units.value, config, depth,
+                                                   support_mode)
     _fit_each(points, out, count, hand, model_path=model, gt_path=gt,
               units=units.value, refine=refine_config, viewpoint=view, support=support_mode,
               others=others_mode, depth=depth, resolution=res, config=config, device=device,

@@ -119,6 +119,8 @@ def test_a_scan_of_two_hands_is_split_into_each(hand_scan):
     assert all(mask[len(both):].all() for mask in on_desk)
     assert (on_desk[0][:len(both)] == hands[0]).mean() > 0.97  # the same, but for the points
     # within the desk's threshold, left out with it and kept in both masks
+    # with the support left in (--support none), the desk joins them: one piece, no split
+    assert split_hands(np.concatenate([both, desk]), support=False) is None
     # a thing much smaller than the hand is not a hand: nothing to split
     small = ball(points.mean(0) + [0.25, 0.0, 0.0], 0.02, len(points) // 4, seed=4)
     assert split_hands(np.concatenate([points, small])) is None

@@ -268,13 +268,14 @@ def prepare_point_cloud(
                       colors=colors)
 
 
-def read_cloud_file(points_path: Path, units: str, config, hand: int | None, log, depth=None
-                ) -> tuple[PointCloud, np.ndarray | None]:
+def read_cloud_file(points_path: Path, units: str, config, hand: int | None, log, depth=None,
+                    support: str | None = "auto") -> tuple[PointCloud, np.ndarray | None]:
     """The file's cloud, prepared (:func:`prepare_point_cloud`) and, with ``hand``, without the
     other hands' points (:func:`_one_hand`), each note logged; and a depth image's sensor
     position (metres; None for a cloud). depth: a :class:`lisa_hand.data.depth.DepthFrame` for
     a depth image (:data:`lisa_hand.data.depth.DEPTH_SUFFIXES`), else None. config: a
-    :class:`~lisa_hand.fitting.points.fit.FitPointsConfig` (its seed and min_points)."""
+    :class:`~lisa_hand.fitting.points.fit.FitPointsConfig` (its seed and min_points). support:
+    None leaves a support plane in when the hands are told apart (``--support none``)."""
     from ...data.depth import DEPTH_SUFFIXES, read_depth_cloud
     from .colours import depth_point_colours, read_point_colours
 
@@ -306,14 +307,14 @@ def read_cloud_file(points_path: Path, units: str, config, hand: int | None, log
                          "pass --mask MASK.png with the hand's pixels") from None
     cloud.notes[:0] = notes
     if hand is not None:
-        cloud = _one_hand(cloud, hand, config.seed, str(points_path))
+        cloud = _one_hand(cloud, hand, config.seed, str(points_path), support is not None)
     for note in cloud.notes:
         log(f"{points_path}: {note}")
     return cloud, sensor
 
 
 def count_hands(points_path: str | os.PathLike, units: str = "auto", config=None,
-                depth=None) -> int:
+                depth=None, support: str | None = "auto") -> int:
     """How many hands the cloud in ``points_path`` (a depth image with ``depth``, as
     :func:`lisa_hand.fitting.points.io.fit_point_file` reads it) holds apart from each other
     (:func:`lisa_hand.fitting.points.others.split_hands`; 1 when it is not split)."""
@@ -322,18 +323,19 @@ def count_hands(points_path: str | os.PathLike, units: str = "auto", config=None
 
     config = FitPointsConfig() if config is None else config
     cloud, _ = read_cloud_file(Path(points_path), units, config, None, lambda line: None, depth)
-    hands = split_hands(cloud.points, seed=config.seed)
+    hands = split_hands(cloud.points, seed=config.seed, support=support is not None)
     return 1 if hands is None else len(hands)
 
 
-def _one_hand(cloud: PointCloud, hand: int, seed: int, name: str) -> PointCloud:
+def _one_hand(cloud: PointCloud, hand: int, seed: int, name: str, support: bool = True
+              ) -> PointCloud:
     """``cloud`` without the points of the hands other than ``hand`` (0: the largest), a note
     saying so; ValueError naming ``name`` when it holds fewer hands."""
     from .others import split_hands
 
     if isinstance(hand, bool) or not isinstance(hand, int) or hand < 0:
         raise ValueError(f"hand must be an integer >= 0, got {hand!r}")
-    hands = split_hands(cloud.points, seed=seed)
+    hands = split_hands(cloud.points, seed=seed, support=support)
     count = 1 if hands is None else len(hands)
     if hand >= count:
         raise ValueError(f"{name}: --hand {hand} asked for, but the scan holds {count} hand(s) "

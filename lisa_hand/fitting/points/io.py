@@ -138,7 +138,7 @@ def fit_point_file(
     model_path = default_point_model() if model_path is None else model_path
     points_path, out_dir = Path(points_path), Path(out_dir)
     config = FitPointsConfig() if config is None else config
-    cloud, sensor = read_cloud_file(points_path, units, config, hand, log, depth)
+    cloud, sensor = read_cloud_file(points_path, units, config, hand, log, depth, support)
     truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
     view = viewpoint  # checked by fit_points; a depth image's sensor, in metres, for "auto"
     if sensor is not None and viewpoint == "auto":
