@@ -68,12 +68,14 @@ def _psnr(error: np.ndarray) -> float:
 
 
 def colour_errors(truth, vertices: np.ndarray, colours: np.ndarray, points: np.ndarray,
-                  references: dict[str, np.ndarray]) -> dict[str, dict[str, float]]:
+                  references: dict[str, np.ndarray], others: dict[str, np.ndarray] | None = None
+                  ) -> dict[str, dict[str, float]]:
     """Errors of a fitted mesh's colours against the truth's (see the module docstring).
 
     truth: the true mesh (colours [V, 3] uint8); vertices: [W, 3] metres and colours: [W, 3]
     uint8 of the fitted mesh; points: the scan's [N, 3] metres; references: name -> [3] colour
-    in [0, 1] given to every vertex. -> {"fit" and each reference: {"seen_mae", "seen_psnr",
+    in [0, 1] given to every vertex; others: name -> [W, 3] uint8, other colourings of the
+    fitted mesh. -> {"fit" and each reference and other: {"seen_mae", "seen_psnr",
     "hidden_mae", "hidden_psnr" (8-bit levels, dB; NaN where none), "seen_share"}}."""
     from scipy.spatial import cKDTree
 
@@ -82,7 +84,8 @@ def colour_errors(truth, vertices: np.ndarray, colours: np.ndarray, points: np.n
     distance, nearest = cKDTree(vertices).query(true_vertices)
     on = distance <= _NEAR_M
     seen = cKDTree(points).query(true_vertices)[0] <= _NEAR_M
-    guesses = {"fit": np.asarray(colours, np.float64)[nearest] / 255.0}
+    guesses = {name: np.asarray(value, np.float64)[nearest] / 255.0
+               for name, value in {"fit": colours, **(others or {})}.items()}
     guesses.update({name: np.broadcast_to(value, true_colours.shape)
                     for name, value in references.items()})
     result = {}
@@ -117,12 +120,28 @@ def run_colour_benchmark(hands: int, folder: Path, model: str | None = None) -> 
             references = {"scan_mean": np.asarray(report.cloud.colors, np.float64).mean(0),
                           "grey": np.full(3, GEOMETRY_ONLY_GREY)}
             errors = colour_errors(truth, np.asarray(fitted.vertices, np.float64),
-                                   fitted.colors, points, references)
+                                   fitted.colors, points, references,
+                                   _interpolated(report, fitted))
             row = {"subject": subject, "scan": "one side" if partial else "all round",
                    "seconds": seconds, **errors}
             rows.append(row)
             print(_line(row), flush=True)
     return {"rows": rows, "mean": _means(rows)}
+
+
+def _interpolated(report, fitted) -> dict[str, np.ndarray]:
+    """When the model's colour guessed the unseen surface: the scan's colours interpolated over
+    it instead (:func:`lisa_hand.fitting.points.colours.transfer_colours` without a base), on the
+    same mesh, for comparison; else nothing."""
+    from ..fitting.points.colours import transfer_colours
+    from ..fitting.points.io import hand_points
+
+    if not report.fit.params.extra["input"]["colours"].get("colour_code_fitted"):
+        return {}
+    kept = hand_points(report.cloud, report.fit)
+    found = transfer_colours(fitted.vertices, fitted.faces, report.cloud.points[kept],
+                             report.cloud.colors[kept])
+    return {} if found is None else {"interpolated": found.colors}
 
 
 def _means(rows: list[dict]) -> dict:
@@ -137,7 +156,7 @@ def _means(rows: list[dict]) -> dict:
 
 def _line(row: dict) -> str:
     parts = [f"{row['subject']} {row['scan']:>9}: {row['seconds']:.1f} s"]
-    for guess in ("fit", "scan_mean", "grey"):
+    for guess in ("fit", "interpolated", "scan_mean", "grey"):
         if guess in row:
             value = row[guess]
             parts.append(f"{guess} seen {value['seen_mae']:.1f} / hidden "

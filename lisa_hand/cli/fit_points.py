@@ -49,8 +49,9 @@ ColoursOpt = _auto_or_none(
     "--colours", "auto: a scan with colours (PLY red/green/blue, OBJ 'v x y z r g b', NPZ "
     "'colors', a GLB's vertex colours or texture, a depth image's --rgb image) colours "
     "mesh.ply: each vertex the colour of the scan points within a few point spacings, the "
-    "surface the scan did not show interpolated from what it showed; none: the model's colours "
-    "(grey for a geometric prior).")
+    "surface the scan did not show interpolated from what it showed (with a colour model, "
+    "--model full_v2 or default: its colour code fitted to the scan's colours guesses it); "
+    "none: the model's colours (grey for a geometric prior).")
 
 
 HandOpt = Annotated[int | None, typer.Option(

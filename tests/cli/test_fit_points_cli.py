@@ -525,8 +525,9 @@ def test_the_hand_in_the_colour_image_says_which_pixels(lisa, files, capsys, mon
     assert f"read {int(kept.sum())} pixels with a depth inside the hand's mask" in said
     assert (kept & (depth > 0)).sum() > 0.8 * (depth > 0).sum()  # most of the hand (a stand-in)
     assert read_params(root / "rgbd" / "params.json").side == "left"
-    colours = load_mesh(root / "rgbd" / "mesh.ply").colors  # the colour image's grey
-    assert colours is not None and np.all(colours == 90)
+    colours = load_mesh(root / "rgbd" / "mesh.ply").colors  # the colour image's grey where seen
+    seen = read_params(root / "rgbd" / "params.json").extra["input"]["colours"]["seen_share"]
+    assert seen > 0.2 and np.all(colours == 90, axis=1).mean() >= seen - 1e-3
     assert lisa([*base, "--out", str(root / "bad"), "--mask", str(root / "mask.png")]) == 2
     assert "a colour image and a mask both say" in capsys.readouterr().err
     assert lisa(["fit-points", str(root / "room.png"), "--out", str(root / "bad"), "--rgb",
@@ -555,6 +556,7 @@ def test_a_coloured_scan_colours_the_mesh(lisa, files, capsys):
     said = capsys.readouterr().out
     record = read_params(out / "params.json").extra["input"]["colours"]
     assert record["used"] and 0.3 < record["seen_share"] <= 1.0
+    assert record["colour_code_fitted"]  # a colour model: its code fitted to the scan's
     assert f"coloured from the scan's colours ({100 * record['seen_share']:.0f}% of" in said
     mesh = load_mesh(out / "mesh.ply")
     near = np.linalg.norm(mesh.vertices[:, None] - points[None], axis=-1).min(1) < 0.002

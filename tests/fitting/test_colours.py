@@ -171,3 +171,35 @@ def test_a_depth_images_points_take_their_pixels_colours(tmp_path):
     iio.imwrite(tmp_path / "wide.png", np.zeros((24, 48, 3), np.uint8))
     with pytest.raises(ValueError, match="register it to the depth camera"):
         depth_point_colours(points, frame, tmp_path / "wide.png")
+
+
+@pytest.mark.parametrize("side", ["right", "left"])
+def test_the_colour_code_is_fitted_to_the_scans_colours(side):
+    """A colour model's hand coloured with a code it was not given: the fitted code gives the
+    scan's colours back (against the start's error), on a left hand (mirrored) too."""
+    import dataclasses
+
+    from lisa_hand.fitting.points.colours import fit_colour_code
+    from lisa_hand.inference.hand_field import hand_field
+    from tests.fitting.test_points import surface, tiny_model, true_hand
+
+    model = tiny_model(color=True)
+    start = dataclasses.replace(true_hand(model, seed=1), side=side)
+    start.color_code = model.mean_color_code()
+    truth = dataclasses.replace(start, color_code=10 * torch.randn(
+        8, generator=torch.Generator().manual_seed(3)))
+    points = torch.as_tensor(surface(model, start).vertices[::3])
+    if side == "left":
+        points = points * torch.tensor([-1.0, 1.0, 1.0])  # the left hand's surface
+    colours = hand_field(model, truth).attributes(points, skin_weights=False)[0]
+    before = hand_field(model, start).attributes(points, skin_weights=False)[0]
+    code = fit_colour_code(model, start, points.numpy(), colours.numpy(), iters=200,
+                           latent_weight=0.0)
+    after = hand_field(model, dataclasses.replace(start, color_code=code)).attributes(
+        points, skin_weights=False)[0]
+    error_before = (before - colours).abs().mean()
+    assert error_before > 0.015
+    assert (after - colours).abs().mean() < 0.25 * error_before
+    assert all(not p.requires_grad or p.grad is None for p in model.field.parameters())
+    with pytest.raises(ValueError, match="no colour"):
+        fit_colour_code(tiny_model(), start, points.numpy(), colours.numpy())

@@ -8,7 +8,11 @@ scan's median point spacing, at least 2 mm). The surface the scan did not show (
 of a one-view scan, between curled fingers) takes colours interpolated from what it did show:
 harmonic over the mesh's edges (:func:`harmonic_fill`: every such vertex the mean of its
 neighbours, the seen vertices fixed), so colours run on smoothly instead of stopping at a seam;
-a piece of the mesh that touches no seen vertex gets the seen vertices' mean colour.
+a piece of the mesh that touches no seen vertex gets the seen vertices' mean colour. With a
+model that has colour (LISA-full: ``--model default`` or ``full_v2``), its colour code is first
+fitted to the scan's colours (:func:`fit_colour_code`) and the model's colour guesses the unseen
+surface instead, corrected by the scan's difference from it interpolated the same way (a palm
+the scan did not see comes out lighter than the back it saw, as the model learnt).
 
 Read colours (:func:`read_point_colours`, aligned with
 :func:`lisa_hand.fitting.points.inputs.read_point_cloud`'s points):
@@ -33,10 +37,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
 __all__ = ["NEIGHBOURS", "MIN_RADIUS_M", "ScanColours", "read_point_colours",
            "as_unit_colours", "depth_point_colours", "colour_radius", "harmonic_fill",
-           "transfer_colours"]
+           "transfer_colours", "fit_colour_code"]
 
 NEIGHBOURS = 8
 """Scan points averaged for a vertex's colour (those within the radius)."""
@@ -63,11 +68,14 @@ class ScanColours:
         """Share of the vertices coloured by scan points."""
         return float(self.seen.mean()) if self.seen.size else 0.0
 
-    def note(self, path: Any) -> str:
-        """One sentence for the command line."""
+    def note(self, path: Any, by_model: bool = False) -> str:
+        """One sentence for the command line (``by_model``: the unseen surface is the colour
+        model's, fitted to the scan)."""
+        rest = ("the model's colour, fitted to the scan's" if by_model
+                else "interpolated over the surface")
         return (f"{path}: coloured from the scan's colours ({100 * self.seen_share:.0f}% of the "
                 f"vertices within {1000 * self.radius_m:.1f} mm of a scan point; the rest "
-                "interpolated over the surface)")
+                f"{rest})")
 
 
 def as_unit_colours(values: Any, name: str = "colours") -> np.ndarray:
@@ -250,11 +258,16 @@ def harmonic_fill(faces: np.ndarray, values: np.ndarray, known: np.ndarray) -> n
 
 
 def transfer_colours(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray,
-                     colours: np.ndarray, radius: float | None = None) -> ScanColours | None:
+                     colours: np.ndarray, radius: float | None = None,
+                     base: np.ndarray | None = None) -> ScanColours | None:
     """The scan's colours on a mesh (see the module docstring).
 
     vertices: [V, 3] metres; faces: [F, 3]; points: [N, 3] metres, the scan points that belong
-    to the hand; colours: [N, 3] in [0, 1]; radius: metres (None: :func:`colour_radius`).
+    to the hand; colours: [N, 3] in [0, 1]; radius: metres (None: :func:`colour_radius`);
+    base: [V, 3] in [0, 1], a model's colours at the vertices (:func:`fit_colour_code`), or None:
+    with it, the unseen vertices take the base plus the seen vertices' difference from it,
+    interpolated (the model guesses what the scan did not show, the scan corrects it near what
+    it did), instead of the seen colours interpolated.
     -> :class:`ScanColours`, or None when no vertex lies within the radius of a point.
     """
     from scipy.spatial import cKDTree
@@ -276,6 +289,69 @@ def transfer_colours(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray
     values = np.zeros((len(vertices), 3))
     values[seen] = (np.einsum("vk,vkc->vc", weights[seen], colours[index[seen]])
                     / weights[seen].sum(axis=1, keepdims=True))
-    filled = harmonic_fill(faces, values, seen)
+    if base is None:
+        filled = harmonic_fill(faces, values, seen)
+    else:
+        base = np.asarray(base, np.float64)
+        filled = base + harmonic_fill(faces, values - base, seen)
     colors = np.clip(np.round(255.0 * filled), 0, 255).astype(np.uint8)
     return ScanColours(colors=colors, seen=seen, radius_m=radius)
+
+
+def fit_colour_code(model: Any, params: Any, points: np.ndarray, colours: np.ndarray, *,
+                    iters: int = 100, lr: float = 0.05, batch: int = 2048,
+                    latent_weight: float = 1e-3, seed: int = 0) -> torch.Tensor:
+    """LISA's colour code ``gamma`` of a fitted hand, fitted to a scan's colours: the L1 of the
+    model's calibrated colour (its mean gain and bias, as meshes and renders use) at the scan
+    points against their colours, plus ``latent_weight |gamma|`` (the paper's Eq. 13 and 16 with
+    the points in place of rays), Adam from the hand's code (or the training codes' mean).
+
+    model: a :class:`lisa_hand.model.trained.TrainedModel` with colour; params: the fitted
+    :class:`lisa_hand.skeleton.params.HandParams`; points: [N, 3] world metres near its surface;
+    colours: [N, 3] in [0, 1]. -> the code [color_dim] (CPU, float32)."""
+    from ...inference.hand_field import hand_field
+    from ...render.renderer import apply_gain_bias
+    from .surface_stage import frozen_field
+
+    if not model.has_color:
+        raise ValueError("the model has no colour to fit (a geometric prior)")
+    with frozen_field(model):
+        return _fitted_code(model, params, points, colours, iters, lr, batch, latent_weight,
+                            seed, hand_field(model, params), apply_gain_bias)
+
+
+def _fitted_code(model, params, points, colours, iters, lr, batch, latent_weight, seed, hand,
+                 apply_gain_bias) -> torch.Tensor:
+    """:func:`fit_colour_code`'s loop (the field frozen)."""
+    field = model.field
+    like = {"device": field.device, "dtype": field.dtype}
+    start = params.color_code if params.color_code is not None else model.mean_color_code()
+    code = start.detach().to(**like).clone().requires_grad_(True)
+    frame_inputs = [None if v is None else v[None].to(**like) for v in
+                    _frame_inputs(params)]
+    at = hand._field_points(torch.as_tensor(points, **like))
+    target = torch.as_tensor(colours, **like)
+    generator = torch.Generator().manual_seed(seed)
+    optimiser = torch.optim.Adam([code], lr=lr)
+    for _ in range(iters):
+        pick = torch.randint(0, len(at), (min(batch, len(at)),), generator=generator)
+        frame = field.prepare(*frame_inputs, code[None])
+        rgb = field.field(frame, at[pick][None], with_color=True).rgb[0]
+        rgb = apply_gain_bias(rgb, model.gain.to(**like), model.bias.to(**like))
+        loss = (rgb - target[pick.to(target.device)]).abs().mean() + latent_weight * code.norm()
+        optimiser.zero_grad()
+        loss.backward()
+        optimiser.step()
+    return code.detach().float().cpu()
+
+
+def _frame_inputs(params: Any) -> tuple:
+    """(pose [48], translation [3], rest joints [16, 3], shape code) of the right hand the field
+    evaluates (a left hand's mirrored, as :func:`lisa_hand.inference.hand_field.hand_field`)."""
+    from ...skeleton import mirror_points, mirror_pose
+
+    pose, translation, rest = params.pose, params.translation, params.rest_joints
+    if params.side == "left":
+        pose, translation, rest = mirror_pose(pose), mirror_points(translation), \
+            mirror_points(rest)
+    return pose, translation, rest, params.shape_code

@@ -34,6 +34,7 @@ __all__ = [
     "fit_point_file",
     "count_hands",
     "default_point_model",
+    "hand_points",
 ]
 
 # ---------------------------------------------------------------------------------------------
@@ -159,7 +160,7 @@ def fit_point_file(
         params.model = str((out_dir / "model.pt").resolve())
     mesh = _mesh_without_specks(model, params, resolution, fit.wrist_plane, out_dir, log)
     if colours == "auto" and cloud.colors is not None:
-        params.extra["input"]["colours"] = _scan_coloured(mesh, cloud, fit, out_dir, log)
+        _scan_coloured(mesh, cloud, fit, model, params, config.seed, out_dir, log)
     metrics = None if truth is None else ground_truth_metrics(mesh, truth, fit.wrist_plane)
     written = write_fit_outputs(out_dir, params, mesh, metrics,
                                 model=None if refined is None else model,
@@ -187,7 +188,7 @@ def _mesh_without_specks(model, params, resolution: int, clip, out_dir: Path, lo
     return mesh
 
 
-def _hand_points(cloud: PointCloud, fit) -> np.ndarray:
+def hand_points(cloud: PointCloud, fit) -> np.ndarray:
     """[N] bool: the cloud's points the fit took as the hand's (not a support's, another
     piece's, or beyond the fitted wrist's cut)."""
     points = np.asarray(cloud.points, np.float64)
@@ -199,20 +200,41 @@ def _hand_points(cloud: PointCloud, fit) -> np.ndarray:
     return kept
 
 
-def _scan_coloured(mesh, cloud: PointCloud, fit, out_dir: Path, log) -> dict:
+def _scan_coloured(mesh, cloud: PointCloud, fit, model, params, seed: int, out_dir: Path,
+                   log) -> None:
     """``mesh`` coloured by the scan's colours (:func:`.colours.transfer_colours`, from the
-    hand's points only; logged) -> what ``params.json``'s input record says of it."""
-    from .colours import transfer_colours
+    hand's points only; logged); with a colour model its colour code is fitted to them first
+    (``params.color_code``, :func:`.colours.fit_colour_code`) and guesses the unseen surface.
+    ``params.json``'s input record says what was done ("colours")."""
+    params.extra["input"]["colours"] = _colour_mesh(mesh, cloud, fit, model, params, seed,
+                                                    out_dir, log)
 
-    kept = _hand_points(cloud, fit)
-    found = transfer_colours(mesh.vertices, mesh.faces, cloud.points[kept], cloud.colors[kept])
+
+def _colour_mesh(mesh, cloud: PointCloud, fit, model, params, seed: int, out_dir: Path,
+                 log) -> dict:
+    """:func:`_scan_coloured`'s work -> its record."""
+    import torch
+
+    from .colours import fit_colour_code, transfer_colours
+
+    kept = hand_points(cloud, fit)
+    points, colours, base = cloud.points[kept], cloud.colors[kept], None
+    if model.has_color and len(points):  # the model's colour guesses what the scan did not see
+        from ...inference.hand_field import hand_field
+
+        params.color_code = fit_colour_code(model, params, points, colours, seed=seed)
+        vertices = torch.as_tensor(mesh.vertices, dtype=model.field.dtype,
+                                   device=model.field.device)
+        base = hand_field(model, params).attributes(vertices, skin_weights=False)[0]
+        base = base.cpu().double().numpy()
+    found = transfer_colours(mesh.vertices, mesh.faces, points, colours, base=base)
     if found is None:
         log(f"{out_dir / 'mesh.ply'}: no scan point near the fitted surface to colour it")
         return {"used": False}
     mesh.colors = found.colors
-    log(found.note(out_dir / "mesh.ply"))
+    log(found.note(out_dir / "mesh.ply", by_model=base is not None))
     return {"used": True, "seen_share": round(found.seen_share, 4),
-            "radius_mm": round(1000.0 * found.radius_m, 3)}
+            "radius_mm": round(1000.0 * found.radius_m, 3), "colour_code_fitted": base is not None}
 
 
 def _preview(mesh, cloud: PointCloud, fit, record: dict, log) -> np.ndarray | None:
@@ -231,7 +253,7 @@ def _preview(mesh, cloud: PointCloud, fit, record: dict, log) -> np.ndarray | No
     faces = np.asarray(mesh.faces, np.int64)
     try:
         distances, _, _ = pcu.closest_points_on_mesh(points, vertices, faces)
-        kept = _hand_points(cloud, fit)
+        kept = hand_points(cloud, fit)
         return fit_preview(vertices, faces, points, 1000.0 * distances, kept=kept,
                            viewpoint=record.get("viewpoint_m"))
     except Exception as error:  # a picture is not worth the fit: write the rest
