@@ -8,7 +8,9 @@ hand model v2's 290 subjects), each in a pose of the pose sampler, scanned all r
 one side (8000 points, 0.3 mm noise along the normals), every point coloured with the subject's
 true albedo (:mod:`lisa_hand.handmodel.appearance`: skin tone, lighter palms, nails, creases),
 written as a coloured PLY and fitted as ``lisa fit-points SCAN.ply --side right`` does
-(:func:`lisa_hand.fitting.points.io.fit_point_file`). Measured at the true mesh's vertices within
+(:func:`lisa_hand.fitting.points.io.fit_point_file`, its defaults: the support, other pieces and
+the sensor searched for; each fit's V2S both ways against the true mesh is printed, a check of
+those defaults on hands in sampled poses). Measured at the true mesh's vertices within
 3 mm of the fitted surface: the mean absolute colour error in 8-bit levels and the PSNR (dB) of
 ``mesh.ply``'s colour at the nearest fitted vertex, over the vertices the scan saw (within 3 mm
 of one of its points) and over those it did not (the hidden side of a one-sided scan). In the
@@ -102,7 +104,7 @@ def colour_errors(truth, vertices: np.ndarray, colours: np.ndarray, points: np.n
 def run_colour_benchmark(hands: int, folder: Path, model: str | None = None) -> dict:
     """Fit ``hands`` held-out hands' coloured scans, all round and from one side -> the
     results: {"rows": [per scan], "mean": {kind: {guess: means}}}."""
-    from ..data.meshio import load_mesh
+    from ..data.meshio import load_mesh, save_mesh
     from ..data.synth import split_subjects
     from ..fitting.points.io import fit_point_file
     from ..inference.hand_field import GEOMETRY_ONLY_GREY
@@ -112,9 +114,11 @@ def run_colour_benchmark(hands: int, folder: Path, model: str | None = None) -> 
     for index, subject in enumerate(subjects):
         for partial in (False, True):
             path, truth, points = coloured_scan(index, subject, partial, folder)
+            save_mesh(folder / f"{path.stem}_truth.ply", truth)
             start = time.perf_counter()
             report = fit_point_file(path, folder / path.stem, model_path=model, side="right",
-                                    viewpoint="auto", support="auto", others="auto")
+                                    viewpoint="auto", support="auto", others="auto",
+                                    gt_path=folder / f"{path.stem}_truth.ply")
             seconds = time.perf_counter() - start
             fitted = load_mesh(folder / path.stem / "mesh.ply")
             references = {"scan_mean": np.asarray(report.cloud.colors, np.float64).mean(0),
@@ -123,7 +127,7 @@ def run_colour_benchmark(hands: int, folder: Path, model: str | None = None) -> 
                                    fitted.colors, points, references,
                                    _interpolated(report, fitted))
             row = {"subject": subject, "scan": "one side" if partial else "all round",
-                   "seconds": seconds, **errors}
+                   "seconds": seconds, "v2s_mm": report.metrics, **errors}
             rows.append(row)
             print(_line(row), flush=True)
     return {"rows": rows, "mean": _means(rows)}
@@ -148,14 +152,18 @@ def _means(rows: list[dict]) -> dict:
     means: dict[str, dict] = {}
     for kind in ("all round", "one side"):
         chosen = [row for row in rows if row["scan"] == kind]
-        guesses = [key for key in chosen[0] if isinstance(chosen[0][key], dict)] if chosen else []
+        guesses = [key for key in chosen[0] if isinstance(chosen[0][key], dict)
+                   and key != "v2s_mm"] if chosen else []
         means[kind] = {guess: {key: float(np.nanmean([row[guess][key] for row in chosen]))
                                for key in chosen[0][guess]} for guess in guesses}
     return means
 
 
 def _line(row: dict) -> str:
-    parts = [f"{row['subject']} {row['scan']:>9}: {row['seconds']:.1f} s"]
+    to_recon, to_scan = (row["v2s_mm"][f"v2s_{way}_mm"] for way in ("scan_to_recon",
+                                                                      "recon_to_scan"))
+    parts = [f"{row['subject']} {row['scan']:>9}: {row['seconds']:.1f} s, V2S "
+             f"{to_recon:.2f} / {to_scan:.2f} mm"]
     for guess in ("fit", "interpolated", "scan_mean", "grey"):
         if guess in row:
             value = row[guess]
