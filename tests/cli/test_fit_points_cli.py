@@ -567,3 +567,9 @@ def test_a_coloured_scan_colours_the_mesh(lisa, files, capsys):
     assert "coloured from the scan" not in capsys.readouterr().out
     assert "colours" not in read_params(root / "plain" / "params.json").extra["input"]
     assert not np.array_equal(load_mesh(root / "plain" / "mesh.ply").colors, mesh.colors)
+    # Colours that cannot be read are an extra lost, not a failed fit: one line says so.
+    np.savez(root / "odd.npz", points=points, colors=np.full((len(points), 3), 999.0))
+    assert lisa(["fit-points", str(root / "odd.npz"), "--out", str(root / "odd"), "--model",
+                 str(root / "tiny.pt"), *FAST_ARGS]) == 0
+    assert (f"{root / 'odd.npz'}: its colours were not read (colours reach 999: expected [0, 1] "
+            "or [0, 255]); the points are fitted without them") in capsys.readouterr().out

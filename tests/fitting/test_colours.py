@@ -113,7 +113,9 @@ def test_colours_are_read_from_each_format(tmp_path):
         for point, colour in zip(points, colours / 255.0, strict=True):
             handle.write("v " + " ".join(f"{v:.6f}" for v in (*point, *colour)) + "\n")
     box = trimesh.creation.box(extents=(0.1, 0.05, 0.02))
-    box.visual.vertex_colors = np.tile([200, 100, 50, 255], (len(box.vertices), 1))
+    painted = np.tile([200, 100, 50, 255], (len(box.vertices), 1))
+    painted[box.vertices[:, 0] > 0, 1] = 220  # green on the +x half
+    box.visual.vertex_colors = painted
     box.export(tmp_path / "box.glb")
     for name in ("cloud.ply", "cloud.npz", "cloud.obj"):
         read, _ = read_point_cloud(tmp_path / name)
@@ -121,19 +123,29 @@ def test_colours_are_read_from_each_format(tmp_path):
         assert np.allclose(read_point_colours(tmp_path / name, len(read)), colours / 255.0,
                            atol=1e-5), name
     read, _ = read_point_cloud(tmp_path / "box.glb")
-    assert np.allclose(read_point_colours(tmp_path / "box.glb", len(read)),
-                       np.array([200, 100, 50]) / 255.0)
-    # A textured mesh (a phone scan's GLB): the texture sampled at each vertex.
+    expected = np.where(read[:, :1] > 0, [200, 220, 50], [200, 100, 50]) / 255.0
+    assert np.allclose(read_point_colours(tmp_path / "box.glb", len(read)), expected)
+    # A textured mesh (a phone scan's GLB): the texture sampled at each vertex, here a left
+    # half of one colour and a right half of another.
     from PIL import Image
 
     textured = trimesh.creation.box(extents=(0.1, 0.05, 0.02))
-    texture = Image.fromarray(np.full((4, 4, 3), (30, 160, 90), np.uint8))
-    uv = np.random.default_rng(2).uniform(0.1, 0.9, size=(len(textured.vertices), 2))
-    textured.visual = trimesh.visual.TextureVisuals(uv=uv, image=texture)
+    pixels = np.zeros((4, 4, 3), np.uint8)
+    pixels[:, :2], pixels[:, 2:] = (30, 160, 90), (230, 40, 10)
+    right = np.arange(len(textured.vertices)) % 2 == 1
+    uv = np.c_[np.where(right, 0.8, 0.2), np.full(len(right), 0.5)]
+    textured.visual = trimesh.visual.TextureVisuals(uv=uv, image=Image.fromarray(pixels))
     textured.export(tmp_path / "textured.glb")
     read, _ = read_point_cloud(tmp_path / "textured.glb")
-    assert np.allclose(read_point_colours(tmp_path / "textured.glb", len(read)),
-                       np.array([30, 160, 90]) / 255.0, atol=2 / 255)
+    which = np.array([np.argmin(np.linalg.norm(textured.vertices - r, axis=1)) for r in read])
+    expected = np.where(right[which, None], [230, 40, 10], [30, 160, 90]) / 255.0
+    assert np.allclose(read_point_colours(tmp_path / "textured.glb", len(read)), expected,
+                       atol=3 / 255)
+    # One colour for the whole mesh (a material's, as the WebXR hand's GLB has): no colours.
+    uniform = trimesh.creation.box(extents=(0.1, 0.05, 0.02))
+    uniform.visual.vertex_colors = np.tile([200, 100, 50, 255], (len(uniform.vertices), 1))
+    uniform.export(tmp_path / "uniform.glb")
+    assert read_point_colours(tmp_path / "uniform.glb", len(read)) is None
     # None where the file has no colours, or not one per point.
     np.save(tmp_path / "cloud.npy", points)
     trimesh.PointCloud(points).export(tmp_path / "plain.ply")
@@ -143,7 +155,7 @@ def test_colours_are_read_from_each_format(tmp_path):
     assert read_point_colours(tmp_path / "plain.glb", 8) is None
     assert read_point_colours(tmp_path / "cloud.ply", 49) is None
     np.savez(tmp_path / "bad.npz", points=points, colors=np.full((50, 3), 999.0))
-    with pytest.raises(ValueError, match="bad.npz.*--colours none"):
+    with pytest.raises(ValueError, match="bad.npz.*reach 999"):
         read_point_colours(tmp_path / "bad.npz", 50)
 
 

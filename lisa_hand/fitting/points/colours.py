@@ -144,15 +144,20 @@ def _mesh_file_colours(path: Path) -> np.ndarray | None:
         if mesh.visual.kind is None:
             return None  # no colour at all (trimesh would invent its default grey)
         visual = mesh.visual.to_color() if hasattr(mesh.visual, "to_color") else mesh.visual
-        parts.append(np.asarray(visual.vertex_colors)[:, :3])
+        colours = np.asarray(visual.vertex_colors)
+        if colours.ndim != 2:
+            return None  # one colour for the whole mesh (a material's): no scan's colours
+        parts.append(colours[:, :3])
     return as_unit_colours(np.concatenate(parts).astype(np.uint8), str(path)) if parts else None
 
 
 def read_point_colours(path: str | os.PathLike, count: int) -> np.ndarray | None:
     """The colours of the ``count`` points that
     :func:`lisa_hand.fitting.points.inputs.read_point_cloud` read from ``path`` -> [count, 3]
-    float32 in [0, 1], or None when the file has none (or not one per point: a mesh whose
-    vertices were merged differently). Errors name the file (colours out of range)."""
+    float32 in [0, 1], or None when the file has none, not one per point (a mesh whose vertices
+    were merged differently) or one colour for all (a material's, as the WebXR hand's GLB has).
+    ValueError naming the file for colours that cannot be read (out of range, a file trimesh
+    cannot take apart)."""
     path = Path(path)
     reader = {".ply": _ply_colours, ".obj": _obj_colours, ".npz": _npz_colours,
               ".glb": _mesh_file_colours, ".gltf": _mesh_file_colours,
@@ -161,13 +166,13 @@ def read_point_colours(path: str | os.PathLike, count: int) -> np.ndarray | None
         return None
     try:
         colours = reader(path)
-    except ValueError as error:
-        raise ValueError(f"{error} (--colours none fits the points without them)") from None
+    except ValueError:
+        raise
     except Exception as error:  # trimesh raises many types for files it reads in part
-        raise ValueError(f"{path}: cannot read the colours ({type(error).__name__}: {error}; "
-                         "--colours none fits the points without them)") from None
-    if colours is None or len(colours) != count:
-        return None
+        raise ValueError(f"{path}: cannot read the colours ({type(error).__name__}: "
+                         f"{error})") from None
+    if colours is None or len(colours) != count or not np.ptp(colours, axis=0).any():
+        return None  # none, not one per point, or one colour everywhere (a default material)
     return colours
 
 

@@ -294,7 +294,11 @@ def read_cloud_file(points_path: Path, units: str, config, hand: int | None, log
             raise ValueError(f"{points_path}: --camera, --depth-scale and --mask are for a depth "
                              f"image ({', '.join(DEPTH_SUFFIXES)}), not a point cloud")
         raw_points, raw_normals = read_point_cloud(points_path)
-        colours = read_point_colours(points_path, len(raw_points))
+        try:
+            colours = read_point_colours(points_path, len(raw_points))
+        except ValueError as error:  # colours are an extra: the points are fitted without them
+            notes.append(f"its colours were not read ({str(error).split(': ', 1)[-1]}); "
+                         "the points are fitted without them")
     try:
         cloud = prepare_point_cloud(raw_points, raw_normals, colors=colours, units=units,
                                     seed=config.seed, min_points=config.min_points,
