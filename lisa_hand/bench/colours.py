@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 
 from ..utils.threads import cpu_threads
+from . import write_results
 
 __all__ = ["coloured_scan", "colour_errors", "run_colour_benchmark", "main"]
 
@@ -198,11 +199,7 @@ def main(argv: list[str] | None = None) -> dict:
             print(f"mean, {kind:>9}, {guess:>9}: seen {value['seen_mae']:.1f} / hidden "
                   f"{value['hidden_mae']:.1f} levels, {value['seen_psnr']:.1f} / "
                   f"{value['hidden_psnr']:.1f} dB")
-    if args.json is not None:
-        from ..utils.io import write_json
-
-        write_json(args.json, results)
-        print(f"wrote {args.json}")
+    write_results(args.json, results)
     return results
 
 

@@ -31,6 +31,7 @@ from collections.abc import Callable
 import torch
 
 from ..utils.threads import cpu_threads
+from . import write_results
 
 __all__ = ["TARGET_SECONDS", "bench_hand", "run_mesh_benchmark", "main"]
 
@@ -237,11 +238,7 @@ def main(argv: list[str] | None = None) -> dict:
             resolutions, args.model, lipschitz=args.lipschitz, seed=args.seed
         )
     results["benchmark_seconds"] = time.perf_counter() - start
-    if args.json is not None:
-        from ..utils.io import write_json
-
-        write_json(args.json, results)
-        print(f"wrote {args.json}")
+    write_results(args.json, results)
     return results
 
 

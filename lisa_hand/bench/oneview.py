@@ -28,6 +28,7 @@ import numpy as np
 import torch
 
 from ..utils.threads import cpu_threads
+from . import write_results
 
 __all__ = ["unseen_hands", "one_view_errors", "run_oneview_benchmark", "main"]
 
@@ -139,11 +140,7 @@ def main(argv: list[str] | None = None) -> dict:
         print(f"one-view benchmark: {args.hands} unseen hands, view {args.view}, "
               f"{args.threads} torch thread(s)")
         results = run_oneview_benchmark(unseen_hands(folder, args.hands), args.view)
-    if args.json is not None:
-        from ..utils.io import write_json
-
-        write_json(args.json, results)
-        print(f"wrote {args.json}")
+    write_results(args.json, results)
     return results
 
 
