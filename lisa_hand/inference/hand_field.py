@@ -29,6 +29,7 @@ __all__ = [
     "GEOMETRY_ONLY_GREY",
     "HandField",
     "check_params",
+    "field_inputs",
     "hand_field",
     "resolve_model_path",
     "load_hand",
@@ -154,11 +155,19 @@ def hand_field(model: TrainedModel, params: HandParams) -> HandField:
     if not isinstance(model, TrainedModel):
         raise TypeError(f"model must be a TrainedModel, got {type(model).__name__}")
     check_params(model, params)
+    with torch.no_grad():
+        frame = model.field.prepare(*field_inputs(model, params))
+    return HandField(model=model, params=params, frame=frame, mirrored=params.side == "left")
+
+
+def field_inputs(model: TrainedModel, params: HandParams) -> list[torch.Tensor | None]:
+    """What :meth:`lisa_hand.model.lisa.LisaModel.prepare` takes for the hand ``params``, batched
+    (B = 1) on the model's device and dtype: [pose [1, 48], translation [1, 3], rest joints
+    [1, 16, 3], shape code, colour code (the hand's, else the training codes' mean; None for a
+    field without colour)], a left hand's mirrored into the right hand the field is."""
     field = model.field
-    device, dtype = field.device, field.dtype
-    mirrored = params.side == "left"
     pose, translation, rest_joints = params.pose, params.translation, params.rest_joints
-    if mirrored:
+    if params.side == "left":
         pose, translation = mirror_pose(pose), mirror_points(translation)
         rest_joints = mirror_points(rest_joints)
     color_code = None
@@ -167,15 +176,8 @@ def hand_field(model: TrainedModel, params: HandParams) -> HandField:
         if color_code is None:
             mean = model.mean_color_code()
             color_code = mean if mean is not None else torch.zeros(model.config.color_dim)
-
-    def one(value: torch.Tensor | None) -> torch.Tensor | None:
-        return None if value is None else value[None].to(device=device, dtype=dtype)
-
-    with torch.no_grad():
-        frame = field.prepare(
-            one(pose), one(translation), one(rest_joints), one(params.shape_code), one(color_code)
-        )
-    return HandField(model=model, params=params, frame=frame, mirrored=mirrored)
+    return [None if value is None else value[None].to(device=field.device, dtype=field.dtype)
+            for value in (pose, translation, rest_joints, params.shape_code, color_code)]
 
 
 def resolve_model_path(

@@ -190,7 +190,7 @@ def depth_point_colours(points: np.ndarray, frame: Any, colour_path: str | os.Pa
 
     camera = frame.camera
     size = (int(camera.width), int(camera.height))
-    photo = read_photo(colour_path, max_side=max(16, max(size), 8192))
+    photo = read_photo(colour_path, max_side=max(8192, *size))  # as stored; resized below
     image = photo.image
     if (image.shape[1], image.shape[0]) != size:
         height, width = image.shape[:2]
@@ -309,54 +309,37 @@ def fit_colour_code(model: Any, params: Any, points: np.ndarray, colours: np.nda
     """LISA's colour code ``gamma`` of a fitted hand, fitted to a scan's colours: the L1 of the
     model's calibrated colour (its mean gain and bias, as meshes and renders use) at the scan
     points against their colours, plus ``latent_weight |gamma|`` (the paper's Eq. 13 and 16 with
-    the points in place of rays), Adam from the hand's code (or the training codes' mean).
+    the points in place of rays), Adam from the hand's code (or the training codes' mean), on
+    ``batch`` random points a step.
 
     model: a :class:`lisa_hand.model.trained.TrainedModel` with colour; params: the fitted
     :class:`lisa_hand.skeleton.params.HandParams`; points: [N, 3] world metres near its surface;
     colours: [N, 3] in [0, 1]. -> the code [color_dim] (CPU, float32)."""
-    from ...inference.hand_field import hand_field
+    from ...inference.hand_field import field_inputs
     from ...render.renderer import apply_gain_bias
+    from ...skeleton import mirror_points
     from .surface_stage import frozen_field
 
     if not model.has_color:
         raise ValueError("the model has no colour to fit (a geometric prior)")
-    with frozen_field(model):
-        return _fitted_code(model, params, points, colours, iters, lr, batch, latent_weight,
-                            seed, hand_field(model, params), apply_gain_bias)
-
-
-def _fitted_code(model, params, points, colours, iters, lr, batch, latent_weight, seed, hand,
-                 apply_gain_bias) -> torch.Tensor:
-    """:func:`fit_colour_code`'s loop (the field frozen)."""
     field = model.field
     like = {"device": field.device, "dtype": field.dtype}
-    start = params.color_code if params.color_code is not None else model.mean_color_code()
-    code = start.detach().to(**like).clone().requires_grad_(True)
-    frame_inputs = [None if v is None else v[None].to(**like) for v in
-                    _frame_inputs(params)]
-    at = hand._field_points(torch.as_tensor(points, **like))
+    *inputs, code = field_inputs(model, params)
+    code = code.detach().clone().requires_grad_(True)
+    at = torch.as_tensor(points, **like)
+    at = mirror_points(at) if params.side == "left" else at  # the right hand the field is
     target = torch.as_tensor(colours, **like)
+    gain, bias = model.gain.to(**like), model.bias.to(**like)
     generator = torch.Generator().manual_seed(seed)
     optimiser = torch.optim.Adam([code], lr=lr)
-    for _ in range(iters):
-        pick = torch.randint(0, len(at), (min(batch, len(at)),), generator=generator)
-        frame = field.prepare(*frame_inputs, code[None])
-        rgb = field.field(frame, at[pick][None], with_color=True).rgb[0]
-        rgb = apply_gain_bias(rgb, model.gain.to(**like), model.bias.to(**like))
-        loss = (rgb - target[pick.to(target.device)]).abs().mean() + latent_weight * code.norm()
-        optimiser.zero_grad()
-        loss.backward()
-        optimiser.step()
-    return code.detach().float().cpu()
-
-
-def _frame_inputs(params: Any) -> tuple:
-    """(pose [48], translation [3], rest joints [16, 3], shape code) of the right hand the field
-    evaluates (a left hand's mirrored, as :func:`lisa_hand.inference.hand_field.hand_field`)."""
-    from ...skeleton import mirror_points, mirror_pose
-
-    pose, translation, rest = params.pose, params.translation, params.rest_joints
-    if params.side == "left":
-        pose, translation, rest = mirror_pose(pose), mirror_points(translation), \
-            mirror_points(rest)
-    return pose, translation, rest, params.shape_code
+    with frozen_field(model):
+        for _ in range(iters):
+            pick = torch.randint(0, len(at), (min(batch, len(at)),), generator=generator)
+            pick = pick.to(at.device)
+            rgb = field.field(field.prepare(*inputs, code), at[pick][None], with_color=True).rgb
+            loss = ((apply_gain_bias(rgb[0], gain, bias) - target[pick]).abs().mean()
+                    + latent_weight * code.norm())
+            optimiser.zero_grad()
+            loss.backward()
+            optimiser.step()
+    return code.detach()[0].float().cpu()

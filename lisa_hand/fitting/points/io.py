@@ -206,13 +206,6 @@ def _scan_coloured(mesh, cloud: PointCloud, fit, model, params, seed: int, out_d
     hand's points only; logged); with a colour model its colour code is fitted to them first
     (``params.color_code``, :func:`.colours.fit_colour_code`) and guesses the unseen surface.
     ``params.json``'s input record says what was done ("colours")."""
-    params.extra["input"]["colours"] = _colour_mesh(mesh, cloud, fit, model, params, seed,
-                                                    out_dir, log)
-
-
-def _colour_mesh(mesh, cloud: PointCloud, fit, model, params, seed: int, out_dir: Path,
-                 log) -> dict:
-    """:func:`_scan_coloured`'s work -> its record."""
     import torch
 
     from .colours import fit_colour_code, transfer_colours
@@ -228,13 +221,15 @@ def _colour_mesh(mesh, cloud: PointCloud, fit, model, params, seed: int, out_dir
         base = hand_field(model, params).attributes(vertices, skin_weights=False)[0]
         base = base.cpu().double().numpy()
     found = transfer_colours(mesh.vertices, mesh.faces, points, colours, base=base)
+    record: dict[str, Any] = {"used": found is not None, "colour_code_fitted": base is not None}
     if found is None:
         log(f"{out_dir / 'mesh.ply'}: no scan point near the fitted surface to colour it")
-        return {"used": False}
-    mesh.colors = found.colors
-    log(found.note(out_dir / "mesh.ply", by_model=base is not None))
-    return {"used": True, "seen_share": round(found.seen_share, 4),
-            "radius_mm": round(1000.0 * found.radius_m, 3), "colour_code_fitted": base is not None}
+    else:
+        mesh.colors = found.colors
+        log(found.note(out_dir / "mesh.ply", by_model=base is not None))
+        record.update(seen_share=round(found.seen_share, 4),
+                      radius_mm=round(1000.0 * found.radius_m, 3))
+    params.extra["input"]["colours"] = record
 
 
 def _preview(mesh, cloud: PointCloud, fit, record: dict, log) -> np.ndarray | None:
