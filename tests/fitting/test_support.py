@@ -67,7 +67,7 @@ def test_a_wall_behind_the_hand_is_found_and_taken_out(hand_mesh):
     assert found.removed[on_wall].mean() > 0.99
     assert found.removed[~on_wall].mean() < 0.05  # the hand's points within 2.5 mm of it
     assert found.fraction == pytest.approx(on_wall.mean(), abs=0.03)
-    assert found.spread > 3.0
+    assert found.spread > 3.0 and found.surround == 1.0  # the wall all round the hand
     record = found.to_dict()
     assert record["removed_points"] == int(found.removed.sum())
     # The same from torch, and moved and turned: the plane moves with the points.
@@ -208,3 +208,10 @@ def test_the_fit_leaves_the_support_out_and_stays_in_front_of_it():
     assert float(wall.signed_distance(np.asarray(fitted.vertices)).min()) > -0.003
     with pytest.raises(ValueError, match="support must be 'auto' or None"):
         fit_points(model, scan.points, None, config, support="yes")
+
+
+@pytest.mark.parametrize("bad", [{"min_surround": 1.5}, {"min_surround": -0.1},
+                                 {"reach_m": -0.01}, {"sectors": 0}, {"sectors": True}])
+def test_the_surround_settings_are_checked(bad):
+    with pytest.raises(ValueError):
+        SupportConfig(**bad)

@@ -11,9 +11,14 @@ Such a surface is the largest plane of the cloud, and it is not part of a hand:
   it is a support and not a flat part of the hand: at least ``min_fraction`` of the points on it,
   the points clearly off it (more than three thresholds) nearly all on one side of it (a hand on
   a desk lies above it), and its points spread over an area (convex hull, in the plane) at least
-  ``min_spread`` times that of the points off it. The last tells a desk from the flat back of a
-  hand seen from behind, whose other points also lie on one side of it: a desk reaches out round
-  the hand, the back or the palm of a hand stays within the hand's own outline.
+  ``min_spread`` times that of the points off it, and they surround those: in ``min_surround``
+  of ``sectors`` directions round them (in the plane) they reach ``reach_m`` past them. The last
+  two tell a desk from the flat back of a hand seen from behind, whose other points also lie on
+  one side of it: a desk reaches out round the hand, the back or the palm of a hand stays within
+  the hand's own outline. (The spread alone was fooled by half the scans of hands in sampled
+  poses: a plane through the hand, its threshold widened by the hand's own thickness, spread
+  over many times a raised thumb's area; such planes reach past the rest of the hand in at most
+  8 of 12 directions, a desk or a wall in view in all 12.)
 * **taken out**: the points within the threshold of it or beyond it (the fit never sees them).
 * **kept as a bound** (:func:`support_points`): the hand lies on the side of the points off the
   plane. The fit's proxy stages penalise proxy points beyond the plane, its surface stage asks
@@ -83,6 +88,12 @@ class SupportConfig:
             raise ValueError("min_fraction must be in (0, 1) and one_side in (0.5, 1]")
         if not self.min_spread >= 0:
             raise ValueError(f"min_spread must be >= 0, got {self.min_spread!r}")
+        if not 0 <= self.min_surround <= 1 or not self.reach_m >= 0:
+            raise ValueError(f"min_surround must be in [0, 1] and reach_m >= 0 (metres), got "
+                             f"{self.min_surround!r} and {self.reach_m!r}")
+        if isinstance(self.sectors, bool) or not isinstance(self.sectors, int) or \
+                self.sectors < 1:
+            raise ValueError(f"sectors must be a positive integer, got {self.sectors!r}")
 
 
 @dataclass(frozen=True)
@@ -93,7 +104,8 @@ class Support:
     removed: [N] bool, the cloud's points on it or beyond it (left out of the fit).
     fraction: share of the cloud's points on the plane. spread: the area of its points over
     that of the points off it (convex hulls in the plane). threshold_m: the distance within
-    which points were taken to be on it (:func:`_noise_threshold`), metres.
+    which points were taken to be on it (:func:`_noise_threshold`), metres. surround: the share
+    of the directions round the hand in which it reaches past it (:func:`_surround`).
     """
 
     plane: Plane
@@ -101,12 +113,13 @@ class Support:
     fraction: float
     spread: float
     threshold_m: float = SupportConfig.threshold_m
+    surround: float = 1.0
 
     def to_dict(self) -> dict:
         """JSON-ready (``params.json``'s "fit")."""
         return {**self.plane.to_dict(), "removed_points": int(self.removed.sum()),
                 "fraction": self.fraction, "spread": self.spread,
-                "threshold_m": self.threshold_m}
+                "threshold_m": self.threshold_m, "surround": self.surround}
 
 
 def _plane_through(samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -236,7 +249,8 @@ def find_support(points, config: SupportConfig | None = None, seed: int = 0
         return None
     removed = distance <= threshold
     return Support(plane=Plane(normal * offset, normal), removed=removed,
-                   fraction=float(on.mean()), spread=float(spread), threshold_m=threshold)
+                   fraction=float(on.mean()), spread=float(spread), threshold_m=threshold,
+                   surround=surround)
 
 
 def support_points(plane: Plane, hand_points: torch.Tensor, count: int,
