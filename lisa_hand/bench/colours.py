@@ -110,8 +110,10 @@ def run_colour_benchmark(hands: int, folder: Path, model: str | None = None) -> 
     from ..fitting.points.io import fit_point_file
     from ..inference.hand_field import GEOMETRY_ONLY_GREY
 
-    subjects = split_subjects(_SPLIT_SUBJECTS, seed=0)["test"][:hands]
-    rows = []
+    held_out = split_subjects(_SPLIT_SUBJECTS, seed=0)["test"]
+    if not 1 <= hands <= len(held_out):
+        raise ValueError(f"--hands must be in 1..{len(held_out)} (the held-out subjects)")
+    subjects, rows = held_out[:hands], []
     for index, subject in enumerate(subjects):
         for partial in (False, True):
             path, truth, points = coloured_scan(index, subject, partial, folder)
