@@ -47,6 +47,7 @@ def coloured_scan(index: int, subject: str, partial: bool, folder: Path, hand_mo
 
     from ..data.scans import ScanConfig, simulate_scan
     from ..data.synth import SynthConfig, make_subject
+    from ..geometry.meshing import colors_to_uint8
     from ..handmodel import sample_pose
 
     record = make_subject(SynthConfig(seed=0, hand_model=hand_model), int(subject[1:]),
@@ -59,8 +60,7 @@ def coloured_scan(index: int, subject: str, partial: bool, folder: Path, hand_mo
     points = np.asarray(scan.points, np.float64)
     albedo = posed.albedo(torch.from_numpy(points)).numpy()
     path = folder / f"{subject}_{'one_side' if partial else 'all_round'}.ply"
-    colours = np.clip(np.round(255.0 * albedo), 0, 255).astype(np.uint8)
-    trimesh.PointCloud(points, colors=colours).export(path)
+    trimesh.PointCloud(points, colors=colors_to_uint8(albedo)).export(path)
     return path, truth, points
 
 

@@ -45,6 +45,7 @@ def rgbd_frame(index: int, folder: Path) -> dict[str, Path]:
     from ..data.shading import ShadingConfig
     from ..data.synth import SynthConfig, make_subject, split_subjects
     from ..geometry.cameras import Camera, save_cameras
+    from ..geometry.meshing import colors_to_uint8
     from ..handmodel import named_pose
 
     subject = split_subjects(290, seed=0)["test"][index]
@@ -74,7 +75,7 @@ def rgbd_frame(index: int, folder: Path) -> dict[str, Path]:
                         ShadingConfig(ambient=0.5, diffuse=0.5))[0]
     files = {name: folder / f"frame{index}_{name}{suffix}" for name, suffix in
              (("depth", ".png"), ("colour", ".png"), ("camera", ".json"), ("truth", ".ply"))}
-    iio.imwrite(files["colour"], np.clip(np.round(view.rgb * 255), 0, 255).astype(np.uint8))
+    iio.imwrite(files["colour"], colors_to_uint8(view.rgb))
     iio.imwrite(files["depth"], np.where(view.mask, np.round(view.depth * 1000), 0)
                 .astype(np.uint16))
     save_cameras(files["camera"], [camera])

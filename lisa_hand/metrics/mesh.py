@@ -42,6 +42,9 @@ class MeshData:
     """[V, 3] float64 vertex positions (the file's units)."""
     faces: np.ndarray | None
     """[F, 3] int64 triangle vertex indices, or None for a point set."""
+    colors: np.ndarray | None = None
+    """[V, 3] uint8 per-vertex colours of a mesh read through trimesh (vertex colours, or its
+    texture sampled at each vertex), or None (none, or one colour for a whole mesh)."""
 
 
 @dataclass(frozen=True)
@@ -212,11 +215,13 @@ def _load_trimesh_file(path: Path, suffix: str) -> MeshData:
         loaded = trimesh.load(path, process=True)
     except Exception as exc:  # trimesh raises many types for corrupt files
         raise ValueError(f"{path}: cannot read ({type(exc).__name__}: {exc})") from None
+    colors = _vertex_colours([loaded]) if isinstance(loaded, trimesh.Trimesh) else None
     if isinstance(loaded, trimesh.Scene):
         geometries = list(loaded.dump()) if loaded.geometry else []
         meshes = [g for g in geometries if isinstance(g, trimesh.Trimesh) and len(g.faces)]
         clouds = [g for g in geometries if isinstance(g, trimesh.PointCloud)]
         if meshes:
+            colors = _vertex_colours(meshes)
             loaded = trimesh.util.concatenate(meshes)
         elif clouds:
             loaded = trimesh.PointCloud(np.concatenate([c.vertices for c in clouds]))
@@ -233,7 +238,24 @@ def _load_trimesh_file(path: Path, suffix: str) -> MeshData:
         raise _no_vertices(path, suffix)
     if not np.isfinite(vertices).all():
         raise ValueError(f"{path}: vertices have non-finite entries")
-    return MeshData(np.ascontiguousarray(vertices), faces)
+    if colors is not None and len(colors) != len(vertices):
+        colors = None
+    return MeshData(np.ascontiguousarray(vertices), faces, colors)
+
+
+def _vertex_colours(meshes: list) -> np.ndarray | None:
+    """[V, 3] uint8 colours of trimesh meshes' vertices, in concatenation order, or None when
+    one of them has no colour or one colour for all of it (a material's)."""
+    parts = []
+    for mesh in meshes:
+        if mesh.visual is None or mesh.visual.kind is None:
+            return None  # no colour at all (trimesh would invent its default grey)
+        visual = mesh.visual.to_color() if hasattr(mesh.visual, "to_color") else mesh.visual
+        colours = np.asarray(visual.vertex_colors)
+        if colours.ndim != 2 or len(colours) != len(mesh.vertices):
+            return None
+        parts.append(colours[:, :3])
+    return np.concatenate(parts).astype(np.uint8)
 
 
 def load_mesh(path: str | os.PathLike) -> MeshData:

@@ -132,23 +132,10 @@ def _npz_colours(path: Path) -> np.ndarray | None:
 
 
 def _mesh_file_colours(path: Path) -> np.ndarray | None:
-    import trimesh
+    from ...metrics import load_mesh
 
-    loaded = trimesh.load(path, process=True)
-    meshes = ([g for g in loaded.dump() if isinstance(g, trimesh.Trimesh) and len(g.faces)]
-              if isinstance(loaded, trimesh.Scene) else [loaded])
-    parts = []
-    for mesh in meshes:
-        if not isinstance(mesh, trimesh.Trimesh) or mesh.visual is None:
-            return None
-        if mesh.visual.kind is None:
-            return None  # no colour at all (trimesh would invent its default grey)
-        visual = mesh.visual.to_color() if hasattr(mesh.visual, "to_color") else mesh.visual
-        colours = np.asarray(visual.vertex_colors)
-        if colours.ndim != 2:
-            return None  # one colour for the whole mesh (a material's): no scan's colours
-        parts.append(colours[:, :3])
-    return as_unit_colours(np.concatenate(parts).astype(np.uint8), str(path)) if parts else None
+    colours = load_mesh(path).colors  # the same read as the points' (merged vertices)
+    return None if colours is None else as_unit_colours(colours, str(path))
 
 
 def read_point_colours(path: str | os.PathLike, count: int) -> np.ndarray | None:
@@ -187,6 +174,7 @@ def depth_point_colours(points: np.ndarray, frame: Any, colour_path: str | os.Pa
     from PIL import Image
 
     from ...data.photo import read_photo
+    from ...geometry.cameras import project_points
 
     camera = frame.camera
     size = (int(camera.width), int(camera.height))
@@ -199,12 +187,9 @@ def depth_point_colours(points: np.ndarray, frame: Any, colour_path: str | os.Pa
                              f"depth image {size[0]}x{size[1]}: register it to the depth camera")
         pil = Image.fromarray(np.clip(np.round(image * 255.0), 0, 255).astype(np.uint8))
         image = np.asarray(pil.resize(size, Image.BILINEAR), np.float32) / 255.0
-    K = camera.K.double().cpu().numpy()
-    R = camera.R.double().cpu().numpy()
-    t = camera.t.double().cpu().numpy()
-    in_camera = np.asarray(points, np.float64) @ R.T + t
-    pixels = in_camera @ K.T
-    pixels = pixels[:, :2] / pixels[:, 2:3]
+    pixels, _ = project_points(camera.K.double().cpu(), camera.R.double().cpu(),
+                               camera.t.double().cpu(), torch.as_tensor(points).double())
+    pixels = pixels.numpy()
     columns = np.clip(np.floor(pixels[:, 0]).astype(np.int64), 0, size[0] - 1)
     rows = np.clip(np.floor(pixels[:, 1]).astype(np.int64), 0, size[1] - 1)
     return np.ascontiguousarray(image[rows, columns, :3], np.float32)
@@ -213,13 +198,9 @@ def depth_point_colours(points: np.ndarray, frame: Any, colour_path: str | os.Pa
 def colour_radius(points: np.ndarray) -> float:
     """Within how far a scan point colours a vertex: :data:`_SPACINGS` times the median distance
     from a point to its nearest neighbour, at least :data:`MIN_RADIUS_M` (metres)."""
-    from scipy.spatial import cKDTree
+    from .cloud import point_spacing
 
-    points = np.asarray(points, np.float64)
-    if len(points) < 2:
-        return MIN_RADIUS_M
-    distances, _ = cKDTree(points).query(points, k=2)
-    return max(MIN_RADIUS_M, _SPACINGS * float(np.median(distances[:, 1])))
+    return max(MIN_RADIUS_M, _SPACINGS * point_spacing(torch.as_tensor(np.asarray(points))))
 
 
 def harmonic_fill(faces: np.ndarray, values: np.ndarray, known: np.ndarray) -> np.ndarray:
@@ -277,6 +258,8 @@ def transfer_colours(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray
     """
     from scipy.spatial import cKDTree
 
+    from ...geometry.meshing import colors_to_uint8
+
     vertices = np.asarray(vertices, np.float64)
     points = np.asarray(points, np.float64)
     colours = np.asarray(colours, np.float64)
@@ -299,8 +282,7 @@ def transfer_colours(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray
     else:
         base = np.asarray(base, np.float64)
         filled = base + harmonic_fill(faces, values - base, seen)
-    colors = np.clip(np.round(255.0 * filled), 0, 255).astype(np.uint8)
-    return ScanColours(colors=colors, seen=seen, radius_m=radius)
+    return ScanColours(colors=colors_to_uint8(filled), seen=seen, radius_m=radius)
 
 
 def fit_colour_code(model: Any, params: Any, points: np.ndarray, colours: np.ndarray, *,
