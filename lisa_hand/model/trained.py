@@ -6,7 +6,9 @@ What fitting, meshing, rendering and animation load. It comes from one of
   (``lisa_hand/assets/lisa_pretrained.pt``, LISA-full: geometry and colour from images of hand
   model v1, what ``load_trained(None)`` gives), ``"geometry_v2"``
   (``lisa_hand/assets/lisa_geometry_v2.pt``, a geometric prior on 203 subjects of the open hand
-  model v2: no colour; the default of ``lisa fit-points``), ``"geometry"``
+  model v2: no colour; the default of ``lisa fit-points``), ``"geometry_mix"``
+  (``lisa_hand/assets/lisa_geometry_mix.pt``, the same on 308 subjects of hand models v1 and v2),
+  ``"geometry"``
   (``lisa_hand/assets/lisa_geometry.pt``, the same on hand model v1: the prior LISA-full was
   trained from, and the point fits' model until 2026-12-04), ``"full_v2"``
   (``lisa_hand/assets/lisa_full_v2.pt``, LISA-full trained on hand model v2) or ``"full_8k"``
@@ -122,7 +124,8 @@ class TrainedModel:
 
 
 SHIPPED_MODELS = {"default": "lisa_pretrained.pt", "geometry": "lisa_geometry.pt",
-                  "geometry_v2": "lisa_geometry_v2.pt", "full_v2": "lisa_full_v2.pt",
+                  "geometry_v2": "lisa_geometry_v2.pt", "geometry_mix": "lisa_geometry_mix.pt",
+                  "full_v2": "lisa_full_v2.pt",
                   "full_8k": "lisa_full_8k.pt", "full_14k": "lisa_full_14k.pt"}
 """The models in ``lisa_hand/assets`` by the name ``--model`` and ``params.json`` give them:
 "default" is LISA-full (images: geometry and colour) trained on the open hand model v1 from the
@@ -130,9 +133,10 @@ SHIPPED_MODELS = {"default": "lisa_pretrained.pt", "geometry": "lisa_geometry.pt
 learning-rate decay, "full_14k" that run resumed to 14000 steps (the cosine spread over them),
 "full_v2" the 3200-step recipe on v2 hands from the "geometry_v2" prior;
 "geometry" and "geometry_v2" are geometric priors (``lisa train-prior`` on 203 subjects of the
-open hand model v1 and v2: the SDF and skinning networks only, no colour). A name always means
-the same weights (a ``params.json`` holds a shape code of that model's space), so a retrained
-model ships under a new name."""
+open hand model v1 and v2: the SDF and skinning networks only, no colour), "geometry_mix" the
+same recipe on 308 subjects of both (203 of v2, 105 of v1: ``python -m lisa_hand.data.merge``).
+A name always means the same weights (a ``params.json`` holds a shape code of that model's
+space), so a retrained model ships under a new name."""
 
 
 def shipped_model_path(name: str = "default") -> Path:

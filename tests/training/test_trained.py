@@ -136,15 +136,15 @@ def test_headlight_shading_is_trained_exported_and_rendered(tiny_data, tmp_path,
 
 
 def test_shipped_models_by_name(tmp_path, monkeypatch):
-    """'default', 'full_8k', 'full_14k', 'full_v2', 'geometry' and 'geometry_v2' name the six
-    shipped files (LISA-full with colour on hand models v1, 3200, 8000 and 14000 steps, and v2,
-    the geometric priors of hand models v1 and v2 without);
+    """'default', 'full_8k', 'full_14k', 'full_v2', 'geometry', 'geometry_v2' and 'geometry_mix'
+    name the seven shipped files (LISA-full with colour on hand models v1, 3200, 8000 and 14000
+    steps, and v2, the geometric priors of hand models v1, v2 and both without);
     a file or folder of that name in the working directory wins; params.json records the name,
     else the absolute path."""
     from lisa_hand.model.trained import SHIPPED_MODELS, model_label, shipped_model_path
 
     assert set(SHIPPED_MODELS) == {"default", "full_8k", "full_14k", "full_v2", "geometry",
-                                   "geometry_v2"}
+                                   "geometry_v2", "geometry_mix"}
     full = load_trained("default")
     assert full.has_color and full.source == str(shipped_model_path("default"))
     full_v2 = load_trained("full_v2")
@@ -158,13 +158,16 @@ def test_shipped_models_by_name(tmp_path, monkeypatch):
     longest = load_trained("full_14k")  # the 8000-step run resumed to 14000 steps
     assert longest.subject_ids == full.subject_ids and longest.config == full.config
     assert not torch.equal(longest.shape_codes, longer.shape_codes)
-    priors = [load_trained(name) for name in ("geometry", "geometry_v2")]
-    for name, geometry in zip(("geometry", "geometry_v2"), priors, strict=True):
+    priors = [load_trained(name) for name in ("geometry", "geometry_v2", "geometry_mix")]
+    for name, geometry in zip(("geometry", "geometry_v2", "geometry_mix"), priors, strict=True):
         assert not geometry.has_color and geometry.color_codes is None
         assert geometry.source == str(shipped_model_path(name))
         assert len(geometry.subject_ids) >= 200  # the issue's "at least 200 training subjects"
         assert geometry.config.shape_dim == full.config.shape_dim == 128
     assert not torch.equal(priors[0].shape_codes, priors[1].shape_codes)  # two models
+    # geometry_mix: the v2 prior's 203 training subjects and 105 of hand model v1 (README)
+    assert len(priors[2].subject_ids) == 308
+    assert sum(subject.startswith("v1") for subject in priors[2].subject_ids) == 105
     torch.testing.assert_close(load_trained(None).shape_codes, full.shape_codes)
     assert model_label(None) == "default" and model_label("geometry") == "geometry"
     with pytest.raises(ValueError, match="no shipped model named 'colour'"):
