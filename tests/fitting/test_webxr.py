@@ -237,14 +237,16 @@ def test_a_scan_running_on_into_a_forearm_is_cut_at_the_wrist():
     assert whole.v2s_scan_to_recon_mm > 2.0 * cut.v2s_scan_to_recon_mm
 
 
-def test_the_shipped_geometric_prior_fits_the_webxr_hand():
+@pytest.mark.parametrize("name, bound_mm", [("geometry_v2", 1.5), ("geometry_mix", 1.15)])
+def test_the_shipped_geometric_prior_fits_the_webxr_hand(name, bound_mm):
     """The point fit's default model (the shipped geometric prior of hand model v2, 203
     subjects) on the artist's hand in its rest pose, a full 5000-point scan with 0.3 mm noise
     in a random placement: the first row of ``python -m lisa_hand.bench fit --only-webxr``
-    (measured here V2S 1.16 mm scan->recon, 1.16 mm recon->scan, with the weaker shape prior of
+    (measured here V2S 1.20 mm scan->recon, 1.22 mm recon->scan, with the weaker shape prior of
     a scan that covers the hand; 1.25 / 1.25 with the one-sided scans' prior; the v1 prior:
     1.28 / 1.44; the shipped LISA-full: 2.10 / 2.62). Issue 14's target without ``--refine``:
-    1.5 mm."""
+    1.5 mm. The prior of hand models v1 and v2 (``geometry_mix``, a wider shape space) is
+    closer: measured 1.01 / 1.02 mm, within a bound the v2 prior does not meet."""
     import torch
 
     from lisa_hand.data.scans import ScanConfig, simulate_scan
@@ -256,7 +258,7 @@ def test_the_shipped_geometric_prior_fits_the_webxr_hand():
     from lisa_hand.model.trained import load_trained
 
     assert default_point_model() == "geometry_v2"
-    model = load_trained("geometry_v2", "cpu")
+    model = load_trained(name, "cpu")
     posed, faces = pose_webxr_hand(WEBXR / "right_hand.npz", "rest")
     turn = 3.0 * torch.rand(3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     rotation = axis_angle_to_matrix(turn).numpy()
@@ -267,7 +269,7 @@ def test_the_shipped_geometric_prior_fits_the_webxr_hand():
     mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False, skin_weights=False),
                      clip=fit.wrist_plane)
     distances = mesh_distances(mesh.vertices, mesh.faces, placed, faces, clip=fit.wrist_plane)
-    assert distances.v2s_scan_to_recon_mm < 1.5 and distances.v2s_recon_to_scan_mm < 1.5
+    assert distances.v2s_scan_to_recon_mm < bound_mm and distances.v2s_recon_to_scan_mm < bound_mm
 
 
 def test_the_point_fit_curls_the_webxr_hands_bent_index():
