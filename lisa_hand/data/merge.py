@@ -101,8 +101,11 @@ def _source(text: str) -> tuple[str, str]:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(prog="python -m lisa_hand.data.merge",
-                                     description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="python -m lisa_hand.data.merge",
+        description="Merge datasets (lisa synth or lisa import folders) into one for training: "
+                    "each source's train/val/test split kept, one link per subject, nothing "
+                    "copied. Example: python -m lisa_hand.data.merge runs/mix runs/v2 runs/v1=v1")
     parser.add_argument("out", type=Path, help="merged dataset folder (new or empty)")
     parser.add_argument("sources", nargs="+", type=_source, metavar="DATA[=PREFIX]",
                         help="a dataset folder, optionally with a prefix for its subject ids")
