@@ -1,11 +1,11 @@
 """One dataset from several: ``python -m lisa_hand.data.merge OUT DATA[=PREFIX] ...``.
 
-Trains a model on the subjects of several ``lisa synth`` (or ``lisa import``) datasets at once,
-e.g. the open hand model v1 and v2 (the ``geometry_mix`` prior, README "The point fit's prior
-on both hand models"). ``OUT`` gets a ``split.json`` that keeps every source's own split (a
-held-out subject stays held out), a ``dataset.json`` naming the sources, and one symbolic link
-per subject to its folder in its source (nothing is copied). A source's subject ids get its
-``PREFIX`` (``runs/v1=v1``: ``s000`` -> ``v1s000``); ids must be unique across the sources.
+For training a model on the subjects of several ``lisa synth`` (or ``lisa import``) datasets at
+once, e.g. the open hand models v1 and v2 (the ``geometry_mix`` prior, README "The point fit's
+prior on both hand models"). ``OUT`` gets a ``split.json`` that keeps every source's own split (a
+held-out subject stays held out), a ``dataset.json`` naming the sources, and one symbolic link per
+subject to its folder in its source (nothing is copied). A source's subject ids get its ``PREFIX``
+(``runs/v1=v1``: ``s000`` -> ``v1s000``); ids must be unique across the sources.
 
 Merging into a folder that holds anything but an earlier merge's links and files fails (nothing
 is written then); the links and ``split.json`` of an earlier merge are replaced.
@@ -28,14 +28,20 @@ _SPLITS = ("train", "val", "test")
 _PREFIX = re.compile(r"^[A-Za-z0-9_-]*$")
 
 
-def _plan(sources: Sequence[tuple[Path, str]]) -> tuple[dict[str, list[str]], dict[str, Path]]:
-    """-> (the merged split, {merged id: subject folder}); ValueError on a clash."""
+def _plan(sources: Sequence[tuple[Path, str]]
+          ) -> tuple[dict[str, list[str]], dict[str, Path], list[dict]]:
+    """-> (the merged split, {merged id: subject folder}, ``merged_from``: each source's path,
+    prefix and split sizes); ValueError on a clash."""
     split: dict[str, list[str]] = {name: [] for name in _SPLITS}
     folders: dict[str, Path] = {}
+    merged_from = []
     for root, prefix in sources:
         if not _PREFIX.match(prefix):
             raise ValueError(f"prefix {prefix!r} of {root}: letters, digits, '-' and '_' only")
-        for name, subjects in read_split(root).items():
+        own = read_split(root)
+        merged_from.append({"path": str(root), "prefix": prefix,
+                            **{name: len(own[name]) for name in _SPLITS}})
+        for name, subjects in own.items():
             for subject in subjects:
                 merged = prefix + subject
                 if merged in folders:
@@ -48,7 +54,7 @@ def _plan(sources: Sequence[tuple[Path, str]]) -> tuple[dict[str, list[str]], di
                                             f"{root / 'split.json'} is missing")
                 folders[merged] = folder
                 split[name].append(merged)
-    return split, folders
+    return split, folders, merged_from
 
 
 def _check_out(out: Path) -> None:
@@ -76,7 +82,7 @@ def merge_datasets(out: str | os.PathLike, sources: Sequence[tuple[str | os.Path
     out = Path(out).resolve()
     if any(out == root for root, _ in resolved):
         raise ValueError(f"{out}: the output folder cannot be one of the sources")
-    split, folders = _plan(resolved)
+    split, folders, merged_from = _plan(resolved)
     _check_out(out)
     first = read_json(resolved[0][0] / "dataset.json")
     out.mkdir(parents=True, exist_ok=True)
@@ -86,10 +92,7 @@ def merge_datasets(out: str | os.PathLike, sources: Sequence[tuple[str | os.Path
     for merged, folder in folders.items():
         os.symlink(folder, out / merged, target_is_directory=True)
     dataset = dict(first) if isinstance(first, dict) else {}
-    dataset["merged_from"] = [
-        {"path": str(root), "prefix": prefix,
-         **{name: len(read_split(root)[name]) for name in _SPLITS}}
-        for root, prefix in resolved]
+    dataset["merged_from"] = merged_from
     write_json(out / "dataset.json", dataset)
     write_json(out / "split.json", split)
     return split
