@@ -229,7 +229,7 @@ def _fit_benchmark(model_path, num_points: int, noise_mm: float, target_mm: floa
             snapshots.append((step.stage, step.seconds, step.params()))
 
     fit = fit_points(model, scan.points, None, config, callback=record)
-    init_seconds = sum(fit.stage_seconds.get(k, 0.0) for k in ("proxy", "align", "pose"))
+    init_seconds = sum(fit.stage_seconds.get(k, 0.0) for k in ("proxy", "align", "pose", "size"))
     seconds = None
     for stage, when, params in snapshots:
         if stage == "field" and _mean_abs_sdf(model, params, eval_points) <= target_mm * 1e-3:

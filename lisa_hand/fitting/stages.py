@@ -34,8 +34,8 @@ under :class:`StageReport`'s ``history``)."""
 class StageReport:
     """Diagnostics of one fitting stage (every stage of every fitter returns one).
 
-    stage: its name: 'align', 'pose', 'fingers', 'field', 'second' (point fit), 'keypoints', 'color'
-        (image fit).
+    stage: its name: 'align', 'pose', 'size', 'fingers', 'field', 'second' (point fit),
+        'keypoints', 'color' (image fit).
     seconds: its wall time, seconds.
     loss: the final objective of the best hand it returns (NaN when the stage did not run,
         e.g. a reused keypoint-stage hand): the point stages' energy (robust distances,
@@ -57,7 +57,8 @@ class StageReport:
     candidate: the keypoint stage: which restart won; else None.
     screened_energies: the point fit's global-pose search: the proxy energy (metres) of every
         initial candidate (24 orientations per initial finger pose) after the first part of
-        the alignment; else empty.
+        the alignment; the size search ('size'): the best candidate's proxy energy at each
+        size of ``FitPointsConfig.sizes``, in that order; else empty.
     notes: what the stage did, in words (the point fit's 'fingers': which fingers it moved).
     """
 

@@ -110,7 +110,7 @@ def test_a_left_hand_fits_as_well_as_the_right_one_it_mirrors():
     points, normals, _ = scan_of(model, truth, ScanConfig(num_points=1000), seed=0)
     config = FitPointsConfig(**FAST)
     right = fit_points(model, points, normals, config, rest_joints=truth.rest_joints)
-    assert list(right.reports) == ["align", "pose", "fingers", "field", "second"]
+    assert list(right.reports) == ["align", "pose", "size", "fingers", "field", "second"]
     assert right.energy == right.reports["second"].loss
     assert right.candidate_energies == right.reports["align"].screened_energies
     assert right.history == [record for report in right.reports.values()

@@ -27,6 +27,11 @@ class FitPointsConfig:
     """Distinct candidates (best alignment energies) that go on to the pose and field stages."""
     pose_iters: int = 60
     """Adam steps of the articulated proxy stage (pose and translation; no network)."""
+    sizes: tuple[float, ...] = (0.85, 0.9, 0.95, 1.0, 1.05, 1.1, 1.15, 1.2)
+    """Hand sizes (times the template's mean skeleton) the size search tries after the
+    articulated stage (:mod:`.size_search`); one size (``(1.0,)``) turns it off."""
+    size_iters: int = 15
+    """Proxy steps of the best candidate's pose at each size of ``sizes``."""
     finger_iters: int = 30
     """Per-finger restarts after the articulated stage (:mod:`.finger_search`): proxy steps of
     the best candidate's copies with one finger restarted from flat, relaxed, pinch and fist
@@ -182,7 +187,13 @@ class FitPointsConfig:
         from .global_pose import initial_finger_pose
 
         check_int_fields(self, ("align_iters", "pose_iters", "finger_iters", "field_iters",
-                                "second_pass_iters"), 0)
+                                "second_pass_iters", "size_iters"), 0)
+        sizes = self.sizes
+        if (not isinstance(sizes, tuple) or not sizes or any(
+                isinstance(f, bool) or not isinstance(f, (int, float)) or not 0.5 <= f <= 2.0
+                for f in sizes)):
+            raise ValueError(f"sizes must be a non-empty tuple of hand sizes in [0.5, 2], got "
+                             f"{sizes!r}")
         check_int_fields(self, ("free_space_points", "free_near_every", "align_keep",
                                 "num_restarts", "points_per_iteration", "proxy_points",
                                 "max_points", "min_points", "tries"), 1)

@@ -11,6 +11,8 @@ a function from hands (:class:`~lisa_hand.skeleton.params.HandParams`) to hands:
    best distinct candidates go on.
 2. **Articulated proxy** (:func:`.proxy.fit_proxy_pose`, 'pose', no network): the candidates
    also fit the finger pose on the proxy.
+   **Size** (:func:`.size_search.search_size`, 'size', no network): the best candidate tried
+   at several hand sizes (proxy and skeleton scaled); every candidate goes on at the best one.
    **Per-finger restarts** (:func:`.finger_search.restart_fingers`, 'fingers', no network): the
    best candidate with each finger restarted from other poses; the best chain of each finger
    combined replaces the last candidate when it fits better.
@@ -61,6 +63,7 @@ from .hypotheses import best_of
 from .monitor import FitMonitor, FitStep
 from .others import Others, find_others
 from .proxy import build_surface_proxy, covered_fraction, fit_proxy_pose, unseen_fingers
+from .size_search import search_size
 from .support import Support, find_support, support_points
 from .surface_stage import fit_surface, frozen_field, surface_residuals
 from .viewpoint import ViewpointEstimate, estimate_viewpoint
@@ -93,7 +96,7 @@ class FitResult:
     history: per iteration ``{"stage", "iteration", "energy" (best live candidate), "seconds"
         (since the fit started)}`` (:data:`lisa_hand.fitting.stages.HistoryRecord`), every
         stage in order.
-    reports: each stage's :class:`lisa_hand.fitting.stages.StageReport` ({"align", "pose",
+    reports: each stage's :class:`lisa_hand.fitting.stages.StageReport` ({"align", "pose", "size",
         "fingers", "field", "second"}; no "second" with ``config.second_pass_iters`` 0), as the
         image fit's ``reports``.
     coverage: share of the hand's surface (its proxy, after the finger restarts) within
@@ -334,8 +337,13 @@ def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints,
                         clip + config.wrist_margin_m, config.min_points)
     candidates, reports["pose"] = fit_proxy_pose(proxy, loose, candidates, config,
                                                  monitor=monitor)
-    loose = _with_coupling(loose, proxy, candidates[0], config, reports["pose"].notes)
     since = monitor.lap("pose", since)
+    proxy, candidates, reports["size"] = search_size(proxy, loose, candidates, template, config,
+                                                     monitor=monitor)
+    if clip is not None:
+        proxy = proxy.without_forearm(clip)
+    loose = _with_coupling(loose, proxy, candidates[0], config, reports["pose"].notes)
+    since = monitor.lap("size", since)
     candidates, reports["fingers"] = restart_fingers(proxy, loose, candidates, config,
                                                      monitor=monitor)
     since = monitor.lap("fingers", since)
@@ -532,6 +540,8 @@ def _fit_side(model, points, normals, config: FitPointsConfig, *, rest_joints, s
     if support is not None and config.support_weight > 0:
         cloud = with_support(cloud, support.plane, side, config)
     total = config.align_iters + config.pose_iters + config.finger_iters + config.field_iters
+    if len(config.sizes) > 1 and rest_joints is None:
+        total += len(config.sizes) * config.size_iters
     if config.second_pass_iters > 0:  # at most: its field steps run when a finger changed
         total += config.finger_iters + config.second_pass_iters
     monitor = FitMonitor(progress_total=total if progress else None, callback=callback,

@@ -21,9 +21,10 @@ __all__ = ["FitStep", "FitMonitor"]
 class FitStep:
     """What a fit tells its ``callback`` after every iteration.
 
-    stage: 'align', 'pose' or 'field'. iteration: within the stage (from 0); num_iterations: of
-    the stage. energy: [K] the energy of each live candidate on this iteration's points (the
-    stage's own energy: proxy distances for 'align' and 'pose'). seconds: since the fit started.
+    stage: 'align', 'pose', 'size', 'fingers' or 'field'. iteration: within the stage (from
+    0); num_iterations: of the stage. energy: [K] the energy of each live candidate on this
+    iteration's points (the stage's own energy: proxy distances for all but 'field').
+    seconds: since the fit started.
     """
 
     stage: str
