@@ -246,7 +246,8 @@ def _points_to_mesh_mm(points: np.ndarray, mesh, plane) -> float:
 
 def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int = 0,
                    threads: int = 1, wrists: tuple[str, ...] = ("as-is",),
-                   config=None, refine=None, viewpoints: str = "none", log=None) -> list[dict]:
+                   config=None, refine=None, viewpoints: str = "none", scale: float = 1.0,
+                   log=None) -> list[dict]:
     """Fit ``model`` to the WebXR hand (``right_hand.npz`` or ``left_hand.npz``, its side found
     by :func:`webxr_side`) in each pose of :data:`WEBXR_POSES` and each wrist
     variant of ``wrists`` (:data:`WEBXR_WRISTS`), from a full scan and from a one-view partial
@@ -260,6 +261,8 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
     (``fit_points(viewpoint=)``, the free-space term): "none"; "true", the simulated sensor's, as
     a depth camera's points in its own frame give it; "auto", found from the scan (a full scan's
     fit gets "auto" too, which leaves it without one).
+    scale: the hand made this many times larger about its wrist joint in every pose (a hand of
+    another size: 1.15 is 204 mm from the wrist joint to the middle fingertip, 0.85 is 151).
     log: called with each row as it is measured.
     -> one dict per fit: pose, wrist, scan kind, seconds, points left out beyond the wrist, the
     four distances (mm, fitted 128^3 mesh against the variant's mesh, both cut at the fit's
@@ -277,6 +280,8 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
 
     if viewpoints not in ("none", "true", "auto"):
         raise ValueError(f"viewpoints must be 'none', 'true' or 'auto', got {viewpoints!r}")
+    if not 0.5 <= scale <= 2.0:
+        raise ValueError(f"scale must be in [0.5, 2], got {scale!r}")
     for variant in wrists:
         if variant not in WEBXR_WRISTS:
             raise ValueError(f"unknown wrist variant {variant!r}: one of {WEBXR_WRISTS}")
@@ -289,6 +294,7 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
     rows = []
     for pose in WEBXR_POSES:
         posed, faces = pose_webxr_hand(path, pose)
+        posed = wrist + scale * (posed - wrist)
         outer = outer_surface(posed, faces)  # what a scanner sees of the whole hand
         turn = 3.0 * torch.rand(3, generator=generator, dtype=torch.float64)
         rotation = axis_angle_to_matrix(turn).numpy()
@@ -321,7 +327,8 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                                            clip=fit.wrist_plane)
                 rows.append({"pose": pose, "wrist": variant,
                              "scan": "partial" if partial else "full",
-                             "viewpoint": viewpoints, "seconds": fit.seconds,
+                             "viewpoint": viewpoints, "scale": scale,
+                             "seconds": fit.seconds,
                              "beyond_wrist_points": fit.beyond_wrist_points,
                              **distances.to_dict(),
                              "scan_points_to_recon_mm": _points_to_mesh_mm(points, mesh,

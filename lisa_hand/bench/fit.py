@@ -359,12 +359,17 @@ def main(argv: list[str] | None = None) -> None:
                              "none), true (the simulated sensor's, as lisa fit-points "
                              "--viewpoint X,Y,Z; the flag alone) or auto (found from the scan, "
                              "as lisa fit-points does by default)")
+    parser.add_argument("--webxr-scale", type=float, default=1.0, metavar="S",
+                        help="the WebXR hand made S times larger about its wrist (a hand of "
+                             "another size: 1.15 is 204 mm long, 0.85 is 151; default 1)")
     _add_scene_args(parser)
     parser.add_argument("--only-webxr", action="store_true",
                         help="skip the self-consistency benchmark")
     args = parser.parse_args(argv)
     if args.points < 100:
         raise ValueError(f"--points must be >= 100, got {args.points}")
+    if not 0.5 <= args.webxr_scale <= 2.0:
+        parser.error(f"--webxr-scale must be in [0.5, 2], got {args.webxr_scale}")
     numbers = {} if args.only_webxr else _self_consistency(args)
     if args.webxr is not None:
         wrists = tuple(name.strip() for name in args.webxr_wrists.split(",") if name.strip())
@@ -393,7 +398,7 @@ def main(argv: list[str] | None = None) -> None:
         numbers["webxr"] = run_webxr_fits(model, args.webxr, seed=args.seed,
                                           threads=args.threads, wrists=wrists, refine=refine,
                                           viewpoints=args.webxr_viewpoint,
-                                          log=shown_row)
+                                          scale=args.webxr_scale, log=shown_row)
         for scene, choice in (("table", args.webxr_table), ("wall", args.webxr_wall),
                               ("person", args.webxr_person)):
             if choice is not None:

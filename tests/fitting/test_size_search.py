@@ -92,6 +92,8 @@ def test_the_size_search_finds_the_size_of_the_hand(size):
     assert torch.allclose(hands[1].rest_joints, template.rest_joints(hands[1].betas[None])[0],
                           atol=1e-6)
     assert torch.equal(sized.rest_joints, hands[1].rest_joints)
+    if chosen == 1.0:  # the mean size: the candidates and the proxy as they came
+        assert sized is proxy and hands == [start, start]
     # One size: the search is off and the candidates come back as they were.
     kept_proxy, kept, off = search_size(proxy, cloud, [start], template,
                                         dataclasses.replace(config, sizes=(1.0,)))

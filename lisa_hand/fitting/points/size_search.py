@@ -11,7 +11,9 @@ mean skeleton, 2.36 mm V2S scan->recon on a fist; started from its true size, 1.
 mean skeleton and proxy scaled about the wrist, a few Adam steps of its pose on the proxy
 energy each), keeps the size of lowest proxy energy, and hands every candidate on at that
 size: the proxy scaled, their skeletons the template's for the betas nearest that size
-(:func:`betas_for_size`), which the field stage starts from.
+(:func:`betas_for_size`), which the field stage starts from. When the mean size wins, the
+candidates go on untouched, and either way the cloud's random stream is left where it was, so
+such a fit is the fit without the search.
 """
 
 from __future__ import annotations
@@ -118,9 +120,13 @@ def search_size(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequence[Ha
                               like=best[0], monitor=monitor)
         energies.append(_score(sized, cloud, batch, config, state))
         options.append((size, betas, sized, batch.hand(0, best[0])))
+    cloud.generator.set_state(state)  # the later stages draw as they would without the search
     chosen = min(range(len(sizes)), key=energies.__getitem__)
     size, betas, sized, posed = options[chosen]
-    hands = [posed] + _resized(base, sized, candidates[1:], betas)
+    if size == 1.0:  # the mean size: the candidates go on exactly as they came
+        sized, hands = proxy, list(candidates)
+    else:
+        hands = [posed] + _resized(base, sized, candidates[1:], betas)
     history = monitor.history[began:] if monitor is not None else []
     return sized, hands, StageReport(
         stage="size", seconds=time.perf_counter() - start, loss=energies[chosen],
