@@ -244,6 +244,16 @@ def _points_to_mesh_mm(points: np.ndarray, mesh, plane) -> float:
     return float(np.mean(distances) * 1000.0)
 
 
+def _check_webxr_args(viewpoints: str, wrists: tuple[str, ...], scale: float) -> None:
+    if viewpoints not in ("none", "true", "auto"):
+        raise ValueError(f"viewpoints must be 'none', 'true' or 'auto', got {viewpoints!r}")
+    if not 0.5 <= scale <= 2.0:
+        raise ValueError(f"scale must be in [0.5, 2], got {scale!r}")
+    for variant in wrists:
+        if variant not in WEBXR_WRISTS:
+            raise ValueError(f"unknown wrist variant {variant!r}: one of {WEBXR_WRISTS}")
+
+
 def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int = 0,
                    threads: int = 1, wrists: tuple[str, ...] = ("as-is",),
                    config=None, refine=None, viewpoints: str = "none", scale: float = 1.0,
@@ -278,13 +288,7 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
     from ..inference import MeshConfig, mesh_hand
     from ..metrics import mesh_distances
 
-    if viewpoints not in ("none", "true", "auto"):
-        raise ValueError(f"viewpoints must be 'none', 'true' or 'auto', got {viewpoints!r}")
-    if not 0.5 <= scale <= 2.0:
-        raise ValueError(f"scale must be in [0.5, 2], got {scale!r}")
-    for variant in wrists:
-        if variant not in WEBXR_WRISTS:
-            raise ValueError(f"unknown wrist variant {variant!r}: one of {WEBXR_WRISTS}")
+    _check_webxr_args(viewpoints, wrists, scale)
     config = FitPointsConfig(num_threads=threads, seed=seed) if config is None else \
         dataclasses.replace(config, num_threads=threads)
     generator = torch.Generator().manual_seed(seed)
