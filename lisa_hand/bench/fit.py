@@ -331,6 +331,14 @@ def _add_scene_args(parser: argparse.ArgumentParser) -> None:
                             help=f"also fit {text}; their viewpoint as --webxr-viewpoint")
 
 
+def _sizes(text: str) -> tuple[float, ...]:
+    try:
+        return tuple(float(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"sizes must be numbers separated by commas, got "
+                                         f"{text!r}") from None
+
+
 def main(argv: list[str] | None = None) -> None:
     """``python -m lisa_hand.bench fit [--json FILE] [--model CKPT] ...``"""
     parser = argparse.ArgumentParser(prog="python -m lisa_hand.bench fit",
@@ -362,6 +370,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--webxr-scale", type=float, default=1.0, metavar="S",
                         help="the WebXR hand made S times larger about its wrist (a hand of "
                              "another size: 1.15 is 204 mm long, 0.85 is 151; default 1)")
+    parser.add_argument("--webxr-sizes", type=_sizes, default=None, metavar="S,S,...",
+                        help="the hand sizes the point fit's size search tries, times the mean "
+                             "skeleton (default: the config's, 0.85-1.2); 1 turns it off")
     _add_scene_args(parser)
     parser.add_argument("--only-webxr", action="store_true",
                         help="skip the self-consistency benchmark")
@@ -395,7 +406,12 @@ def main(argv: list[str] | None = None) -> None:
             from ..fitting.points.refine import RefineConfig
 
             refine = RefineConfig(seed=args.seed)
-        numbers["webxr"] = run_webxr_fits(model, args.webxr, seed=args.seed,
+        config = None
+        if args.webxr_sizes is not None:
+            from ..fitting.points.config import FitPointsConfig
+
+            config = FitPointsConfig(seed=args.seed, sizes=args.webxr_sizes)
+        numbers["webxr"] = run_webxr_fits(model, args.webxr, seed=args.seed, config=config,
                                           threads=args.threads, wrists=wrists, refine=refine,
                                           viewpoints=args.webxr_viewpoint,
                                           scale=args.webxr_scale, log=shown_row)

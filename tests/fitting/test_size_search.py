@@ -58,7 +58,7 @@ def _scan_at_size(model, size: float):
     from lisa_hand.fitting.points.fit import start_hand
     from lisa_hand.inference import MeshConfig, mesh_hand
 
-    config = FitPointsConfig(**FAST)
+    config = FitPointsConfig(**{**FAST, "fit_betas": True})
     placeholder = target_cloud(torch.zeros(30, 3), None, seed=0)
     template, rest_hand, (rest, code, color) = start_hand(model, placeholder, None)
     pose = torch.zeros(16, 3)
@@ -94,10 +94,11 @@ def test_the_size_search_finds_the_size_of_the_hand(size):
     assert torch.equal(sized.rest_joints, hands[1].rest_joints)
     if chosen == 1.0:  # the mean size: the candidates and the proxy as they came
         assert sized is proxy and hands == [start, start]
-    # One size: the search is off and the candidates come back as they were.
-    kept_proxy, kept, off = search_size(proxy, cloud, [start], template,
-                                        dataclasses.replace(config, sizes=(1.0,)))
-    assert kept_proxy is proxy and kept == [start] and off.screened_energies == []
+    # Off: the candidates come back as they were.
+    for off_config in (dataclasses.replace(config, sizes=(1.0,)),
+                       dataclasses.replace(config, fit_betas=False)):  # the mean skeleton kept
+        kept_proxy, kept, off = search_size(proxy, cloud, [start], template, off_config)
+        assert kept_proxy is proxy and kept == [start] and off.screened_energies == []
 
 
 def test_sizes_are_checked():

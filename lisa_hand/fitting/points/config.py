@@ -29,7 +29,8 @@ class FitPointsConfig:
     """Adam steps of the articulated proxy stage (pose and translation; no network)."""
     sizes: tuple[float, ...] = (0.85, 0.9, 0.95, 1.0, 1.05, 1.1, 1.15, 1.2)
     """Hand sizes (times the template's mean skeleton) the size search tries after the
-    articulated stage (:mod:`.size_search`); one size (``(1.0,)``) turns it off."""
+    articulated stage (:mod:`.size_search`); one size (``(1.0,)``), a fixed skeleton or
+    ``fit_betas=False`` turns it off."""
     size_iters: int = 15
     """Proxy steps of the best candidate's pose at each size of ``sizes``."""
     finger_iters: int = 30

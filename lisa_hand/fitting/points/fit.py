@@ -540,7 +540,7 @@ def _fit_side(model, points, normals, config: FitPointsConfig, *, rest_joints, s
     if support is not None and config.support_weight > 0:
         cloud = with_support(cloud, support.plane, side, config)
     total = config.align_iters + config.pose_iters + config.finger_iters + config.field_iters
-    if len(config.sizes) > 1 and rest_joints is None:
+    if len(config.sizes) > 1 and rest_joints is None and config.fit_betas:
         total += len(config.sizes) * config.size_iters
     if config.second_pass_iters > 0:  # at most: its field steps run when a finger changed
         total += config.finger_iters + config.second_pass_iters

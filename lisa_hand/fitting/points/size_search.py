@@ -3,9 +3,10 @@
 The proxy stages (:mod:`lisa_hand.fitting.points.proxy`) pose the model's mean hand on the
 template's mean skeleton, and only the field stage fits the skeleton (the template's betas). A
 hand much larger or smaller than the mean is then aligned and posed as a mean-sized hand:
-its fingers' joints land millimetres off, and the field stage, starting there, settles the
-betas part of the way under their prior (a 15% larger WebXR hand: fitted at 1.05 times the
-mean skeleton, 2.36 mm V2S scan->recon on a fist; started from its true size, 1.97 mm).
+its fingers' joints land millimetres off, and the field stage, starting there, takes the
+skeleton only part of the way, the shape code making up the rest (a 15% larger WebXR hand:
+fitted at 1.05 times the mean skeleton, 2.36 mm V2S scan->recon on a fist; started from its
+true size, 1.97 mm).
 
 :func:`search_size` tries the best candidate at each size of ``FitPointsConfig.sizes`` (the
 mean skeleton and proxy scaled about the wrist, a few Adam steps of its pose on the proxy
@@ -96,7 +97,8 @@ def search_size(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequence[Ha
     proxy: the mean hand's proxy, on the template's mean skeleton; candidates: right hands on
     that skeleton (the pose stage's, best first); template: the mesh template whose betas give
     the skeleton (None, a fixed skeleton: nothing searched). config: a
-    :class:`~lisa_hand.fitting.points.config.FitPointsConfig` (``sizes``, ``size_iters``).
+    :class:`~lisa_hand.fitting.points.config.FitPointsConfig` (``sizes``, ``size_iters``;
+    nothing searched with ``fit_betas`` False, which keeps the mean skeleton).
     -> (the proxy at the chosen size, the candidates on it with its betas, the
     :class:`StageReport` ('size'): ``screened_energies`` the best candidate's proxy energy at
     each size, ``loss`` the chosen one's, ``notes`` the size chosen).
@@ -104,7 +106,7 @@ def search_size(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequence[Ha
     start = time.perf_counter()
     began = len(monitor.history) if monitor is not None else 0
     sizes = tuple(config.sizes)
-    if template is None or len(sizes) < 2:
+    if template is None or not config.fit_betas or len(sizes) < 2:
         return proxy, list(candidates), StageReport(stage="size", seconds=0.0, loss=0.0)
     state = cloud.generator.get_state()
     base = CandidateBatch.from_hands(candidates, proxy.pivot)
