@@ -7,6 +7,7 @@ import dataclasses
 import pytest
 import torch
 
+from lisa_hand.fitting.points.candidates import CandidateBatch
 from lisa_hand.fitting.points.cloud import target_cloud
 from lisa_hand.fitting.points.config import FitPointsConfig
 from lisa_hand.fitting.points.proxy import SurfaceProxy, build_surface_proxy
@@ -83,7 +84,10 @@ def test_the_size_search_finds_the_size_of_the_hand(size):
 
     model = load_trained(None, "cpu")
     cloud, start, proxy, template, config = _scan_at_size(model, size)
-    sized, hands, report = search_size(proxy, cloud, [start, start], template, config)
+    other_pose = start.pose.clone()
+    other_pose[3:] += 0.2  # a second candidate, its fingers curled farther
+    other = start.with_pose(other_pose, start.translation + torch.tensor([0.0, 0.01, 0.0]))
+    sized, hands, report = search_size(proxy, cloud, [start, other], template, config)
     sizes = config.sizes
     chosen = sizes[min(range(len(sizes)), key=report.screened_energies.__getitem__)]
     assert abs(chosen - size) <= 0.051, (chosen, report.screened_energies)
@@ -93,7 +97,12 @@ def test_the_size_search_finds_the_size_of_the_hand(size):
                           atol=1e-6)
     assert torch.equal(sized.rest_joints, hands[1].rest_joints)
     if chosen == 1.0:  # the mean size: the candidates and the proxy as they came
-        assert sized is proxy and hands == [start, start]
+        assert sized is proxy and hands == [start, other]
+    else:  # the second candidate keeps its pose, and where it puts the proxy's centroid
+        assert torch.allclose(hands[1].pose, other.pose, atol=1e-5)
+        before = CandidateBatch.from_hands([other], proxy.pivot).position
+        after = CandidateBatch.from_hands([hands[1]], sized.pivot).position
+        assert torch.allclose(before, after, atol=1e-6)
     # Off: the candidates come back as they were.
     for off_config in (dataclasses.replace(config, sizes=(1.0,)),
                        dataclasses.replace(config, fit_betas=False)):  # the mean skeleton kept

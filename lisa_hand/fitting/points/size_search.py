@@ -66,15 +66,17 @@ def scaled_proxy(proxy: SurfaceProxy, size: float, rest_joints: torch.Tensor) ->
                         move(proxy.pivot), proxy.normals_rest)
 
 
-def _resized(batch: CandidateBatch, proxy: SurfaceProxy, hands: Sequence[HandParams],
+def _resized(hands: Sequence[HandParams], pivot: torch.Tensor, proxy: SurfaceProxy,
              betas: torch.Tensor) -> list[HandParams]:
-    """``hands`` (as ``batch``, on the old proxy) on the resized ``proxy``: the same rotation,
-    finger pose and world position of the pivot, the new skeleton and betas."""
-    count = batch.count
+    """``hands`` (on the proxy of pivot ``pivot`` [3] metres) on the resized ``proxy``: the
+    same rotation, finger pose and world position of the pivot, the new skeleton and betas."""
+    if not hands:
+        return []
+    batch = CandidateBatch.from_hands(hands, pivot)
     moved = CandidateBatch(batch.rotation().detach(), batch.position.detach(),
                            batch.finger_pose.detach(), batch.shape_code.detach(),
                            pivot=proxy.pivot,
-                           rest_joints=proxy.rest_joints.expand(count, -1, -1))
+                           rest_joints=proxy.rest_joints.expand(batch.count, -1, -1))
     return [moved.hand(index, dataclasses.replace(hand, betas=betas.cpu().float()))
             for index, hand in enumerate(hands)]
 
@@ -107,15 +109,14 @@ def search_size(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequence[Ha
     began = len(monitor.history) if monitor is not None else 0
     sizes = tuple(config.sizes)
     if template is None or not config.fit_betas or len(sizes) < 2:
-        return proxy, list(candidates), StageReport(stage="size", seconds=0.0, loss=0.0)
+        return proxy, list(candidates), StageReport(stage="size", seconds=0.0)
     state = cloud.generator.get_state()
-    base = CandidateBatch.from_hands(candidates, proxy.pivot)
     like = dict(device=proxy.pivot.device, dtype=proxy.pivot.dtype)
     energies, options = [], []
     for size in sizes:
         betas = betas_for_size(template, size).to(**like)
         sized = scaled_proxy(proxy, size, template.rest_joints(betas[None])[0].to(**like))
-        best = _resized(base, sized, candidates[:1], betas)
+        best = _resized(candidates[:1], proxy.pivot, sized, betas)
         batch = CandidateBatch.from_hands(best, sized.pivot)
         if config.size_iters > 0:
             optimise_on_proxy(sized, cloud, batch, config, "size", config.size_iters,
@@ -128,7 +129,7 @@ def search_size(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequence[Ha
     if size == 1.0:  # the mean size: the candidates go on exactly as they came
         sized, hands = proxy, list(candidates)
     else:
-        hands = [posed] + _resized(base, sized, candidates[1:], betas)
+        hands = [posed] + _resized(candidates[1:], proxy.pivot, sized, betas)
     history = monitor.history[began:] if monitor is not None else []
     return sized, hands, StageReport(
         stage="size", seconds=time.perf_counter() - start, loss=energies[chosen],
