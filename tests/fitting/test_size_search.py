@@ -19,14 +19,10 @@ from .test_points import FAST
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
-def _mean_skeleton(template) -> torch.Tensor:
-    return template.rest_joints(torch.zeros(1, template.num_betas))[0]
-
-
 @pytest.mark.parametrize("size", [0.85, 1.0, 1.12, 1.2])
 def test_the_betas_for_a_size_scale_the_mean_skeleton_about_its_wrist(size):
     template = load_template()
-    mean = _mean_skeleton(template).double()
+    mean = template.rest_joints(torch.zeros(1, template.num_betas))[0].double()
     skeleton = template.rest_joints(betas_for_size(template, size)[None])[0].double()
     wanted = mean[0] + size * (mean - mean[0])  # the mean skeleton, scaled
     error = (skeleton - wanted).norm(dim=-1)

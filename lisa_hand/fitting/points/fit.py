@@ -338,10 +338,11 @@ def _run_stages(model, cloud: TargetCloud, config: FitPointsConfig, rest_joints,
     candidates, reports["pose"] = fit_proxy_pose(proxy, loose, candidates, config,
                                                  monitor=monitor)
     since = monitor.lap("pose", since)
-    proxy, candidates, reports["size"] = search_size(proxy, loose, candidates, template, config,
+    sized, candidates, reports["size"] = search_size(proxy, loose, candidates, template, config,
                                                      monitor=monitor)
-    if clip is not None:
-        proxy = proxy.without_forearm(clip)
+    if sized is not proxy and clip is not None:  # a larger proxy's stub reaches past the cut
+        sized = sized.without_forearm(clip)
+    proxy = sized
     loose = _with_coupling(loose, proxy, candidates[0], config, reports["pose"].notes)
     since = monitor.lap("size", since)
     candidates, reports["fingers"] = restart_fingers(proxy, loose, candidates, config,
