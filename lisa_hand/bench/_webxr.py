@@ -21,8 +21,8 @@ import torch
 from ..utils.threads import cpu_threads
 
 __all__ = ["WEBXR_POSES", "WEBXR_WRISTS", "pose_webxr_hand", "outer_surface", "webxr_side",
-           "webxr_wrist", "extend_forearm", "webxr_wrist_variant", "run_webxr_fits",
-           "table_scan", "wall_scan", "run_scene_fits"]
+           "webxr_wrist", "reshape_webxr_rig", "extend_forearm", "webxr_wrist_variant",
+           "run_webxr_fits", "table_scan", "wall_scan", "run_scene_fits"]
 
 WEBXR_WRISTS = ("as-is", "forearm", "cut")
 """What the scans do beyond the wrist (see the module docstring)."""
@@ -39,7 +39,57 @@ WEBXR_POSES = {
 """Flexion (radians) of each finger's three joints (MCP, PIP, DIP; thumb CMC, MCP, IP)."""
 
 
-def pose_webxr_hand(path: str | Path, pose: str = "rest") -> tuple[np.ndarray, np.ndarray]:
+def reshape_webxr_rig(vertices: np.ndarray, joints: np.ndarray, names: list[str],
+                      proportions: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
+    """The WebXR hand in other proportions, in its bind pose: a hand unlike the artist's for
+    checks beyond one mesh (issue 14), made by a map that keeps the wrist joint where it is.
+
+    vertices: [V, 3] metres; joints: [25, 3] metres, in the rig's order ``names``.
+    proportions: (breadth, thickness, fingers): the palm's breadth across the knuckles and its
+    thickness along the knuckle plane's normal scaled about the wrist joint, and everything
+    beyond the knuckle line (the mean of the four fingers' proximal joints along the wrist ->
+    middle knuckle axis) stretched along that axis, the fingers that many times longer (the
+    thumb's tip, which reaches past the line, a little longer too).
+    -> (vertices [V, 3], joints [25, 3]) metres, the same map applied to both.
+    """
+    breadth, thickness, fingers = (float(f) for f in proportions)
+    wrist = joints[names.index("wrist")]
+    along = joints[names.index("middle-finger-phalanx-proximal")] - wrist
+    along /= np.linalg.norm(along)
+    normal = _palm_normal(joints, names)
+    normal = normal - along * (normal @ along)
+    normal /= np.linalg.norm(normal)
+    frame = np.stack([along, np.cross(normal, along), normal])  # rows: fingers, breadth, normal
+    knuckles = np.mean([(joints[names.index(f"{finger}-phalanx-proximal")] - wrist) @ along
+                        for finger in ("index-finger", "middle-finger", "ring-finger",
+                                       "pinky-finger")])
+
+    def reshape(points):
+        local = (points - wrist) @ frame.T
+        local[:, 0] += (fingers - 1.0) * np.maximum(local[:, 0] - knuckles, 0.0)
+        local[:, 1] *= breadth
+        local[:, 2] *= thickness
+        return wrist + local @ frame
+
+    return reshape(vertices), reshape(joints)
+
+
+def _load_rig(path: str | Path, proportions=None) -> dict:
+    """The WebXR rig in metres (vertices, faces, weights, joints, parents, names), reshaped by
+    :func:`reshape_webxr_rig` when ``proportions`` is given."""
+    with np.load(path, allow_pickle=False) as data:
+        rig = {"vertices": data["vertices"] * 1e-3, "faces": data["faces"],
+               "weights": data["weights"], "joints": data["joints"].astype(np.float64) * 1e-3,
+               "parents": data["parents"], "names": [str(n) for n in data["joint_names"]]}
+    if proportions is not None and tuple(proportions) != (1.0, 1.0, 1.0):
+        rig["vertices"], rig["joints"] = reshape_webxr_rig(rig["vertices"], rig["joints"],
+                                                           rig["names"], proportions)
+    return rig
+
+
+def pose_webxr_hand(path: str | Path, pose: str = "rest",
+                    proportions: tuple[float, float, float] | None = None
+                    ) -> tuple[np.ndarray, np.ndarray]:
     """The WebXR hand (``right_hand.npz``: millimetres, 25 OpenXR joints, its own skinning
     weights) posed by linear blend skinning, in metres.
 
@@ -52,17 +102,17 @@ def pose_webxr_hand(path: str | Path, pose: str = "rest") -> tuple[np.ndarray, n
     2026-12-04 the fingers too turned about ``bone x (thumb x fingers)``, 45 degrees off the
     knuckle plane's normal because the thumb's proximal joint lies well in front of the palm:
     the bent index and the fist curled diagonally across the palm, sideways at their PIP and DIP
-    hinges, which a hand cannot do.) -> (vertices [V, 3] metres, faces [F, 3]).
+    hinges, which a hand cannot do.) proportions: the hand reshaped first
+    (:func:`reshape_webxr_rig`; None: as the artist made it).
+    -> (vertices [V, 3] metres, faces [F, 3]).
     """
     from ..geometry import axis_angle_to_matrix
 
     if pose not in WEBXR_POSES:
         raise ValueError(f"unknown WebXR pose {pose!r}: one of {', '.join(WEBXR_POSES)}")
-    with np.load(path, allow_pickle=False) as data:
-        vertices = data["vertices"] * 1e-3
-        faces, weights = data["faces"], data["weights"]
-        joints = data["joints"].astype(np.float64) * 1e-3
-        parents, names = data["parents"], [str(n) for n in data["joint_names"]]
+    rig = _load_rig(path, proportions)
+    vertices, faces, weights = rig["vertices"], rig["faces"], rig["weights"]
+    joints, parents, names = rig["joints"], rig["parents"], rig["names"]
     index = {name: number for number, name in enumerate(names)}
     fingers = joints[index["middle-finger-phalanx-proximal"]] - joints[0]
     fingers /= np.linalg.norm(fingers)
@@ -144,12 +194,12 @@ def _palm_normal(joints: np.ndarray, names: list[str]) -> np.ndarray:
     return knuckles if knuckles @ thumb > 0 else -knuckles
 
 
-def webxr_wrist(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+def webxr_wrist(path: str | Path, proportions=None) -> tuple[np.ndarray, np.ndarray]:
     """(the wrist joint [3] metres, the unit forearm direction [3]: middle knuckle -> wrist) of
-    the WebXR hand; its poses move only the fingers, so these hold in every pose."""
-    with np.load(path, allow_pickle=False) as data:
-        joints = data["joints"].astype(np.float64) * 1e-3
-        names = [str(n) for n in data["joint_names"]]
+    the WebXR hand (in ``proportions``, :func:`reshape_webxr_rig`); its poses move only the
+    fingers, so these hold in every pose."""
+    rig = _load_rig(path, proportions)
+    joints, names = rig["joints"], rig["names"]
     wrist = joints[names.index("wrist")]
     forearm = wrist - joints[names.index("middle-finger-phalanx-proximal")]
     return wrist, forearm / np.linalg.norm(forearm)
@@ -244,11 +294,16 @@ def _points_to_mesh_mm(points: np.ndarray, mesh, plane) -> float:
     return float(np.mean(distances) * 1000.0)
 
 
-def _check_webxr_args(viewpoints: str, wrists: tuple[str, ...], scale: float) -> None:
+def _check_webxr_args(viewpoints: str, wrists: tuple[str, ...], scale: float,
+                      proportions=None) -> None:
     if viewpoints not in ("none", "true", "auto"):
         raise ValueError(f"viewpoints must be 'none', 'true' or 'auto', got {viewpoints!r}")
     if not 0.5 <= scale <= 2.0:
         raise ValueError(f"scale must be in [0.5, 2], got {scale!r}")
+    if proportions is not None and (len(proportions) != 3
+                                    or not all(0.7 <= f <= 1.4 for f in proportions)):
+        raise ValueError("proportions must be three factors (breadth, thickness, fingers) in "
+                         f"[0.7, 1.4], got {proportions!r}")
     for variant in wrists:
         if variant not in WEBXR_WRISTS:
             raise ValueError(f"unknown wrist variant {variant!r}: one of {WEBXR_WRISTS}")
@@ -257,6 +312,7 @@ def _check_webxr_args(viewpoints: str, wrists: tuple[str, ...], scale: float) ->
 def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int = 0,
                    threads: int = 1, wrists: tuple[str, ...] = ("as-is",),
                    config=None, refine=None, viewpoints: str = "none", scale: float = 1.0,
+                   proportions: tuple[float, float, float] | None = None,
                    log=None) -> list[dict]:
     """Fit ``model`` to the WebXR hand (``right_hand.npz`` or ``left_hand.npz``, its side found
     by :func:`webxr_side`) in each pose of :data:`WEBXR_POSES` and each wrist
@@ -273,6 +329,8 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
     fit gets "auto" too, which leaves it without one).
     scale: the hand made this many times larger about its wrist joint in every pose (a hand of
     another size: 1.15 is 204 mm from the wrist joint to the middle fingertip, 0.85 is 151).
+    proportions: (breadth, thickness, fingers) of :func:`reshape_webxr_rig`, applied before
+    ``scale`` (None: the artist's).
     log: called with each row as it is measured.
     -> one dict per fit: pose, wrist, scan kind, seconds, points left out beyond the wrist, the
     four distances (mm, fitted 128^3 mesh against the variant's mesh, both cut at the fit's
@@ -288,16 +346,16 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
     from ..inference import MeshConfig, mesh_hand
     from ..metrics import mesh_distances
 
-    _check_webxr_args(viewpoints, wrists, scale)
+    _check_webxr_args(viewpoints, wrists, scale, proportions)
     config = FitPointsConfig(num_threads=threads, seed=seed) if config is None else \
         dataclasses.replace(config, num_threads=threads)
     generator = torch.Generator().manual_seed(seed)
     plain = MeshConfig(colors=False, skin_weights=False)
-    wrist, forearm = webxr_wrist(path)
+    wrist, forearm = webxr_wrist(path, proportions)
     side = webxr_side(path)
     rows = []
     for pose in WEBXR_POSES:
-        posed, faces = pose_webxr_hand(path, pose)
+        posed, faces = pose_webxr_hand(path, pose, proportions)
         posed = wrist + scale * (posed - wrist)
         outer = outer_surface(posed, faces)  # what a scanner sees of the whole hand
         turn = 3.0 * torch.rand(3, generator=generator, dtype=torch.float64)
@@ -332,6 +390,7 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                 rows.append({"pose": pose, "wrist": variant,
                              "scan": "partial" if partial else "full",
                              "viewpoint": viewpoints, "scale": scale,
+                             "proportions": list(proportions or (1.0, 1.0, 1.0)),
                              "seconds": fit.seconds,
                              "beyond_wrist_points": fit.beyond_wrist_points,
                              **distances.to_dict(),

@@ -339,6 +339,14 @@ def _sizes(text: str) -> tuple[float, ...]:
                                          f"{text!r}") from None
 
 
+def _proportions(text: str) -> tuple[float, float, float]:
+    parts = _sizes(text)
+    if len(parts) != 3 or not all(0.7 <= part <= 1.4 for part in parts):
+        raise argparse.ArgumentTypeError(f"proportions must be three factors B,T,F in [0.7, 1.4], "
+                                         f"got {text!r}")
+    return parts
+
+
 def main(argv: list[str] | None = None) -> None:
     """``python -m lisa_hand.bench fit [--json FILE] [--model CKPT] ...``"""
     parser = argparse.ArgumentParser(prog="python -m lisa_hand.bench fit",
@@ -370,6 +378,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--webxr-scale", type=float, default=1.0, metavar="S",
                         help="the WebXR hand made S times larger about its wrist (a hand of "
                              "another size: 1.15 is 204 mm long, 0.85 is 151; default 1)")
+    parser.add_argument("--webxr-proportions", type=_proportions, default=None,
+                        metavar="B,T,F",
+                        help="the WebXR hand reshaped before it is posed: its palm B times as "
+                             "broad and T times as thick, its fingers F times as long, e.g. "
+                             "1.1,1,0.9 (a hand unlike the artist's; default 1,1,1)")
     parser.add_argument("--webxr-sizes", type=_sizes, default=None, metavar="S,S,...",
                         help="the hand sizes the point fit's size search tries, times the mean "
                              "skeleton (default: the config's, 0.85-1.2); 1 turns it off")
@@ -414,7 +427,8 @@ def main(argv: list[str] | None = None) -> None:
         numbers["webxr"] = run_webxr_fits(model, args.webxr, seed=args.seed, config=config,
                                           threads=args.threads, wrists=wrists, refine=refine,
                                           viewpoints=args.webxr_viewpoint,
-                                          scale=args.webxr_scale, log=shown_row)
+                                          scale=args.webxr_scale,
+                                          proportions=args.webxr_proportions, log=shown_row)
         for scene, choice in (("table", args.webxr_table), ("wall", args.webxr_wall),
                               ("person", args.webxr_person)):
             if choice is not None:
