@@ -9,6 +9,8 @@ MANO-like template).
   says little (occluded fingers, one view).
 * :func:`finger_coupling`: the squared difference of chosen fingers' flexion from their
   neighbours' (radians^2): an unseen finger curls as the fingers beside it do.
+* :func:`thumb_pose_prior`: the thumb's part of :func:`finger_pose_prior` (radians^2): an unseen
+  thumb, which has no neighbour to follow, is guessed to be in the mean pose.
 
 All are differentiable and batched; the global rotation (pose[:, :3]) is never penalised.
 """
@@ -20,7 +22,7 @@ import torch
 from ..skeleton import FINGER_JOINTS, POSE_DIM
 
 __all__ = ["PRIOR_POSES", "COUPLED_FINGERS", "prior_mean_fingers", "joint_limit_excess",
-           "finger_pose_prior", "finger_coupling"]
+           "finger_pose_prior", "finger_coupling", "thumb_pose_prior", "UNSEEN_FINGERS"]
 
 PRIOR_POSES = ("relaxed", "flat")
 """Named poses a finger-pose prior may pull toward (:func:`lisa_hand.handmodel.named_pose`)."""
@@ -35,6 +37,12 @@ _NEIGHBOUR_MEAN = torch.tensor([[0.0, 1.0, 0.0, 0.0],
                                 [0.0, 0.5, 0.0, 0.5],
                                 [0.0, 0.0, 1.0, 0.0]])
 """[4, 4] row f: the mean over finger f's neighbours in :data:`COUPLED_FINGERS`."""
+UNSEEN_FINGERS = COUPLED_FINGERS + ("thumb",)
+"""The fingers whose unseen weights a one-view fit carries (:func:`lisa_hand.fitting.points.proxy.
+unseen_fingers`), in this order: those of :func:`finger_coupling`, then the thumb's, for
+:func:`thumb_pose_prior`."""
+_THUMB_VALUES = [3 * (joint - 1) + axis for joint in FINGER_JOINTS["thumb"] for axis in range(3)]
+"""The thumb's 9 values among the 45 finger values."""
 _COUPLED_JOINTS = [joint for name in COUPLED_FINGERS for joint in FINGER_JOINTS[name]]
 """The 12 joints of :data:`COUPLED_FINGERS`, three a finger, in that order."""
 
@@ -103,3 +111,17 @@ def finger_coupling(pose: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
     chains = flexion[:, _COUPLED_JOINTS].reshape(pose.shape[0], len(COUPLED_FINGERS), 3)
     beside = torch.einsum("fg,bgj->bfj", _NEIGHBOUR_MEAN.to(chains), chains.detach())
     return ((chains - beside).square().mean(-1) * weights.to(chains)).sum(-1)
+
+
+def thumb_pose_prior(pose: torch.Tensor, mean_fingers: torch.Tensor) -> torch.Tensor:
+    """Mean squared difference of the thumb's 9 values from those of ``mean_fingers``.
+
+    pose: [B, 48] or [B, 45] radians; mean_fingers: [45] radians (:func:`prior_mean_fingers`)
+    -> [B] radians^2.
+    """
+    fingers = _full_pose(pose)[:, 3:]
+    if mean_fingers.shape != (_FINGER_DIM,):
+        raise ValueError(f"mean_fingers must have shape [{_FINGER_DIM}], got "
+                         f"{list(mean_fingers.shape)}")
+    difference = fingers[:, _THUMB_VALUES] - mean_fingers.to(fingers)[_THUMB_VALUES]
+    return difference.square().mean(-1)

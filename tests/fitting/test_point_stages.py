@@ -68,6 +68,27 @@ def test_the_point_prior_keeps_the_sum_of_squares_numbers():
     assert float(prior[0].detach()) == pytest.approx(float(expected), rel=1e-5)
 
 
+def test_the_point_prior_adds_the_unseen_fingers_terms_by_their_weights():
+    """coupling [5]: the four fingers' coupling (finger_coupling of the first four weights)
+    and the unseen thumb's pull to the mean pose (thumb_pose_prior times the fifth)."""
+    from lisa_hand.fitting.priors import finger_coupling, thumb_pose_prior
+
+    batch = CandidateBatch.from_hands([_hand(3), _hand(4)], torch.zeros(3))
+    config = FitPointsConfig(limit_weight=0.0, coupling_weight=2e-4, unseen_thumb_weight=5e-4)
+    mean = prior_mean_fingers(config.prior_pose)
+    plain = point_prior(config, batch, mean, None)
+    weights = torch.tensor([0.0, 0.5, 0.0, 1.0, 0.8])
+    both = point_prior(config, batch, mean, None, weights)
+    expected = (2e-4 * finger_coupling(batch.finger_pose, weights[:4])
+                + 5e-4 * 0.8 * thumb_pose_prior(batch.finger_pose, mean))
+    assert torch.allclose(both - plain, expected, rtol=1e-5)
+    assert float(expected.detach().min()) > 0.0
+    off = FitPointsConfig(limit_weight=0.0, coupling_weight=2e-4, unseen_thumb_weight=0.0)
+    thumbless = point_prior(off, batch, mean, None, weights)
+    assert torch.allclose(thumbless - plain,
+                          2e-4 * finger_coupling(batch.finger_pose, weights[:4]), rtol=1e-5)
+
+
 def test_stages_take_and_return_hand_params():
     model = tiny_model()
     truth = true_hand(model, seed=0)

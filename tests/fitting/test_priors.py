@@ -7,10 +7,12 @@ import torch
 
 from lisa_hand.fitting.priors import (
     COUPLED_FINGERS,
+    UNSEEN_FINGERS,
     finger_coupling,
     finger_pose_prior,
     joint_limit_excess,
     prior_mean_fingers,
+    thumb_pose_prior,
 )
 from lisa_hand.handmodel.poses import JOINT_LIMITS, named_pose, pose_to_angles
 from lisa_hand.skeleton import FINGER_JOINTS
@@ -101,6 +103,28 @@ def test_finger_coupling_pulls_an_unseen_finger_to_its_neighbours_curl():
         0.5 * sum((r - b) ** 2 for r, b in zip(ring, beside, strict=True)) / 3)
 
 
+def test_the_thumb_prior_is_the_mean_square_of_the_thumbs_nine_values_only():
+    assert UNSEEN_FINGERS == COUPLED_FINGERS + ("thumb",)
+    mean = prior_mean_fingers("relaxed", dtype=torch.float64)
+    pose = torch.cat([torch.zeros(3, dtype=torch.float64), mean])[None].repeat(2, 1)
+    pose[1, 3:] += 0.4  # every finger moved: only the thumb's 9 values count
+    thumb = [3 * joint + axis for joint in FINGER_JOINTS["thumb"] for axis in range(3)]
+    pose[1, thumb[0]] += 0.3  # its first value 0.7 from the mean
+    pose.requires_grad_(True)
+    value = thumb_pose_prior(pose, mean)
+    assert value[0].item() == 0.0
+    assert value[1].item() == pytest.approx((0.7 ** 2 + 8 * 0.4 ** 2) / 9)
+    value.sum().backward()
+    others = [index for index in range(48) if index not in thumb]
+    assert float(pose.grad[:, others].abs().max()) == 0.0
+    assert pose.grad[1, thumb[0]].item() == pytest.approx(2 * 0.7 / 9)
+    # its sum with the other fingers' share is finger_pose_prior (9 of the 45 values)
+    rest = pose.detach().clone()
+    rest[:, thumb] = torch.cat([torch.zeros(3, dtype=torch.float64), mean])[thumb]
+    assert (value[1] * 9 + finger_pose_prior(rest, mean)[1] * 45).item() == pytest.approx(
+        finger_pose_prior(pose.detach(), mean)[1].item() * 45)
+
+
 def test_bad_inputs_are_refused():
     with pytest.raises(ValueError, match="prior pose"):
         prior_mean_fingers("fist")
@@ -110,6 +134,8 @@ def test_bad_inputs_are_refused():
         finger_pose_prior(torch.zeros(1, 48), torch.zeros(48))
     with pytest.raises(ValueError, match="weights"):
         finger_coupling(torch.zeros(1, 48), torch.zeros(5))
+    with pytest.raises(ValueError, match="mean_fingers"):
+        thumb_pose_prior(torch.zeros(1, 48), torch.zeros(9))
 
 
 def test_limit_term_has_gradients_outside_the_limits_only():

@@ -16,7 +16,7 @@ import torch
 
 from ...geometry import axis_angle_to_matrix, matrix_to_axis_angle
 from ...skeleton.params import HandParams
-from ..priors import finger_coupling, finger_pose_prior, joint_limit_excess
+from ..priors import finger_coupling, finger_pose_prior, joint_limit_excess, thumb_pose_prior
 
 __all__ = ["CandidateBatch", "point_prior"]
 
@@ -142,15 +142,20 @@ def point_prior(config, batch: CandidateBatch, mean_fingers: torch.Tensor,
     ``mean_fingers`` [45] (:func:`~lisa_hand.fitting.priors.finger_pose_prior`),
     ``limit_weight`` times the joint-limit excess, the shape code's term (with its scale, when
     given: ``shape_weight * mean (code / scale)^2``) and ``betas_weight * |betas|^2`` (when the
-    batch has betas); with ``coupling`` ([4] weights of the unseen fingers, :func:`~lisa_hand.
-    fitting.points.proxy.unseen_fingers`), ``coupling_weight`` times
-    :func:`~lisa_hand.fitting.priors.finger_coupling`. config: a
+    batch has betas); with ``coupling`` ([5] weights of the unseen fingers of
+    :data:`~lisa_hand.fitting.priors.UNSEEN_FINGERS`, :func:`~lisa_hand.fitting.points.proxy.
+    unseen_fingers`), ``coupling_weight`` times :func:`~lisa_hand.fitting.priors.finger_coupling`
+    of the first four and ``unseen_thumb_weight`` times the thumb's weight times
+    :func:`~lisa_hand.fitting.priors.thumb_pose_prior`. config: a
     :class:`~lisa_hand.fitting.points.config.FitPointsConfig`.
     """
     finger = batch.finger_pose
     prior = config.pose_weight * finger_pose_prior(finger, mean_fingers)
     if coupling is not None and config.coupling_weight > 0:
-        prior = prior + config.coupling_weight * finger_coupling(finger, coupling)
+        prior = prior + config.coupling_weight * finger_coupling(finger, coupling[:4])
+    if coupling is not None and config.unseen_thumb_weight > 0:
+        prior = prior + (config.unseen_thumb_weight * coupling[4]
+                         * thumb_pose_prior(finger, mean_fingers))
     if config.limit_weight > 0:
         prior = prior + config.limit_weight * joint_limit_excess(finger)
     if shape_scale is not None:

@@ -23,7 +23,7 @@ class TargetCloud:
     points: [N, 3] world metres; normals: [N, 3] unit outward normals or None (same device and
     dtype); generator: a CPU ``torch.Generator``. For a one-view scan whose sensor position is
     known (:mod:`.free_space`): free, [M, 3] world metres, points the sensor saw to be empty,
-    and depth, its :class:`~.free_space.DepthImage`; None otherwise. coupling: [4] weights of
+    and depth, its :class:`~.free_space.DepthImage`; None otherwise. coupling: [5] weights of
     the fingers the sensor could not see (:func:`~.proxy.unseen_fingers`), set by the fit
     once it has a hand, or None. support: [2, 3] the plane the hand rests on (:mod:`.support`):
     a point on it (metres) and its unit normal towards the hand, in this cloud's frame, device

@@ -118,6 +118,12 @@ class FitPointsConfig:
     """For a one-view scan whose sensor position is known: weight of the flexion coupling of
     the fingers the sensor could not see to their neighbours' (:func:`lisa_hand.fitting.priors.
     finger_coupling`, weighted by :func:`.proxy.unseen_fingers`), radians^2; 0: off."""
+    unseen_thumb_weight: float = 3e-4
+    """For a one-view scan whose sensor position is known: weight of the unseen thumb's pull
+    toward ``prior_pose`` (:func:`lisa_hand.fitting.priors.thumb_pose_prior`, weighted by the
+    thumb's :func:`.proxy.unseen_fingers` weight), radians^2; 0: off. The thumb has no
+    neighbour to follow, and a thumb hidden behind the palm was otherwise pushed anywhere the
+    sensor could not see, tucked under the palm (issue 14)."""
     unseen_share: float = 0.2
     """A finger of which less than this share of the surface could have been seen by the sensor
     counts as unseen (linearly: none seen, fully)."""
@@ -219,7 +225,7 @@ class FitPointsConfig:
         for name in ("shape_weight", "covered_shape_weight", "covered_fraction", "covered_mm",
                      "pose_weight", "limit_weight", "betas_weight",
                      "normal_weight", "free_space_weight", "support_weight", "coverage_weight",
-                     "wrist_margin_m", "coupling_weight",
+                     "wrist_margin_m", "coupling_weight", "unseen_thumb_weight",
                      "proxy_tangent_weight"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):

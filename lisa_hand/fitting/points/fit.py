@@ -278,13 +278,13 @@ def _with_coupling(cloud: TargetCloud, proxy, hand: HandParams, config: FitPoint
                    notes: list[str]) -> TargetCloud:
     """``cloud`` with the weights of the fingers its sensor could not see on ``hand``
     (:func:`.proxy.unseen_fingers`; none without a sensor position or with
-    ``coupling_weight`` 0), named in ``notes``."""
-    from ..priors import COUPLED_FINGERS
+    ``coupling_weight`` and ``unseen_thumb_weight`` 0), named in ``notes``."""
+    from ..priors import UNSEEN_FINGERS
 
-    if cloud.depth is None or config.coupling_weight <= 0:
+    if cloud.depth is None or (config.coupling_weight <= 0 and config.unseen_thumb_weight <= 0):
         return cloud
     coupling = unseen_fingers(proxy, cloud, hand, config.unseen_share)
-    unseen = [f"{name} {float(w):.2f}" for name, w in zip(COUPLED_FINGERS, coupling,
+    unseen = [f"{name} {float(w):.2f}" for name, w in zip(UNSEEN_FINGERS, coupling,
                                                            strict=True) if float(w) > 0]
     notes.append(f"unseen fingers: {', '.join(unseen) or 'none'}")
     return cloud.replace(coupling=coupling)

@@ -176,17 +176,20 @@ def covered_fraction(proxy: SurfaceProxy, cloud: TargetCloud, hand: HandParams,
 @torch.no_grad()
 def unseen_fingers(proxy: SurfaceProxy, cloud: TargetCloud, hand: HandParams,
                    seen_share: float) -> torch.Tensor | None:
-    """[4] weights (0-1) of the fingers of :data:`~lisa_hand.fitting.priors.COUPLED_FINGERS`
-    that a one-view scan's sensor could not see on ``hand`` (a right hand on the proxy's
+    """[5] weights (0-1) of the fingers of :data:`~lisa_hand.fitting.priors.UNSEEN_FINGERS`
+    (the four of ``COUPLED_FINGERS``, then the thumb) that a one-view scan's sensor could not
+    see on ``hand`` (a right hand on the proxy's
     skeleton): 1 minus the share of the finger's proxy points the sensor could have returned
     (:meth:`.free_space.DepthImage.could_see`; each point counted for its dominant bone) over
     ``seen_share``, clamped to 0-1. None when the cloud has no sensor position.
 
     A finger that is hidden where the hand puts it tells the scan nothing, so its pose is the
     prior's: its neighbours' curl (:func:`~lisa_hand.fitting.priors.finger_coupling`) is a
-    better guess than the mean pose (in a one-view fist, an unseen index left straight)."""
+    better guess than the mean pose (in a one-view fist, an unseen index left straight); an
+    unseen thumb's is the mean pose (:func:`~lisa_hand.fitting.priors.thumb_pose_prior`: a thumb
+    hidden behind the palm was tucked under it by the free space, issue 14)."""
     from ...skeleton import FINGER_JOINTS
-    from ..priors import COUPLED_FINGERS
+    from ..priors import UNSEEN_FINGERS
 
     if cloud.depth is None:
         return None
@@ -196,7 +199,7 @@ def unseen_fingers(proxy: SurfaceProxy, cloud: TargetCloud, hand: HandParams,
                                     None if normals is None else normals[0])
     bones = proxy.weights.argmax(-1)
     weights = []
-    for name in COUPLED_FINGERS:
+    for name in UNSEEN_FINGERS:
         mine = torch.isin(bones, torch.tensor(FINGER_JOINTS[name], device=bones.device))
         share = float(seeable[mine].mean()) if bool(mine.any()) else 0.0
         weights.append(min(max(1.0 - share / seen_share, 0.0), 1.0))
