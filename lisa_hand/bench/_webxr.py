@@ -314,7 +314,9 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                    config=None, refine=None, viewpoints: str = "none", scale: float = 1.0,
                    proportions: tuple[float, float, float] | None = None,
                    log=None) -> list[dict]:
-    """Fit ``model`` to the WebXR hand (``right_hand.npz`` or ``left_hand.npz``, its side found
+    """Fit ``model`` (a trained model, or {"full": one, "partial": another}: one for each kind
+    of scan, as ``lisa fit-points`` chooses by default) to the WebXR hand (``right_hand.npz`` or
+    ``left_hand.npz``, its side found
     by :func:`webxr_side`) in each pose of :data:`WEBXR_POSES` and each wrist
     variant of ``wrists`` (:data:`WEBXR_WRISTS`), from a full scan and from a one-view partial
     scan (noise 0.3 mm), each in a random placement (the same for every variant of a pose).
@@ -379,16 +381,18 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                 if variant == "cut":  # the scanner stopped at the wrist joint
                     points = points[Plane(place(wrist[None])[0],
                                           -(forearm @ rotation.T)).keeps(points)]
+                kind = "partial" if partial else "full"
+                fit_model = model[kind] if isinstance(model, dict) else model
                 with cpu_threads(threads):  # the fit and its mesh on ``threads`` threads
                     viewpoint = {"none": None, "auto": "auto",
                                  "true": scan.viewpoint if partial else None}[viewpoints]
-                    fit = fit_points(model, points, None, config, side=side,
+                    fit = fit_points(fit_model, points, None, config, side=side,
                                      viewpoint=viewpoint)
-                    mesh = mesh_hand(model, fit.params, 128, plain, clip=fit.wrist_plane)
+                    mesh = mesh_hand(fit_model, fit.params, 128, plain, clip=fit.wrist_plane)
                 distances = mesh_distances(mesh.vertices, mesh.faces, placed, variant_faces,
                                            clip=fit.wrist_plane)
-                rows.append({"pose": pose, "wrist": variant,
-                             "scan": "partial" if partial else "full",
+                rows.append({"pose": pose, "wrist": variant, "scan": kind,
+                             "model": str(fit_model.source),
                              "viewpoint": viewpoints, "scale": scale,
                              "proportions": list(proportions or (1.0, 1.0, 1.0)),
                              "seconds": fit.seconds,
@@ -397,7 +401,7 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                              "scan_points_to_recon_mm": _points_to_mesh_mm(points, mesh,
                                                                            fit.wrist_plane)})
                 if refine is not None:
-                    rows[-1].update(_refined_row(model, fit, points, placed, variant_faces,
+                    rows[-1].update(_refined_row(fit_model, fit, points, placed, variant_faces,
                                                  refine, threads))
                 if log is not None:
                     log(rows[-1])

@@ -116,6 +116,19 @@ def _bench_model(path, device):
     return model.to(device), "geometric-init (no trained model: a blob hand)"
 
 
+def _default_models(model, device) -> dict:
+    """{"full": ..., "partial": ...}: what ``lisa fit-points`` fits each kind of WebXR scan with
+    when no ``--model`` is given (:func:`lisa_hand.fitting.points.io.default_point_model`): the
+    one-view model ``model`` for the one-view scans, the all-round one for the full scans."""
+    from ..fitting.points.io import default_point_model
+    from ..model.trained import load_trained, shipped_model_path
+
+    full = default_point_model(one_view=False)
+    if full == default_point_model() or not shipped_model_path(full).is_file():
+        return {"full": model, "partial": model}
+    return {"full": load_trained(full, device), "partial": model}
+
+
 def _target(model, seed: int):
     """The true hand: HandParams of a training subject in a random placement."""
     from ..handmodel.poses import named_pose
@@ -347,13 +360,31 @@ def _proportions(text: str) -> tuple[float, float, float]:
     return parts
 
 
+def _shown_row(row: dict) -> None:
+    """Print one WebXR row as it is measured."""
+    print(f"  {row['pose']:>10} {row['wrist']:>7} {row['scan']:>7}: "
+          f"{row['v2s_recon_to_scan_mm']:6.2f} {row['v2s_scan_to_recon_mm']:6.2f}  "
+          f"{row['v2v_recon_to_scan_mm']:6.2f} {row['v2v_scan_to_recon_mm']:6.2f}  "
+          f"({row['seconds']:.1f} s, {row['beyond_wrist_points']} points beyond the "
+          f"wrist; scan points {row['scan_points_to_recon_mm']:.2f})", flush=True)
+    if "refine_seconds" in row:
+        print(f"  {'refined':>26}: {row['refined_v2s_recon_to_scan_mm']:6.2f} "
+              f"{row['refined_v2s_scan_to_recon_mm']:6.2f}  "
+              f"{row['refined_v2v_recon_to_scan_mm']:6.2f} "
+              f"{row['refined_v2v_scan_to_recon_mm']:6.2f}  "
+              f"(+{row['refine_seconds']:.1f} s; scan points "
+              f"{row['refined_scan_points_to_recon_mm']:.2f})", flush=True)
+
+
 def main(argv: list[str] | None = None) -> None:
     """``python -m lisa_hand.bench fit [--json FILE] [--model CKPT] ...``"""
     parser = argparse.ArgumentParser(prog="python -m lisa_hand.bench fit",
                                      description=__doc__.split("\n")[0])
     parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
     parser.add_argument("--model", default=None,
-                        help="trained model (default: the shipped one, else a geometric init)")
+                        help="trained model (default: what lisa fit-points takes without "
+                             "--model: for the WebXR hand's full scans geometry_mix, for the "
+                             "rest geometry_v2; else a geometric init)")
     parser.add_argument("--points", type=int, default=20000, help="scan points")
     parser.add_argument("--noise-mm", type=float, default=0.0, help="scan noise along normals")
     parser.add_argument("--target-mm", type=float, default=1.0, help="accuracy to reach")
@@ -397,22 +428,12 @@ def main(argv: list[str] | None = None) -> None:
     numbers = {} if args.only_webxr else _self_consistency(args)
     if args.webxr is not None:
         wrists = tuple(name.strip() for name in args.webxr_wrists.split(",") if name.strip())
-        model, _ = _bench_model(args.model, args.device)
-        print("WebXR hand (mm; V2S recon->scan, scan->recon; V2V recon->scan, scan->recon):")
-
-        def shown_row(row):
-            print(f"  {row['pose']:>10} {row['wrist']:>7} {row['scan']:>7}: "
-                  f"{row['v2s_recon_to_scan_mm']:6.2f} {row['v2s_scan_to_recon_mm']:6.2f}  "
-                  f"{row['v2v_recon_to_scan_mm']:6.2f} {row['v2v_scan_to_recon_mm']:6.2f}  "
-                  f"({row['seconds']:.1f} s, {row['beyond_wrist_points']} points beyond the "
-                  f"wrist; scan points {row['scan_points_to_recon_mm']:.2f})", flush=True)
-            if "refine_seconds" in row:
-                print(f"  {'refined':>26}: {row['refined_v2s_recon_to_scan_mm']:6.2f} "
-                      f"{row['refined_v2s_scan_to_recon_mm']:6.2f}  "
-                      f"{row['refined_v2v_recon_to_scan_mm']:6.2f} "
-                      f"{row['refined_v2v_scan_to_recon_mm']:6.2f}  "
-                      f"(+{row['refine_seconds']:.1f} s; scan points "
-                      f"{row['refined_scan_points_to_recon_mm']:.2f})", flush=True)
+        model, name = _bench_model(args.model, args.device)
+        models = _default_models(model, args.device) if args.model is None else model
+        print("WebXR hand (mm; V2S recon->scan, scan->recon; V2V recon->scan, scan->recon; "
+              + ("models: " + ", ".join(f"{kind} scans {Path(str(one.source)).name}"
+                                        for kind, one in models.items())
+                 if isinstance(models, dict) else f"model: {name}") + "):")
 
         refine = None
         if args.webxr_refine:
@@ -424,20 +445,21 @@ def main(argv: list[str] | None = None) -> None:
             from ..fitting.points.config import FitPointsConfig
 
             config = FitPointsConfig(seed=args.seed, sizes=args.webxr_sizes)
-        numbers["webxr"] = run_webxr_fits(model, args.webxr, seed=args.seed, config=config,
+        numbers["webxr"] = run_webxr_fits(models, args.webxr, seed=args.seed, config=config,
                                           threads=args.threads, wrists=wrists, refine=refine,
                                           viewpoints=args.webxr_viewpoint,
                                           scale=args.webxr_scale,
-                                          proportions=args.webxr_proportions, log=shown_row)
+                                          proportions=args.webxr_proportions, log=_shown_row)
         for scene, choice in (("table", args.webxr_table), ("wall", args.webxr_wall),
                               ("person", args.webxr_person)):
             if choice is not None:
                 off = None if choice == "none" else "auto"
+                one_view = models["partial"] if isinstance(models, dict) else models
                 numbers["webxr"] += run_scene_fits(
-                    model, args.webxr, scene=scene, seed=args.seed, threads=args.threads,
+                    one_view, args.webxr, scene=scene, seed=args.seed, threads=args.threads,
                     support="auto" if scene == "person" else off,
                     others=off if scene == "person" else "auto",
-                    viewpoints=args.webxr_viewpoint, log=shown_row)
+                    viewpoints=args.webxr_viewpoint, log=_shown_row)
     if args.json is not None:
         args.json.parent.mkdir(parents=True, exist_ok=True)
         args.json.write_text(json.dumps(numbers, indent=2))

@@ -92,10 +92,12 @@ FitModelOpt = Annotated[Path | None, typer.Option(
 
 PointModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model: exported file, run folder or checkpoint, or a shipped "
-                    "model's name (default: 'geometry_v2', the shipped geometric prior of hand "
-                    "model v2, no colour; 'geometry_mix' is the prior of hand models v1 and v2 "
-                    "(closer on full scans of unusual hands, worse from one view), 'geometry' the "
-                    "v1 prior; 'default' is LISA-full, whose mean colour the mesh then gets).")]
+                    "model's name (default: chosen by the scan, and said: a one-view scan "
+                    "'geometry_v2', the shipped geometric prior of hand model v2, no colour; a "
+                    "scan from all round 'geometry_mix', the prior of hand models v1 and v2, "
+                    "closer on full scans of unusual hands, worse from one view; 'geometry' is "
+                    "the v1 prior; 'default' is LISA-full, whose mean colour the mesh then "
+                    "gets).")]
 
 # The verbs over a fitted hand (lisa mesh, render, animate).
 ParamsArg = Annotated[Path, typer.Argument(

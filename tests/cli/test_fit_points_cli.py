@@ -289,22 +289,51 @@ def test_refine_writes_the_refined_model_that_params_json_names(lisa, files, cap
 
 
 def test_without_model_the_shipped_geometric_prior_fits(lisa, files, tmp_path, capsys):
-    """No --model: the point fit uses the shipped geometric prior ('geometry_v2'), params.json
-    names it, the mesh has skinning weights and no colours (the prior has none), and the verbs
-    over a hand load it by that name."""
+    """No --model: the point fit uses a shipped geometric prior, for this scan from all round
+    the one of hand models v1 and v2 ('geometry_mix'), and says so; params.json names it, the
+    mesh has skinning weights and no colours (the prior has none), and the verbs over a hand
+    load it by that name."""
     from lisa_hand.inference.hand_field import load_hand
 
     root, _ = files
     out = tmp_path / "fit"
     assert lisa(["fit-points", str(root / "scan.npz"), "--out", str(out), *FAST_ARGS]) == 0
+    assert ("model: geometry_mix (the scan shows the hand all round; --model to choose another)"
+            in capsys.readouterr().out)
     params = read_params(out / "params.json")
-    assert params.model == "geometry_v2" and params.color_code is None
+    assert params.model == "geometry_mix" and params.color_code is None
     assert params.shape_code is not None and params.shape_code.shape == (128,)
     mesh = load_mesh(out / "mesh.ply")
     assert mesh.num_vertices > 100 and mesh.colors is None and mesh.skin_weights is not None
     model, hand = load_hand(out / "params.json")
-    assert not model.has_color and model.source.endswith("lisa_geometry_v2.pt")
-    assert hand.model == "geometry_v2"
+    assert not model.has_color and model.source.endswith("lisa_geometry_mix.pt")
+    assert hand.model == "geometry_mix"
+
+
+def test_the_default_model_follows_the_kind_of_scan(files):
+    """choose_point_model: a scan from all round gets the wider prior ('geometry_mix'), one
+    that looks like one view, or whose sensor is given, the v2 prior ('geometry_v2'), whatever
+    --viewpoint says of using the sensor."""
+    import trimesh
+
+    from lisa_hand.data.scans import simulate_scan
+    from lisa_hand.fitting.points.config import FitPointsConfig
+    from lisa_hand.fitting.points.io import choose_point_model, default_point_model
+
+    _, points = files
+    config = FitPointsConfig()
+    for viewpoint in ("auto", None):
+        assert choose_point_model(points, viewpoint, config) == (
+            "geometry_mix", "the scan shows the hand all round")
+    assert choose_point_model(points, np.array([0.0, 0.0, 0.0]), config) == (
+        "geometry_v2", "a one-view scan, its sensor given")
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=0.04)
+    seen = simulate_scan(np.asarray(ball.vertices) + [0.0, 0.0, 0.4], np.asarray(ball.faces),
+                         ScanConfig(num_points=2000, partial=True), seed=0).points
+    for viewpoint in ("auto", None):
+        assert choose_point_model(seen, viewpoint, config) == (
+            "geometry_v2", "the scan looks like one view")
+    assert default_point_model() == default_point_model(one_view=True) == "geometry_v2"
 
 
 def test_a_failed_preview_leaves_the_fit_written(lisa, files, capsys, monkeypatch):

@@ -34,6 +34,7 @@ __all__ = [
     "fit_point_file",
     "count_hands",
     "default_point_model",
+    "choose_point_model",
     "hand_points",
 ]
 
@@ -63,18 +64,47 @@ class FitPointsReport:
     """The refinement's :class:`~lisa_hand.fitting.stages.StageReport` (``--refine``), or None."""
 
 
-def default_point_model() -> str:
-    """The model of a point fit without ``--model``: the first shipped one installed of
-    "geometry_v2" (the geometric prior on 203 subjects of the open hand model v2: geometry that
-    image training has not blurred, a rounded palm and a forearm stub), "geometry" (the same on
-    hand model v1) and "default" (LISA-full). A point cloud has no colour, so a prior's lack of
-    one costs nothing but the mesh's vertex colours (``--model default`` keeps them)."""
+def default_point_model(one_view: bool = True) -> str:
+    """The model of a point fit without ``--model``. One view (or not known): the first
+    shipped one installed of "geometry_v2" (the geometric prior on 203 subjects of the open hand
+    model v2: geometry that image training has not blurred, a rounded palm and a forearm stub),
+    "geometry" (the same on hand model v1) and "default" (LISA-full). A scan from all round
+    (``one_view=False``): "geometry_mix" (the prior of hand models v1 and v2, 308 subjects), when
+    installed: its wider shape space is closer on full scans of hands unlike either generator
+    (the WebXR hand, 0.1-0.2 mm), while from one view more shapes explain one side of a hand
+    wrongly (README, "The point fit's prior on both hand models"). A point cloud has no colour,
+    so a prior's lack of one costs nothing but the mesh's vertex colours (``--model default``
+    keeps them)."""
     from ...model.trained import shipped_model_path
 
-    for name in ("geometry_v2", "geometry"):
+    names = ("geometry_v2", "geometry") if one_view else ("geometry_mix", "geometry_v2",
+                                                          "geometry")
+    for name in names:
         if shipped_model_path(name).is_file():
             return name
     return "default"
+
+
+def choose_point_model(points: np.ndarray, viewpoint: Any, config) -> tuple[str, str]:
+    """The model of a point fit without ``--model`` (:func:`default_point_model`) for this scan
+    -> (its name, why, for the log).
+
+    points: [N, 3] metres, the scan as the fit gets it. viewpoint: the fit's (a sensor position
+    or "auto" or None): a position means one view; otherwise the scan is one view when
+    :func:`.viewpoint.estimate_viewpoint` takes it for one (whatever ``--viewpoint`` says, since
+    "none" only keeps the sensor out of the fit). config: the fit's ``FitPointsConfig`` (its
+    seed).
+    """
+    from .viewpoint import estimate_viewpoint
+
+    if viewpoint is not None and not isinstance(viewpoint, str):
+        one_view, why = True, "a one-view scan, its sensor given"
+    elif len(points) < 20:
+        one_view, why = True, "too few points to tell one view from all round"
+    else:
+        one_view = estimate_viewpoint(points, seed=config.seed).one_view
+        why = "the scan looks like one view" if one_view else "the scan shows the hand all round"
+    return default_point_model(one_view), why
 
 
 def fit_point_file(
@@ -112,7 +142,7 @@ def fit_point_file(
 
     points_path: the cloud (:func:`read_point_cloud`); units: of the cloud and the ground truth
         ("auto", "m", "cm", "mm", see :func:`prepare_point_cloud`). model_path: a trained model
-        (:func:`lisa_hand.model.trained.load_trained`; None: :func:`default_point_model`, the
+        (:func:`lisa_hand.model.trained.load_trained`; None: :func:`choose_point_model`'s, a
         shipped geometric prior). gt_path: a mesh or
         points (:func:`lisa_hand.metrics.load_mesh`). resolution: marching-cubes samples a side.
     config: :class:`lisa_hand.fitting.points.fit.FitPointsConfig`. device: "auto", "cpu", "cuda".
@@ -136,16 +166,18 @@ def fit_point_file(
 
     log = log or (lambda line: None)
     _check_choice("colours", colours, ("auto", "none"))
-    model_path = default_point_model() if model_path is None else model_path
     points_path, out_dir = Path(points_path), Path(out_dir)
     config = FitPointsConfig() if config is None else config
     cloud, sensor = read_cloud_file(points_path, units, config, hand, log, depth, support)
-    truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
     view = viewpoint  # checked by fit_points; a depth image's sensor, in metres, for "auto"
     if sensor is not None and viewpoint == "auto":
         view = sensor
     elif viewpoint is not None and not isinstance(viewpoint, str):
         view = np.asarray(viewpoint, dtype=np.float64) * LENGTH_UNITS[cloud.unit]
+    if model_path is None:
+        model_path, why = choose_point_model(cloud.points, view, config)
+        log(f"model: {model_path} ({why}; --model to choose another)")
+    truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
     fit = fit_points(model, cloud.points, cloud.normals, config, side=side, viewpoint=view,
                      support=support, others=others, progress=progress)
     params = fit.params
