@@ -309,6 +309,26 @@ def _check_webxr_args(viewpoints: str, wrists: tuple[str, ...], scale: float,
             raise ValueError(f"unknown wrist variant {variant!r}: one of {WEBXR_WRISTS}")
 
 
+def _measured_fit(model, points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, config,
+                  side: str, viewpoint, threads: int) -> tuple[object, dict]:
+    """One WebXR fit on ``threads`` threads, its 128^3 mesh measured against the truth
+    (vertices [V, 3] metres, faces [F, 3]), both cut at the fit's wrist plane.
+    points: [N, 3] metres, the scan. -> (the ``FitResult``, its row's numbers: seconds, points
+    beyond the wrist, the four distances, ``scan_points_to_recon_mm``)."""
+    from ..fitting.points.fit import fit_points
+    from ..inference import MeshConfig, mesh_hand
+    from ..metrics import mesh_distances
+
+    with cpu_threads(threads):  # the fit and its mesh on ``threads`` threads
+        fit = fit_points(model, points, None, config, side=side, viewpoint=viewpoint)
+        mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False, skin_weights=False),
+                         clip=fit.wrist_plane)
+    distances = mesh_distances(mesh.vertices, mesh.faces, vertices, faces, clip=fit.wrist_plane)
+    return fit, {"seconds": fit.seconds, "beyond_wrist_points": fit.beyond_wrist_points,
+                 **distances.to_dict(),
+                 "scan_points_to_recon_mm": _points_to_mesh_mm(points, mesh, fit.wrist_plane)}
+
+
 def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int = 0,
                    threads: int = 1, wrists: tuple[str, ...] = ("as-is",),
                    config=None, refine=None, viewpoints: str = "none", scale: float = 1.0,
@@ -342,17 +362,14 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
     import dataclasses
 
     from ..data.scans import ScanConfig, simulate_scan
-    from ..fitting.points.fit import FitPointsConfig, fit_points
+    from ..fitting.points.fit import FitPointsConfig
     from ..geometry import axis_angle_to_matrix
     from ..geometry.planes import Plane
-    from ..inference import MeshConfig, mesh_hand
-    from ..metrics import mesh_distances
 
     _check_webxr_args(viewpoints, wrists, scale, proportions)
     config = FitPointsConfig(num_threads=threads, seed=seed) if config is None else \
         dataclasses.replace(config, num_threads=threads)
     generator = torch.Generator().manual_seed(seed)
-    plain = MeshConfig(colors=False, skin_weights=False)
     wrist, forearm = webxr_wrist(path, proportions)
     side = webxr_side(path)
     rows = []
@@ -383,23 +400,14 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                                           -(forearm @ rotation.T)).keeps(points)]
                 kind = "partial" if partial else "full"
                 fit_model = model[kind] if isinstance(model, dict) else model
-                with cpu_threads(threads):  # the fit and its mesh on ``threads`` threads
-                    viewpoint = {"none": None, "auto": "auto",
-                                 "true": scan.viewpoint if partial else None}[viewpoints]
-                    fit = fit_points(fit_model, points, None, config, side=side,
-                                     viewpoint=viewpoint)
-                    mesh = mesh_hand(fit_model, fit.params, 128, plain, clip=fit.wrist_plane)
-                distances = mesh_distances(mesh.vertices, mesh.faces, placed, variant_faces,
-                                           clip=fit.wrist_plane)
+                viewpoint = {"none": None, "auto": "auto",
+                             "true": scan.viewpoint if partial else None}[viewpoints]
+                fit, measured = _measured_fit(fit_model, points, placed, variant_faces, config,
+                                              side, viewpoint, threads)
                 rows.append({"pose": pose, "wrist": variant, "scan": kind,
-                             "model": str(fit_model.source),
-                             "viewpoint": viewpoints, "scale": scale,
-                             "proportions": list(proportions or (1.0, 1.0, 1.0)),
-                             "seconds": fit.seconds,
-                             "beyond_wrist_points": fit.beyond_wrist_points,
-                             **distances.to_dict(),
-                             "scan_points_to_recon_mm": _points_to_mesh_mm(points, mesh,
-                                                                           fit.wrist_plane)})
+                             "model": str(fit_model.source), "viewpoint": viewpoints,
+                             "scale": scale, "proportions": list(proportions or (1.0, 1.0, 1.0)),
+                             **measured})
                 if refine is not None:
                     rows[-1].update(_refined_row(fit_model, fit, points, placed, variant_faces,
                                                  refine, threads))

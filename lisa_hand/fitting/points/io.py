@@ -169,11 +169,7 @@ def fit_point_file(
     points_path, out_dir = Path(points_path), Path(out_dir)
     config = FitPointsConfig() if config is None else config
     cloud, sensor = read_cloud_file(points_path, units, config, hand, log, depth, support)
-    view = viewpoint  # checked by fit_points; a depth image's sensor, in metres, for "auto"
-    if sensor is not None and viewpoint == "auto":
-        view = sensor
-    elif viewpoint is not None and not isinstance(viewpoint, str):
-        view = np.asarray(viewpoint, dtype=np.float64) * LENGTH_UNITS[cloud.unit]
+    view = _fit_viewpoint(viewpoint, sensor, cloud.unit)
     if model_path is None:
         model_path, why = choose_point_model(cloud.points, view, config)
         log(f"model: {model_path} ({why}; --model to choose another)")
@@ -199,6 +195,17 @@ def fit_point_file(
                                 preview=_preview(mesh, cloud, fit, params.extra["input"], log))
     return FitPointsReport(cloud=cloud, fit=fit, mesh=mesh, metrics=metrics, written=written,
                            refine=refined)
+
+
+def _fit_viewpoint(viewpoint, sensor, unit: str):
+    """What the fit gets as its viewpoint (checked by ``fit_points``): for "auto", a depth
+    image's sensor (metres) when there is one; numbers in the cloud's ``unit`` in metres;
+    otherwise ``viewpoint`` as it is ("auto", "none" or None)."""
+    if sensor is not None and viewpoint == "auto":
+        return sensor
+    if viewpoint is not None and not isinstance(viewpoint, str):
+        return np.asarray(viewpoint, dtype=np.float64) * LENGTH_UNITS[unit]
+    return viewpoint
 
 
 def _check_choice(name: str, value: Any, choices: Sequence[str]) -> None:
