@@ -79,17 +79,22 @@ def joint_limit_excess(pose: torch.Tensor) -> torch.Tensor:
     return (excess * excess).flatten(1).sum(-1)
 
 
+def _from_mean(pose: torch.Tensor, mean_fingers: torch.Tensor) -> torch.Tensor:
+    """[B, 45] the finger values of ``pose`` ([B, 48] or [B, 45]) minus ``mean_fingers`` [45]."""
+    fingers = _full_pose(pose)[:, 3:]
+    if mean_fingers.shape != (_FINGER_DIM,):
+        raise ValueError(f"mean_fingers must have shape [{_FINGER_DIM}], got "
+                         f"{list(mean_fingers.shape)}")
+    return fingers - mean_fingers.to(fingers)
+
+
 def finger_pose_prior(pose: torch.Tensor, mean_fingers: torch.Tensor) -> torch.Tensor:
     """Mean squared difference of the finger values from ``mean_fingers``.
 
     pose: [B, 48] or [B, 45] radians; mean_fingers: [45] radians (:func:`prior_mean_fingers`)
     -> [B] radians^2.
     """
-    fingers = _full_pose(pose)[:, 3:]
-    if mean_fingers.shape != (_FINGER_DIM,):
-        raise ValueError(f"mean_fingers must have shape [{_FINGER_DIM}], got "
-                         f"{list(mean_fingers.shape)}")
-    return (fingers - mean_fingers.to(fingers)).square().mean(-1)
+    return _from_mean(pose, mean_fingers).square().mean(-1)
 
 
 def finger_coupling(pose: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
@@ -119,9 +124,4 @@ def thumb_pose_prior(pose: torch.Tensor, mean_fingers: torch.Tensor) -> torch.Te
     pose: [B, 48] or [B, 45] radians; mean_fingers: [45] radians (:func:`prior_mean_fingers`)
     -> [B] radians^2.
     """
-    fingers = _full_pose(pose)[:, 3:]
-    if mean_fingers.shape != (_FINGER_DIM,):
-        raise ValueError(f"mean_fingers must have shape [{_FINGER_DIM}], got "
-                         f"{list(mean_fingers.shape)}")
-    difference = fingers[:, _THUMB_VALUES] - mean_fingers.to(fingers)[_THUMB_VALUES]
-    return difference.square().mean(-1)
+    return _from_mean(pose, mean_fingers)[:, _THUMB_VALUES].square().mean(-1)
