@@ -241,7 +241,8 @@ def test_a_scan_running_on_into_a_forearm_is_cut_at_the_wrist():
 def test_the_shipped_geometric_prior_fits_the_webxr_hand(name, bound_mm):
     """The point fit's one-view default model (the shipped geometric prior of hand model v2,
     203 subjects; the default for every scan until 2026-12-06) on the artist's hand in its
-    rest pose, a full 5000-point scan with 0.3 mm noise in a random placement: the first row of ``python -m lisa_hand.bench fit --only-webxr``
+    rest pose, a full 5000-point scan with 0.3 mm noise in a random placement: the first row of
+    ``python -m lisa_hand.bench fit --only-webxr``
     (measured here V2S 1.20 mm scan->recon, 1.22 mm recon->scan, with the weaker shape prior of
     a scan that covers the hand; 1.25 / 1.25 with the one-sided scans' prior; the v1 prior:
     1.28 / 1.44; the shipped LISA-full: 2.10 / 2.62). Issue 14's target without ``--refine``:
