@@ -43,9 +43,9 @@ from ._webxr import (
     WEBXR_POSES,
     WEBXR_WRISTS,
     pose_webxr_hand,
-    run_scene_fits,
     run_webxr_fits,
 )
+from ._webxr_scenes import run_scene_fits
 
 __all__ = ["WEBXR_POSES", "FitBenchmark", "pose_webxr_hand", "run_webxr_fits",
            "run_fit_benchmark", "main"]

@@ -401,7 +401,7 @@ def test_the_bench_person_frame_is_one_piece_whose_nearest_part_is_the_hand():
     nearest point along the surface is the hand and a stub of its forearm, not the body."""
     import point_cloud_utils as pcu
 
-    from lisa_hand.bench._webxr import person_scan
+    from lisa_hand.bench._webxr_scenes import person_scan
     from lisa_hand.fitting.points.others import _pieces, find_others
 
     for pose in ("rest", "fist"):
