@@ -30,7 +30,8 @@ def view(
         "--port", min=0, max=65535, help="Port of the web server (the next free one when it "
                                          "is taken).")] = 8080,
     host: Annotated[str, typer.Option(
-        "--host", help="Address to listen on (0.0.0.0 to reach it from other machines).")
+        "--host", help="Address to listen on (0.0.0.0 to reach it from other machines, "
+                       "by IP address: pages of other names are refused).")
     ] = "127.0.0.1",
     coarse_res: Annotated[int, typer.Option(
         "--coarse-res", min=8, max=512, help="Grid samples per side of the fast mesh shown "
@@ -39,8 +40,9 @@ def view(
         "--fine-res", min=0, max=1024, help="Grid samples per side of the mesh that replaces "
                                             "it (0: none).")] = 128,
     export_dir: Annotated[Path, typer.Option(
-        "--export-dir", help="Default folder of the Export panel (params.json, mesh.ply, "
-                             "view.json, screenshot.png).")] = Path("lisa_view"),
+        "--export-dir", help="Folder the Export panel writes into (params.json, mesh.ply, "
+                             "view.json, screenshot.png); the panel's Folder box names one "
+                             "folder inside it, never a path elsewhere.")] = Path("lisa_view"),
     export_res: Annotated[int, typer.Option(
         "--export-res", min=8, max=1024, help="Grid samples per side of the exported mesh.")
     ] = 160,
@@ -54,7 +56,8 @@ def view(
     colour between two hands, move along the principal directions of the training codes;
     show skinning weights as colours (dense correspondences), normals, the skeleton and 21
     keypoints, left or right; export params.json and mesh.ply, take a screenshot; with the
-    photo extra, fit an uploaded photo. Needs the view extra: pip install -e '.[view]'."""
+    photo extra, fit an uploaded photo. Only the viewer's own page (and local programs) may
+    connect; exports stay inside --export-dir. Needs the view extra: pip install -e '.[view]'."""
     from ..viewer.config import ViewerConfig, viser_missing
 
     missing = viser_missing()

@@ -35,7 +35,8 @@ class ViewerConfig:
     threads: int = 2
     """Torch CPU threads while serving (meshing)."""
     export_dir: Path = Path("lisa_view")
-    """Default folder of the Export panel (params.json, mesh.ply, view.json, screenshot.png)."""
+    """Folder the Export panel writes into (params.json, mesh.ply, view.json, screenshot.png;
+    the panel's Folder box names one folder inside it, nothing is written elsewhere)."""
     export_resolution: int = 160
     """Grid samples per side of the exported mesh.ply."""
     motion_fps: float = 12.0

@@ -1,7 +1,10 @@
 """What the viewer's Export panel writes: the hand on screen as ``params.json`` (readable by
 :func:`lisa_hand.skeleton.params.read_params`, so every other command takes it), its mesh as
 ``mesh.ply`` (colours and skinning weights), ``view.json`` (the viewer's settings and state,
-the resolved config of the export), and a browser screenshot (``screenshot.png``)."""
+the resolved config of the export), and a browser screenshot (``screenshot.png``).
+
+The panel writes only inside the viewer's export folder (``lisa view --export-dir``): its Folder
+box names one folder in it (:func:`export_folder`), never a path elsewhere."""
 
 from __future__ import annotations
 
@@ -19,9 +22,38 @@ from ..utils.io import atomic_path, check_output_file, write_json
 from .config import ViewerConfig
 from .state import ViewState
 
-__all__ = ["EXPORT_FILES", "export_hand", "write_screenshot"]
+__all__ = ["EXPORT_FILES", "export_folder", "export_hand", "write_screenshot"]
 
 EXPORT_FILES = ("params.json", "mesh.ply", "view.json")
+
+
+_MAX_NAME = 100
+_FORBIDDEN_CHARS = frozenset('/\\:*?"<>|')
+
+
+def export_folder(root: str | os.PathLike, name: str) -> Path:
+    """The folder of the Export panel: ``root`` itself for an empty ``name`` (or "."), else
+    the folder ``name`` in it. Nothing is created.
+
+    name: one folder name, at most 100 characters, none of ``/ \\ : * ? " < > |`` nor a
+    control character, not ".." (so no absolute path, no way up, no subfolder); surrounding
+    spaces are dropped. A name whose folder is a link out of ``root`` is refused too.
+    Raises ValueError naming the problem.
+    """
+    if not isinstance(name, str):
+        raise ValueError(f"the folder must be a name, got {type(name).__name__}")
+    name = name.strip()
+    root = Path(root).resolve()
+    if name in ("", "."):
+        return root
+    if name == ".." or len(name) > _MAX_NAME or any(
+            char in _FORBIDDEN_CHARS or not char.isprintable() for char in name):
+        raise ValueError(f"the folder must be one name inside {root} (no '/', '\\', ':', "
+                         f"'..', at most {_MAX_NAME} characters)")
+    folder = root / name
+    if folder.resolve().parent != root:
+        raise ValueError(f"{folder} leads out of {root}")
+    return folder
 
 
 def _check_folder(folder: Path) -> Path:

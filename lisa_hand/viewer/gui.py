@@ -10,14 +10,23 @@ Every control sets one value of the :class:`~.state.ViewState` through
 state implies (the 45 finger sliders show the resulting angles) with the callbacks muted.
 Handles are in ``Controls.handles`` by name (the tests set their ``value`` through viser's
 Python API, which runs the same callbacks as a browser).
+
+Every value is checked before it is used (:func:`value_problem`): a number must be finite and
+within its slider's range, a dropdown's value one of its options, a checkbox's a bool, a text a
+short string. A value that fails is ignored, with a note on the status line (and in
+``Controls.notes``), never a traceback on the server. A browser's change is checked before
+viser even casts it (:meth:`Controls.guard_browser_updates`), and may set a control's value only
+(not its range, options or callbacks).
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
+from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import replace
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from ..handmodel.poses import JOINT_LIMITS, POSE_NAMES, SYNERGY_NAMES
@@ -28,7 +37,7 @@ from .state import NUM_FINGER_VALUES, PoseEdit, finger_angles, interpolated_pose
 if TYPE_CHECKING:
     from .server import HandViewer
 
-__all__ = ["Controls", "build_controls", "OWN_POSE", "SIDE_OPTIONS"]
+__all__ = ["Controls", "build_controls", "value_problem", "OWN_POSE", "SIDE_OPTIONS"]
 
 OWN_POSE = "(the hand's own)"
 SIDE_OPTIONS = ("as hand A", "right", "left")
@@ -36,6 +45,43 @@ _ANGLE_NAMES = ("flexion", "abduction", "twist")
 _SYNERGY_RANGE = {"spread": (-1.0, 1.5), "thumb_opposition": (-0.5, 1.2),
                   "thumb_abduction": (-0.5, 1.2)}
 _LIMIT_MARGIN_DEG = 15.0
+_MAX_TEXT = 1000
+"""Longest text a text box takes (characters)."""
+
+
+def _shown(value: Any) -> str:
+    """A value for a note: a number as itself, anything else by its type (never echo text)."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return repr(value)
+    return f"a {type(value).__name__}"
+
+
+def value_problem(handle: Any, value: Any) -> str | None:
+    """Why ``value`` cannot be the value of the viser GUI input ``handle``; None: it can.
+
+    Sliders take finite numbers (not bools) within [min, max]; dropdowns one of their options;
+    checkboxes and buttons a bool; text boxes a string of at most 1000 printable characters.
+    Any other input (an upload button) takes no value from a browser.
+    """
+    import viser
+
+    if isinstance(handle, (viser.GuiButtonHandle, viser.GuiCheckboxHandle)):
+        return None if isinstance(value, bool) else f"{_shown(value)} is not true or false"
+    if isinstance(handle, viser.GuiSliderHandle):
+        low, high = float(handle.min), float(handle.max)
+        if (isinstance(value, bool) or not isinstance(value, (int, float))
+                or not math.isfinite(value) or not low <= value <= high):
+            return f"{_shown(value)} is not a number in [{low:g}, {high:g}]"
+        return None
+    if isinstance(handle, viser.GuiDropdownHandle):
+        if isinstance(value, str) and value in handle.options:
+            return None
+        return f"{_shown(value)} is not one of its options"
+    if isinstance(handle, viser.GuiTextHandle):
+        if isinstance(value, str) and len(value) <= _MAX_TEXT and value.isprintable():
+            return None
+        return f"{_shown(value)} is not a line of at most {_MAX_TEXT} characters"
+    return "it takes no value from a browser"
 
 
 def _finger_range(index: int) -> tuple[float, float]:
@@ -50,6 +96,9 @@ class Controls:
     def __init__(self, viewer: HandViewer, photo_fit: Callable[..., Any] | None = None) -> None:
         self.viewer = viewer
         self.handles: dict[str, Any] = {}
+        self.notes: deque[str] = deque(maxlen=100)
+        """The latest notes of ignored values, oldest first (the status line shows the last)."""
+        self._good: dict[str, Any] = {}
         self._muted = False
         gui = viewer.server.gui
         self.gui = gui
@@ -64,6 +113,7 @@ class Controls:
         from .photo import add_photo_panel
 
         self.photo = add_photo_panel(self, photo_fit)
+        self.guard_browser_updates()
 
     # -- helpers -----------------------------------------------------------------------------
     @contextlib.contextmanager
@@ -75,15 +125,78 @@ class Controls:
         finally:
             self._muted = was
 
+    def note(self, text: str) -> None:
+        """Show ``text`` on the status line and keep it in :attr:`notes`."""
+        self.notes.append(text)
+        self.show_status(text)
+
+    def _label(self, name: str) -> str:
+        return str(getattr(self.handles.get(name), "label", name))
+
     def _on(self, name: str, handle: Any, action: Callable[[Any], None]) -> Any:
+        """Register ``handle`` as ``name``; ``action(value)`` runs on a change of a valid
+        value. An invalid one (:func:`value_problem`) is a note, and the control goes back to
+        its last valid value."""
         self.handles[name] = handle
+        self._good[name] = handle.value
 
         @handle.on_update
         def _(_event) -> None:
-            if not self._muted:
-                action(handle.value)
+            value = handle.value
+            problem = value_problem(handle, value)
+            if problem is not None:
+                self.note(f"ignored {self._label(name)}: {problem}")
+                with self.muted():
+                    handle.value = self._good[name]
+                return
+            self._good[name] = value
+            if self._muted:
+                return
+            try:
+                action(value)
+            except (ValueError, TypeError) as exc:  # a value the state refuses
+                self.note(f"ignored {self._label(name)}: {exc}")
 
         return handle
+
+    def guard_browser_updates(self) -> None:
+        """Check every change a browser sends before viser handles it.
+
+        viser applies a browser's ``GuiUpdateMessage`` by casting each property to its current
+        type and setting it (``GuiApi._handle_gui_updates``): a string for a slider raises in
+        viser's event loop, and any property (a range, the options, the callbacks) may be set.
+        This puts a check in front of that handler (viser 1.1.1, pinned, registers it on
+        ``ViserServer._websock_server``): a change passes only when it sets ``value`` alone, of
+        a control of this panel, to a value :func:`value_problem` accepts; anything else is a
+        note and is dropped.
+        """
+        from viser._messages import GuiUpdateMessage
+
+        interface = self.viewer.server._websock_server
+        handle_updates = self.gui._handle_gui_updates
+
+        async def checked(client_id: Any, message: Any) -> None:
+            problem = self._browser_problem(message)
+            if problem is not None:
+                self.note(f"ignored a change from a browser: {problem}")
+                return
+            await handle_updates(client_id, message)
+
+        interface.unregister_handler(GuiUpdateMessage, handle_updates)
+        interface.register_handler(GuiUpdateMessage, checked)
+
+    def _browser_problem(self, message: Any) -> str | None:
+        """Why the browser's GUI change ``message`` is refused (None: it is not)."""
+        names = {handle._impl.uuid: name for name, handle in self.handles.items()
+                 if hasattr(handle, "_impl")}
+        name = names.get(getattr(message, "uuid", None))
+        if name is None:
+            return "not a control of this panel"
+        updates = getattr(message, "updates", None)
+        if not isinstance(updates, dict) or list(updates) != ["value"]:
+            return f"{self._label(name)}: only its value may change"
+        problem = value_problem(self.handles[name], updates["value"])
+        return None if problem is None else f"{self._label(name)}: {problem}"
 
     def _click(self, name: str, handle: Any, action: Callable[[], None]) -> Any:
         self.handles[name] = handle
@@ -265,8 +378,9 @@ class Controls:
 
     def _export_folder(self, gui: Any) -> None:
         with gui.add_folder("Export"):
-            self.handles["export_dir"] = gui.add_text("Folder",
-                                                      str(self.viewer.config.export_dir))
+            root = self.viewer.export_root
+            self.handles["export_dir"] = gui.add_text(
+                "Folder", "", hint=f"A folder name inside {root} (empty: that folder)")
             self._click("export", gui.add_button("Export params.json + mesh.ply"),
                         self.export)
             self._click("screenshot", gui.add_button("Screenshot"), self.screenshot)
@@ -275,12 +389,26 @@ class Controls:
     def _export_line(self, text: str) -> None:
         self.handles["export_status"].content = text
 
+    def _export_target(self) -> Path | None:
+        """The Export folder inside the viewer's export folder, or None (refused: a note)."""
+        from .export import export_folder
+
+        try:
+            return export_folder(self.viewer.export_root, self.handles["export_dir"].value)
+        except ValueError as exc:
+            self._export_line(f"export refused: {exc}")
+            self.notes.append(f"export refused: {exc}")
+            return None
+
     def export(self) -> list:
-        """Write the hand into the Export folder (errors become the status line)."""
+        """Write the hand into the Export folder, a folder inside the viewer's export folder
+        (:func:`~.export.export_folder`; errors and refusals become the export status line)."""
         from .export import export_hand
 
         viewer = self.viewer
-        folder = self.handles["export_dir"].value
+        folder = self._export_target()
+        if folder is None:
+            return []
         self._export_line(f"exporting to {folder} ...")
         try:
             with viewer._lock:
@@ -294,10 +422,11 @@ class Controls:
 
     def screenshot(self) -> None:
         """Save the first connected browser's view as ``screenshot.png`` in the Export folder."""
-        from pathlib import Path
-
         from .export import write_screenshot
 
+        folder = self._export_target()
+        if folder is None:
+            return
         clients = list(self.viewer.server.get_clients().values())
         if not clients:
             self._export_line("screenshot: no browser is connected")
@@ -305,8 +434,7 @@ class Controls:
         try:
             image = clients[0].get_render(height=720, width=960, transport_format="png",
                                           timeout=30.0)
-            path = write_screenshot(Path(self.handles["export_dir"].value) / "screenshot.png",
-                                    image)
+            path = write_screenshot(folder / "screenshot.png", image)
         except (ValueError, OSError, TimeoutError, RuntimeError) as exc:
             self._export_line(f"screenshot failed: {exc}")
             return

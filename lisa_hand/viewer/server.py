@@ -7,6 +7,10 @@ The hand on screen is always ``view_params(viewer.state, viewer.hands, viewer.sp
 :class:`~.meshing.Remesher` for a coarse, then a fine mesh. viser ships its web client in its
 wheel, so the viewer works with no internet; it is imported here, lazily, so that
 ``import lisa_hand`` works without the view extra.
+
+The viewer serves only its user: its web server refuses every other web page
+(:mod:`.origin`), the panel ignores values no control can take (:mod:`.gui`), and exports stay
+inside the export folder (:func:`.export.export_folder`).
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ from ..utils.threads import cpu_threads
 from .config import ViewerConfig
 from .display import display_colors, hand_keypoints, skeleton_segments, vertex_normals
 from .meshing import MeshUpdate, Remesher
+from .origin import origin_checked_servers
 from .state import CodeSpaces, NamedHand, ViewState, view_params
 
 __all__ = ["HandViewer", "serve"]
@@ -79,8 +84,15 @@ class HandViewer:
         self._motion: threading.Thread | None = None
         self._playing = threading.Event()
         self._template = None
-        self.server = viser.ViserServer(host=self.config.host, port=self.config.port,
-                                        label="LISA hand", verbose=False)
+        self.export_root = Path(self.config.export_dir).resolve()
+        """The folder every export goes into (or into one folder inside it)."""
+        with origin_checked_servers() as guard:
+            self.server = viser.ViserServer(host=self.config.host, port=self.config.port,
+                                            label="LISA hand", verbose=False)
+        if not guard.servers:  # a viser that serves otherwise: never serve unchecked
+            self.server.stop()
+            raise RuntimeError("lisa view: viser started no origin-checked server (viser "
+                               f"{viser.__version__}; lisa view needs viser 1.1.1)")
         self.server.gui.configure_theme(control_width="large")
         self._scene_setup()
         self.remesher = Remesher(model, self._on_mesh, self.config.remesh,

@@ -34,9 +34,10 @@ def test_chromium_shows_the_hand(model, hands, tmp_path):
     from lisa_hand.viewer.screenshot import serve_and_screenshot
     from lisa_hand.viewer.server import HandViewer
 
-    config = ViewerConfig(port=free_port(), remesh=RemeshConfig(16, 32, padding=PADDING))
+    config = ViewerConfig(port=free_port(), remesh=RemeshConfig(16, 32, padding=PADDING),
+                          export_dir=tmp_path / "export")
     def press_screenshot(viewer) -> None:  # the panel's button: viser's render of the canvas
-        viewer.controls.handles["export_dir"].value = str(tmp_path / "export")
+        viewer.controls.handles["export_dir"].value = ""  # the export folder itself
         viewer.controls.handles["screenshot"].value = True
 
     check = serve_and_screenshot(lambda: HandViewer(model, hands, config),

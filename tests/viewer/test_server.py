@@ -129,24 +129,26 @@ def test_interpolation_sliders_reach_both_hands(viewer, hands):
 def test_export_writes_params_and_mesh(viewer, tmp_path):
     handles = viewer.controls.handles
     handles["index_curl"].value = 0.3
-    handles["export_dir"].value = str(tmp_path / "out")
+    handles["export_dir"].value = "out"  # a folder inside the viewer's export folder
     handles["export"].value = True
-    params = read_params(tmp_path / "out" / "params.json")
+    out = tmp_path / "export" / "out"
+    params = read_params(out / "params.json")
     for key in ("pose", "translation", "rest_joints", "shape_code", "color_code"):
         assert torch.equal(getattr(params, key), getattr(viewer.params, key)), key
-    mesh = load_mesh(tmp_path / "out" / "mesh.ply")
+    mesh = load_mesh(out / "mesh.ply")
     assert mesh.num_faces > 0 and mesh.skin_weights.shape == (mesh.num_vertices, 16)
     assert np.allclose(mesh.skin_weights.sum(1), 1.0, atol=1e-4)
-    view = read_json(tmp_path / "out" / "view.json")
+    view = read_json(out / "view.json")
     assert view["state"]["pose"]["synergies"][0] == pytest.approx(0.3)
     assert view["mesh"]["resolution"] == 24
-    assert handles["export_status"].content.startswith(f"wrote {tmp_path / 'out'}")
+    assert handles["export_status"].content.startswith(f"wrote {out.resolve()}")
 
 
 def test_export_to_a_file_is_one_status_line(viewer, tmp_path):
-    blocker = tmp_path / "file"
+    blocker = viewer.export_root / "file"
+    blocker.parent.mkdir(parents=True, exist_ok=True)
     blocker.write_text("x")
-    viewer.controls.handles["export_dir"].value = str(blocker)
+    viewer.controls.handles["export_dir"].value = "file"
     viewer.controls.handles["export"].value = True
     line = viewer.controls.handles["export_status"].content
     assert line == f"export failed: {blocker}: not a folder"
