@@ -27,6 +27,7 @@ __all__ = ["NUM_MANO_VERTICES", "POSE_FEATURE_DIM", "ManoData", "load_mano_pkl"]
 
 NUM_MANO_VERTICES = 778
 POSE_FEATURE_DIM = 9 * (NUM_JOINTS - 1)  # 135: vec(R_j - I) over the 15 finger joints
+_MAX_SPARSE_ELEMENTS = 10_000_000  # a densified sparse matrix (MANO's J_regressor: 16 x 778)
 
 _REQUIRED_KEYS = (
     "v_template",
@@ -186,25 +187,45 @@ def _evaluate_chumpy(obj: _ChumpyStub, path: Path, key: str, depth: int = 0) -> 
     )
 
 
-def _sparse_to_dense(obj: _SparseStub, path: Path, key: str) -> np.ndarray:
-    """Densify a pickled scipy.sparse CSC, CSR or COO matrix from its state, with NumPy only."""
+def _sparse_to_dense(obj: _SparseStub, path: Path, key: str,
+                     expected: tuple | None = None) -> np.ndarray:
+    """Densify a pickled scipy.sparse CSC, CSR or COO matrix from its state, with NumPy only.
+
+    expected: the shape the key must have (None entries: any); the claimed shape is checked
+    against it and against a hard cap before anything is allocated, and every index against
+    the shape (a hostile file can claim any shape and any index)."""
     state = obj.stub_state
     shape = state.get("_shape", state.get("shape"))
     try:
         rows, cols = (int(size) for size in shape)
+        if rows < 0 or cols < 0 or (expected is not None and any(
+                want is not None and have != want
+                for have, want in zip((rows, cols), expected, strict=True))):
+            raise ValueError(f"claims shape {(rows, cols)}, expected "
+                             f"{tuple('*' if w is None else w for w in expected or ())}")
+        if rows * cols > _MAX_SPARSE_ELEMENTS:
+            raise ValueError(f"claims shape {(rows, cols)}, over {_MAX_SPARSE_ELEMENTS} entries")
         data = np.asarray(state["data"], dtype=np.float64).ravel()
-        dense = np.zeros((rows, cols), dtype=np.float64)
         fmt = str(state.get("format", obj.pickled_name.rsplit(".", 1)[-1][:3]))
         if fmt in ("csc", "csr"):
-            indices = np.asarray(state["indices"], dtype=np.int64)
-            indptr = np.asarray(state["indptr"], dtype=np.int64)
+            indices = np.asarray(state["indices"], dtype=np.int64).ravel()
+            indptr = np.asarray(state["indptr"], dtype=np.int64).ravel()
+            if (len(indptr) != (cols if fmt == "csc" else rows) + 1 or indptr[0] != 0
+                    or (np.diff(indptr) < 0).any() or indptr[-1] != len(indices)):
+                raise ValueError("indptr does not match the shape and indices")
             major = np.repeat(np.arange(len(indptr) - 1), np.diff(indptr))
             row_idx, col_idx = (indices, major) if fmt == "csc" else (major, indices)
         elif fmt == "coo":
             coords = state.get("coords", (state.get("row"), state.get("col")))
-            row_idx, col_idx = (np.asarray(c, dtype=np.int64) for c in coords)
+            row_idx, col_idx = (np.asarray(c, dtype=np.int64).ravel() for c in coords)
         else:
             raise ValueError(f"unsupported sparse format {fmt!r}")
+        if not len(row_idx) == len(col_idx) == len(data):
+            raise ValueError("data and indices differ in length")
+        if len(data) and (row_idx.min() < 0 or row_idx.max() >= rows or col_idx.min() < 0
+                          or col_idx.max() >= cols):
+            raise ValueError(f"an index is outside the shape {(rows, cols)}")
+        dense = np.zeros((rows, cols), dtype=np.float64)
         np.add.at(dense, (row_idx, col_idx), data)
     except (KeyError, TypeError, ValueError, IndexError) as exc:
         raise ValueError(
@@ -214,9 +235,11 @@ def _sparse_to_dense(obj: _SparseStub, path: Path, key: str) -> np.ndarray:
     return dense
 
 
-def _to_array(value, path: Path, key: str, depth: int = 0) -> np.ndarray:
+def _to_array(value, path: Path, key: str, depth: int = 0,
+              expected: tuple | None = None) -> np.ndarray:
+    """The array a pickled value holds; ``expected``: the shape a sparse matrix must claim."""
     if isinstance(value, _SparseStub):
-        return _sparse_to_dense(value, path, key)
+        return _sparse_to_dense(value, path, key, expected)
     if isinstance(value, _ChumpyStub):
         return _evaluate_chumpy(value, path, key, depth)
     try:
@@ -232,7 +255,7 @@ def _to_array(value, path: Path, key: str, depth: int = 0) -> np.ndarray:
 
 
 def _float_array(raw: dict, key: str, shape: tuple, path: Path, shape_text: str) -> np.ndarray:
-    array = _to_array(raw[key], path, key)
+    array = _to_array(raw[key], path, key, expected=shape if len(shape) == 2 else None)
     if array.ndim != len(shape) or any(
         want is not None and have != want for have, want in zip(array.shape, shape, strict=False)
     ):

@@ -19,7 +19,10 @@ show it and the original image files, optionally MANO parameters) and gives them
   unfinished).
 
 Bad input of one frame (:class:`SkipFrame`) skips that frame with one line and a count
-(:class:`ImportReport`); nothing half-written is left for it.
+(:class:`ImportReport`); nothing half-written is left for it. The checks every importer shares:
+a path a data file names stays inside its dataset folder (:func:`dataset_path`), a hand is the
+size of a hand (:func:`check_hand_size`), and a view sees the hand from in front at a plausible
+distance (:func:`check_view`).
 """
 
 from __future__ import annotations
@@ -29,7 +32,7 @@ import time
 from collections import Counter
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PurePosixPath, PureWindowsPath
 from typing import Any
 
 import numpy as np
@@ -42,6 +45,7 @@ from ...skeleton.mano import ManoLayer
 from ...utils.io import write_json
 from ..keypoints import write_keypoints
 from ..layout import FORMAT_NAME, FORMAT_VERSION, SOURCES_FILE, FramePaths, prepare_dataset_folder
+from ..units import POSSIBLE_DIAGONAL_M, bounding_diagonal
 
 __all__ = [
     "IMPORT_FORMAT_VERSION",
@@ -54,6 +58,10 @@ __all__ = [
     "write_dataset",
     "ExtraFiles",
     "subject_folder",
+    "MAX_CAMERA_DISTANCE_M",
+    "dataset_path",
+    "check_hand_size",
+    "check_view",
 ]
 
 IMPORT_FORMAT_VERSION = 1
@@ -61,6 +69,9 @@ IMPORT_FORMAT_VERSION = 1
 _MAX_MESSAGES = 20  # skipped-frame lines kept in the report (all are counted)
 _IK_CHUNK = 4096  # frames per inverse-kinematics batch
 _IK_REFINE = 20  # L-BFGS iterations of the pose on the subject's fixed skeleton
+MAX_CAMERA_DISTANCE_M = 50.0
+"""Farthest a camera that shows a hand may be from it (a capture dome is about 1 m across;
+a campos in the wrong unit or a garbage value puts the camera kilometres away)."""
 
 
 class SkipFrame(ValueError):
@@ -125,6 +136,7 @@ class ImportReport:
     num_views: int = 0
     skipped: Counter = field(default_factory=Counter)
     messages: list[str] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
     pose_source: Counter = field(default_factory=Counter)
     ik_error_mm: list[float] = field(default_factory=list)
     seconds: float = 0.0
@@ -135,12 +147,18 @@ class ImportReport:
         if len(self.messages) < _MAX_MESSAGES:
             self.messages.append(str(exc))
 
+    def note(self, message: str) -> None:
+        """Keep one line about what the import changed in the input (e.g. a unit converted)."""
+        if message not in self.notes and len(self.notes) < _MAX_MESSAGES:
+            self.notes.append(message)
+
     def to_dict(self) -> dict[str, Any]:
         errors = np.asarray(self.ik_error_mm or [np.nan])
         return {
             "dataset": self.dataset, "num_subjects": self.num_subjects,
             "num_frames": self.num_frames, "num_views": self.num_views,
             "skipped": dict(self.skipped), "skip_messages": self.messages,
+            "notes": self.notes,
             "pose_source": dict(self.pose_source),
             "ik_error_mm_mean": None if np.isnan(errors).all() else float(np.nanmean(errors)),
             "ik_error_mm_max": None if np.isnan(errors).all() else float(np.nanmax(errors)),
@@ -152,6 +170,7 @@ class ImportReport:
         lines = [f"imported {self.dataset}: {self.num_frames} frames ({self.num_views} views) of "
                  f"{self.num_subjects} subjects into {self.root} in {self.seconds:.1f} s"]
         info = self.to_dict()
+        lines.extend(f"  note: {message}" for message in self.notes[:5])
         if info["ik_error_mm_max"] is not None:
             lines.append(f"  inverse kinematics: keypoints reproduced within "
                          f"{info['ik_error_mm_mean']:.3f} mm on average, "
@@ -183,6 +202,54 @@ def template_reference() -> torch.Tensor:
 def subject_folder(index: int, count: int = 1000) -> str:
     """Subject folder name ``index`` of ``count``: ``s000``, ... (wider when count > 1000)."""
     return f"s{index:0{max(3, len(str(count - 1)))}d}"
+
+
+def dataset_path(base: Path, relative: Any, where: str) -> Path:
+    """``base / relative`` for a path that a data file names (``file_name``).
+
+    A data file may only name files inside its dataset folder: a path that is not a non-empty
+    string, is absolute (``/etc/passwd``, ``C:\\x``) or has a ``..`` part is a
+    :class:`SkipFrame` naming ``where`` (the file and entry). The check is on the path as
+    written: symbolic links the user made inside the folder are followed as usual.
+    """
+    if not isinstance(relative, str) or not relative.strip():
+        raise SkipFrame(f"{where}: file_name must be a non-empty relative path, got "
+                        f"{relative!r}", "bad path")
+    posix = PurePosixPath(relative.replace("\\", "/"))
+    if (posix.is_absolute() or ".." in posix.parts or PureWindowsPath(relative).drive
+            or relative.startswith("~")):
+        raise SkipFrame(f"{where}: file_name {relative!r} leaves the dataset folder {base} "
+                        "(absolute, or with '..'): refused", "bad path")
+    return base / posix
+
+
+def check_hand_size(keypoints_m: np.ndarray, where: str) -> None:
+    """SkipFrame naming ``where`` unless the 21 keypoints [21, 3] metres span a possible hand
+    (bounding-box diagonal within :data:`lisa_hand.data.units.POSSIBLE_DIAGONAL_M`)."""
+    diagonal = bounding_diagonal(keypoints_m)
+    low, high = POSSIBLE_DIAGONAL_M
+    if not low <= diagonal <= high:
+        raise SkipFrame(f"{where}: the hand's keypoints span {diagonal:.4g} m, not a hand "
+                        f"({low:g}-{high:g} m; wrong unit?)", "invalid joints")
+
+
+def check_view(camera: Camera, keypoints_m: np.ndarray, where: str) -> None:
+    """SkipFrame naming ``where`` and the camera unless every keypoint [21, 3] (world, metres)
+    is in front of ``camera`` and the camera is at most :data:`MAX_CAMERA_DISTANCE_M` from
+    the hand."""
+    points = torch.as_tensor(keypoints_m, dtype=torch.float64)
+    camera = camera.to(dtype=torch.float64)
+    depth = points @ camera.R[2] + camera.t[2]
+    behind = int((depth <= 0).sum())
+    if behind:
+        raise SkipFrame(f"{where}: camera {camera.name}: {behind} of 21 keypoints are behind "
+                        "the camera (depth <= 0)", "bad camera")
+    centre = -camera.R.T @ camera.t
+    distance = float(torch.linalg.norm(points.mean(0) - centre))
+    if not distance <= MAX_CAMERA_DISTANCE_M:
+        raise SkipFrame(f"{where}: camera {camera.name} is {distance:.4g} m from the hand "
+                        f"(at most {MAX_CAMERA_DISTANCE_M:g} m is plausible; wrong unit?)",
+                        "bad camera")
 
 
 def _right_handed(points: np.ndarray, side: str) -> torch.Tensor:
@@ -341,9 +408,10 @@ def write_dataset(
     for record in records:
         groups.setdefault((record.subject, record.side), []).append(record)
     if not groups:
+        first = f"; the first: {report.messages[0]}" if report.messages else ""
         raise ValueError(f"{report.dataset}: no frame could be imported "
                          f"({', '.join(f'{n} {r}' for r, n in report.skipped.items()) or 'none'}"
-                         " skipped); nothing written")
+                         f" skipped); nothing written{first}")
     reference = template_reference()
     subject_ids = []
     bar = tqdm(total=sum(len(v) for v in groups.values()), desc="import", unit="frame",

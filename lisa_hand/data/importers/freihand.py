@@ -15,6 +15,12 @@ What it reads, under ``ROOT`` (the dataset's release)::
 The world frame is the camera's (R = I, t = 0); ``K``'s principal point moves by +0.5 to the
 package's pixel centres. Every sample is its own subject (FreiHAND has no subject ids); its
 versions are frames of that subject. FreiHAND shows right hands only. Images are referred to.
+
+Units: a ``{set}_xyz.json`` (or ``_verts.json``) whose hands are the size of a hand in
+centimetres or millimetres (:func:`lisa_hand.data.units.decide_length_unit` on the median
+sample) is converted to metres with a note; one that is a hand in no unit is refused. A sample
+whose keypoints are not hand-sized, lie behind the camera or whose ``K`` is singular is skipped
+with its line.
 """
 
 from __future__ import annotations
@@ -30,11 +36,14 @@ import torch
 from ...geometry.cameras import Camera
 from ...utils.io import read_json, write_json
 from ..layout import FramePaths, write_npz
+from ..units import UNIT_NAMES, bounding_diagonal, decide_length_unit
 from .common import (
     ExtraFiles,
     FrameRecord,
     ImportReport,
     SkipFrame,
+    check_hand_size,
+    check_view,
     prepare_output,
     write_dataset,
 )
@@ -93,12 +102,42 @@ def _list(root: Path, set_name: str, key: str, required: bool):
     return values
 
 
+def _file_scale(values: list, path: Path, what: str, report: ImportReport) -> float:
+    """Metres per unit of a file of per-sample points ([N] of [P, 3]): 1 for FreiHAND's
+    metres; a file whose median sample is a hand in cm or mm is converted, with a note in
+    ``report``; ValueError (naming the file) when it is a hand in no unit."""
+    samples = []
+    for value in values:
+        try:
+            array = np.asarray(value, np.float64)
+        except (TypeError, ValueError):
+            continue
+        if array.ndim == 2 and array.shape[1] == 3 and len(array) and np.isfinite(array).all():
+            samples.append(array)
+    if not samples:
+        return 1.0  # every sample is skipped with its own line
+    diagonals = [bounding_diagonal(sample) for sample in samples]
+    median = samples[int(np.argsort(diagonals)[len(diagonals) // 2])]
+    unit = decide_length_unit(median, "auto", name=str(path), what=f"the median sample's {what}")
+    if unit.unit != "m":
+        report.note(f"{path}: the {what} are in {UNIT_NAMES[unit.unit]}, not metres (the median "
+                    f"hand is {unit.diagonal:.4g} units across): converted to metres")
+    return unit.metres_per_unit
+
+
 def freihand_camera(K: object, width: int, height: int, name: str, where: str) -> Camera:
-    """The package camera of a FreiHAND ``K`` (camera frame = world, pixel centres +0.5)."""
+    """The package camera of a FreiHAND ``K`` (camera frame = world, pixel centres +0.5);
+    SkipFrame naming ``where`` for a K that is not [3, 3], not finite or singular."""
     try:
         K = np.asarray(K, np.float64).reshape(3, 3).copy()
-        K[0, 2] += 0.5
-        K[1, 2] += 0.5
+    except (TypeError, ValueError):
+        raise SkipFrame(f"{where}: K must be [3, 3] numbers", "bad camera") from None
+    scale = float(np.abs(K[:2, :2]).max()) ** 2 if np.isfinite(K).all() else 0.0
+    if not abs(np.linalg.det(K)) > 1e-9 * scale or scale == 0.0:
+        raise SkipFrame(f"{where}: K is singular or not finite: {K.tolist()}", "bad camera")
+    K[0, 2] += 0.5
+    K[1, 2] += 0.5
+    try:
         return Camera(K=torch.from_numpy(K), R=torch.eye(3, dtype=torch.float64),
                       t=torch.zeros(3, dtype=torch.float64), width=width, height=height,
                       name=name)
@@ -128,22 +167,26 @@ def freihand_records(config: FreiHandConfig, report: ImportReport, mano_layer=No
     if len(intrinsics) != count_n:
         raise ValueError(f"{root / (name + '_K.json')}: {len(intrinsics)} entries but "
                          f"{name}_xyz.json has {count_n}")
+    xyz_scale = _file_scale(xyz, root / f"{name}_xyz.json", "keypoints", report)
+    verts_scale = (1.0 if verts is None else
+                   _file_scale(verts, root / f"{name}_verts.json", "vertices", report))
     count = 0
     for index in range(0, count_n, config.every):
         where = f"{root / (name + '_xyz.json')}: sample {index}"
         try:
-            keypoints = np.asarray(xyz[index], np.float64)
+            keypoints = np.asarray(xyz[index], np.float64) * xyz_scale
             if keypoints.shape != (21, 3) or not np.isfinite(keypoints).all():
                 raise SkipFrame(f"{where}: keypoints must be 21 finite [x, y, z]",
                                 "invalid joints")
+            check_hand_size(keypoints, where)
             params = None
             if mano is not None and index < len(mano):
                 params = freihand_mano(mano[index], keypoints[0], mano_layer,
                                        f"{root / (name + '_mano.json')}: sample {index}")
             vertices = None
             if verts is not None and index < len(verts):
-                vertices = np.asarray(verts[index], np.float64).reshape(-1, 3)
-        except (SkipFrame, ValueError) as exc:
+                vertices = np.asarray(verts[index], np.float64).reshape(-1, 3) * verts_scale
+        except (SkipFrame, TypeError, ValueError) as exc:
             report.skip(exc if isinstance(exc, SkipFrame) else SkipFrame(f"{where}: {exc}",
                                                                           "bad annotation"))
             continue
@@ -157,6 +200,7 @@ def freihand_records(config: FreiHandConfig, report: ImportReport, mano_layer=No
                                     "missing image")
                 width, height = _image_size(image)
                 camera = freihand_camera(intrinsics[index], width, height, "cam0", where)
+                check_view(camera, keypoints, where)
             except SkipFrame as exc:
                 report.skip(exc)
                 continue

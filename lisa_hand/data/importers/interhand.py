@@ -24,6 +24,12 @@ One frame of the package = one hand at one ``(capture, frame_idx)`` with every s
 that has its image (multi-view, as LISA trains). Subjects are the dataset's ``subject`` (else
 the capture) and hand side; an interacting frame gives one frame per selected hand. Images are
 referred to (``sources.json``), never copied.
+
+Bad entries are skipped with one line naming the file and the entry: an image entry with a
+missing or malformed field or a ``file_name`` that leaves ``images/{split}`` (absolute, or with
+``..``), a view whose ``camrot`` is not a rotation, whose camera is far from the hand (a
+``campos`` in the wrong unit) or behind it, a hand that is not hand-sized. An annotation file
+that is not the expected JSON object stops the import before anything is written.
 """
 
 from __future__ import annotations
@@ -40,7 +46,16 @@ import torch
 
 from ...geometry.cameras import Camera
 from ...utils.io import read_json
-from .common import FrameRecord, ImportReport, SkipFrame, prepare_output, write_dataset
+from .common import (
+    FrameRecord,
+    ImportReport,
+    SkipFrame,
+    check_hand_size,
+    check_view,
+    dataset_path,
+    prepare_output,
+    write_dataset,
+)
 from .mano_params import interhand_mano, load_mano_layers
 from .skinning import pseudo_scan_writer
 
@@ -52,6 +67,9 @@ __all__ = ["INTERHAND_TO_OPENPOSE", "InterHandConfig", "import_interhand",
 INTERHAND_TO_OPENPOSE = (20, 3, 2, 1, 0, 7, 6, 5, 4, 11, 10, 9, 8, 15, 14, 13, 12, 19, 18, 17, 16)
 _HAND_OFFSET = {"right": 0, "left": 21}
 _SPLITS = ("train", "val", "test")
+_CAMROT_TOL = 1e-3  # max |R R^T - I| of a camrot rounded in the file (then re-orthonormalised)
+_IMAGE_KEYS = ("id", "file_name", "width", "height", "capture", "seq_name", "camera",
+               "frame_idx")
 
 
 @dataclass(frozen=True)
@@ -105,7 +123,64 @@ def _read_required(root: Path, split: str, name: str) -> Any:
         raise FileNotFoundError(f"{path}: missing InterHand2.6M annotation file (expected "
                                 f"annotations/{split}/InterHand2.6M_{split}_{name}.json under "
                                 f"{root})")
-    return read_json(path)
+    return _object(read_json(path), path)
+
+
+def _object(value: Any, path: Path) -> dict:
+    """An annotation file's content, which must be a JSON object (ValueError naming it)."""
+    if not isinstance(value, dict):
+        raise ValueError(f"{path}: expected a JSON object (keyed by capture), got a "
+                         f"{type(value).__name__}")
+    return value
+
+
+def _lookup(mapping: Any, *keys: str) -> Any:
+    """``mapping[k0][k1]...``, or None where a level is missing or not an object."""
+    for key in keys:
+        if not isinstance(mapping, dict):
+            return None
+        mapping = mapping.get(key)
+    return mapping
+
+
+def _integer(value: Any) -> int:
+    """An integer field of a JSON entry (an int, an integral float or a decimal string)."""
+    if isinstance(value, bool):
+        raise ValueError("a boolean is not an integer")
+    if isinstance(value, float) and value.is_integer():
+        return int(value)
+    if isinstance(value, (int, str)):
+        return int(value)
+    raise ValueError(f"{value!r} is not an integer")
+
+
+def _image_entry(image: Any, index: int, config: InterHandConfig, data_file: Path
+                 ) -> dict[str, Any]:
+    """Entry ``index`` of the data file's ``images``, checked: the integer fields, the camera,
+    and the image path inside ``images/{split}``; SkipFrame naming the entry otherwise."""
+    where = f"{data_file}: images[{index}]"
+    if not isinstance(image, dict):
+        raise SkipFrame(f"{where}: not an object", "bad image entry")
+    missing = [key for key in _IMAGE_KEYS if key not in image]
+    if missing:
+        raise SkipFrame(f"{where}: no {', '.join(missing)}", "bad image entry")
+    try:
+        entry = {key: _integer(image[key]) for key in
+                 ("id", "capture", "frame_idx", "width", "height")}
+    except ValueError:
+        raise SkipFrame(f"{where}: id, capture, frame_idx, width and height must be integers",
+                        "bad image entry") from None
+    subject = image.get("subject", f"Capture{entry['capture']}")
+    for key, value in (("camera", image["camera"]), ("seq_name", image["seq_name"]),
+                       ("subject", subject)):
+        if isinstance(value, bool) or not isinstance(value, (str, int)):
+            raise SkipFrame(f"{where}: {key} must be a string or an integer", "bad image entry")
+    where = f"{where} (id {entry['id']})"
+    images = Path(config.root) / "images" / config.split
+    entry.update(camera=str(image["camera"]), seq_name=str(image["seq_name"]), subject=subject,
+                 file_name=image["file_name"], where=where,
+                 path=dataset_path(images, image["file_name"], where))
+    return entry
 
 
 def interhand_camera(params: dict[str, Any], camera: str, width: int, height: int,
@@ -122,7 +197,11 @@ def interhand_camera(params: dict[str, Any], camera: str, width: int, height: in
                         "missing camera") from None
     if not (np.isfinite(camrot).all() and np.isfinite(campos).all()):
         raise SkipFrame(f"{where}: camera {camera} has non-finite values", "bad camera")
-    if np.abs(camrot @ camrot.T - np.eye(3)).max() > 1e-4:  # re-orthonormalise rounded values
+    error, det = np.abs(camrot @ camrot.T - np.eye(3)).max(), np.linalg.det(camrot)
+    if error > _CAMROT_TOL or det <= 0:
+        raise SkipFrame(f"{where}: camera {camera}: camrot is not a rotation (max |R R^T - I| "
+                        f"= {error:.3g}, det {det:.3g})", "bad camera")
+    if error > 1e-12:  # re-orthonormalise values rounded in the file
         u, _, vt = np.linalg.svd(camrot)
         camrot = u @ vt
     K = np.array([[focal[0], 0.0, princpt[0] + 0.5], [0.0, focal[1], princpt[1] + 0.5],
@@ -145,23 +224,30 @@ def _hand_keypoints(world_mm: np.ndarray, valid: np.ndarray, side: str, where: s
     if bad:
         raise SkipFrame(f"{where}: {side} hand has {len(bad)} invalid joint(s) (joint_valid 0)",
                         "invalid joints")
+    check_hand_size(joints, f"{where}: {side} hand")
     return joints
 
 
-def _selected_groups(config: InterHandConfig, data: dict[str, Any]
-                     ) -> dict[tuple[int, str, int], list[dict[str, Any]]]:
-    """Image entries grouped by (capture, sequence, frame_idx), filtered and subsampled."""
+def _selected_groups(config: InterHandConfig, data: dict[str, Any], data_file: Path,
+                     report: ImportReport) -> dict[tuple[int, str, int], list[dict[str, Any]]]:
+    """Checked image entries (:func:`_image_entry`; bad ones skipped in ``report``) grouped by
+    (capture, sequence, frame_idx), filtered and subsampled."""
     cameras = {c.removeprefix("cam") for c in config.cameras}
     groups: dict[tuple[int, str, int], list[dict[str, Any]]] = {}
-    for image in data.get("images", []):
-        capture, seq = int(image["capture"]), str(image["seq_name"])
+    for index, raw in enumerate(data["images"]):
+        try:
+            image = _image_entry(raw, index, config, data_file)
+        except SkipFrame as exc:
+            report.skip(exc)
+            continue
+        capture, seq = image["capture"], image["seq_name"]
         if config.captures and capture not in config.captures:
             continue
         if config.sequences and not any(fnmatch.fnmatch(seq, p) for p in config.sequences):
             continue
-        if cameras and str(image["camera"]) not in cameras:
+        if cameras and image["camera"] not in cameras:
             continue
-        groups.setdefault((capture, seq, int(image["frame_idx"])), []).append(image)
+        groups.setdefault((capture, seq, image["frame_idx"]), []).append(image)
     by_sequence: dict[tuple[int, str], list[int]] = {}
     for capture, seq, frame in groups:
         by_sequence.setdefault((capture, seq), []).append(frame)
@@ -171,22 +257,26 @@ def _selected_groups(config: InterHandConfig, data: dict[str, Any]
 
 
 def _frame_views(config: InterHandConfig, images: list[dict[str, Any]], camera_params: Any,
-                 annotations: dict[int, dict], side: str, report: ImportReport
+                 annotations: dict[int, dict], side: str, keypoints: np.ndarray,
+                 report: ImportReport
                  ) -> tuple[list[Camera], dict[str, Path], dict[str, Path], dict]:
-    """The views of one hand at one instant: cameras, image and mask files, valid keypoints."""
+    """The views of one hand at one instant: cameras, image and mask files, valid keypoints;
+    a view that cannot be used is skipped with its line in ``report``."""
     root = Path(config.root)
     camera_file = _annotation_path(root, config.split, "camera")
     cameras, files, masks, visible = [], {}, {}, {}
-    for image in sorted(images, key=lambda entry: str(entry["camera"])):
-        path = root / "images" / config.split / image["file_name"]
+    for image in sorted(images, key=lambda entry: entry["camera"]):
+        path = image["path"]
         try:
             if not path.is_file():
                 raise SkipFrame(f"{path}: image of an annotated frame is missing",
                                 "missing image")
-            camera = interhand_camera(camera_params, str(image["camera"]), image["width"],
-                                      image["height"], str(camera_file))
+            where = f"{camera_file}: Capture{image['capture']}"
+            camera = interhand_camera(camera_params, image["camera"], image["width"],
+                                      image["height"], where)
+            check_view(camera, keypoints, where)
             if config.masks is not None:
-                relative = Path(image["file_name"])
+                relative = path.relative_to(root / "images" / config.split)
                 candidates = [Path(config.masks) / relative.with_suffix(s) for s in
                               (".png", ".jpg")]
                 found = [c for c in candidates if c.is_file()]
@@ -194,17 +284,37 @@ def _frame_views(config: InterHandConfig, images: list[dict[str, Any]], camera_p
                     raise SkipFrame(f"{candidates[0]}: mask of an annotated image is missing",
                                     "missing mask")
                 masks[camera.name] = found[0]
+            annotation = annotations.get(image["id"])
+            if annotation is not None and "joint_valid" in annotation:
+                try:
+                    valid = np.asarray(annotation["joint_valid"], np.float64).reshape(42)
+                except (TypeError, ValueError):
+                    raise SkipFrame(f"{image['where']}: its annotation's joint_valid must be 42 "
+                                    "numbers", "bad annotation") from None
+                offset = _HAND_OFFSET[side]
+                visible[camera.name] = valid[[offset + i for i in INTERHAND_TO_OPENPOSE]] > 0
         except SkipFrame as exc:
             report.skip(exc)
             continue
         cameras.append(camera)
         files[camera.name] = path
-        annotation = annotations.get(int(image["id"]))
-        if annotation is not None and "joint_valid" in annotation:
-            valid = np.asarray(annotation["joint_valid"], np.float64).reshape(-1)
-            offset = _HAND_OFFSET[side]
-            visible[camera.name] = valid[[offset + i for i in INTERHAND_TO_OPENPOSE]] > 0
     return cameras, files, masks, visible
+
+
+def _annotations(data: dict[str, Any], data_file: Path, report: ImportReport
+                 ) -> dict[int, dict]:
+    """The data file's ``annotations`` by ``image_id``; malformed entries skipped and named."""
+    entries = data.get("annotations", [])
+    if not isinstance(entries, list):
+        raise ValueError(f"{data_file}: 'annotations' must be a list")
+    annotations = {}
+    for index, entry in enumerate(entries):
+        try:
+            annotations[_integer(entry["image_id"])] = entry
+        except (KeyError, TypeError, ValueError):
+            report.skip(SkipFrame(f"{data_file}: annotations[{index}]: an object with an "
+                                  "integer image_id needed", "bad annotation"))
+    return annotations
 
 
 def interhand_records(config: InterHandConfig, report: ImportReport, mano_sides: set[str]
@@ -212,20 +322,23 @@ def interhand_records(config: InterHandConfig, report: ImportReport, mano_sides:
     """The frame records of an InterHand2.6M split (see the module docstring); skipped frames
     are counted in ``report``. ``mano_sides``: the sides with a MANO model (MANO params read)."""
     root = Path(config.root)
+    data_file = _annotation_path(root, config.split, "data")
     data = _read_required(root, config.split, "data")
     cameras_json = _read_required(root, config.split, "camera")
     joints_json = _read_required(root, config.split, "joint_3d")
     mano_path = _annotation_path(root, config.split, "MANO_NeuralAnnot")
-    mano_json = read_json(mano_path) if mano_sides and mano_path.is_file() else {}
-    if not isinstance(data, dict) or "images" not in data:
-        raise ValueError(f"{_annotation_path(root, config.split, 'data')}: expected a COCO-style "
-                         "object with 'images' and 'annotations'")
-    annotations = {int(a["image_id"]): a for a in data.get("annotations", [])}
+    mano_json = (_object(read_json(mano_path), mano_path) if mano_sides and mano_path.is_file()
+                 else {})
+    if not isinstance(data.get("images"), list):
+        raise ValueError(f"{data_file}: expected a COCO-style object with 'images' (a list) and "
+                         "'annotations'")
+    annotations = _annotations(data, data_file, report)
     joints_file = _annotation_path(root, config.split, "joint_3d")
     count = 0
-    for (capture, seq, frame_idx), images in _selected_groups(config, data).items():
+    for (capture, seq, frame_idx), images in _selected_groups(config, data, data_file,
+                                                               report).items():
         where = f"{joints_file}: Capture{capture} frame {frame_idx}"
-        entry = joints_json.get(str(capture), {}).get(str(frame_idx))
+        entry = _lookup(joints_json, str(capture), str(frame_idx))
         try:
             if entry is None:
                 raise SkipFrame(f"{where}: no 3D joint annotation for this frame",
@@ -239,8 +352,9 @@ def interhand_records(config: InterHandConfig, report: ImportReport, mano_sides:
             report.skip(SkipFrame(f"{where}: world_coord [42, 3] and joint_valid [42] needed",
                                   "missing annotation"))
             continue
-        hand_type = str(entry.get("hand_type", annotations.get(int(images[0]["id"]), {}).get(
-            "hand_type", "interacting")))
+        fallback = annotations.get(images[0]["id"])
+        hand_type = str(entry.get("hand_type", fallback.get("hand_type", "interacting")
+                                  if isinstance(fallback, dict) else "interacting"))
         if hand_type == "interacting":
             sides = ["right", "left"]
         elif hand_type in _HAND_OFFSET:
@@ -251,20 +365,20 @@ def interhand_records(config: InterHandConfig, report: ImportReport, mano_sides:
             try:
                 keypoints = _hand_keypoints(world, valid, side, where)
                 cams, files, masks, visible = _frame_views(
-                    config, images, cameras_json.get(str(capture), {}), annotations, side,
-                    report)
+                    config, images, cameras_json.get(str(capture)), annotations, side,
+                    keypoints, report)
                 if not cams:
                     raise SkipFrame(f"{where}: no view of this frame could be read", "no view")
                 mano = None
                 if side in mano_sides:
-                    mano_entry = mano_json.get(str(capture), {}).get(str(frame_idx), {})
+                    mano_entry = _lookup(mano_json, str(capture), str(frame_idx))
                     if isinstance(mano_entry, dict) and mano_entry.get(side) is not None:
                         mano = interhand_mano(mano_entry[side], f"{mano_path}: Capture{capture} "
                                               f"frame {frame_idx} {side}")
             except SkipFrame as exc:
                 report.skip(exc)
                 continue
-            subject = images[0].get("subject", f"Capture{capture}")
+            subject = images[0]["subject"]
             yield FrameRecord(
                 subject=("InterHand2.6M", subject), side=side, keypoints=keypoints,
                 cameras=cams, images=files, masks=masks, visible=visible, mano=mano,

@@ -21,6 +21,11 @@ one is given (``lisa import scans`` passes the point-cloud fit of ``lisa fit-poi
 :func:`lisa_hand.fitting.points.fit.fit_points`, and its fitted 21 keypoints: the pose search
 lives in ``lisa_hand.fitting``, above this layer); without one it is skipped and counted. Such a
 scan's side is ``config.side``.
+
+A scan's keypoints must lie on it: within :data:`KEYPOINT_MAX_DISTANCE_M` of its nearest
+point, read in the scan's units. Keypoints that lie on it only in the unit their own size says
+(millimetre keypoints beside a mesh in metres) are converted with a note; keypoints that lie on
+it in no unit (another scan's, or shifted) are skipped with their line.
 """
 
 from __future__ import annotations
@@ -39,14 +44,25 @@ from ...skeleton.mano import ManoLayer
 from ...utils.io import read_json
 from ..layout import FramePaths, write_npz
 from ..meshio import MESH_SUFFIXES, load_mesh, read_ply_vertices
-from ..units import decide_length_unit
+from ..units import (
+    LENGTH_UNITS,
+    POSSIBLE_DIAGONAL_M,
+    UNIT_NAMES,
+    bounding_diagonal,
+    decide_length_unit,
+    detect_length_unit,
+)
 from .common import FrameRecord, ImportReport, SkipFrame, prepare_output, write_dataset
 from .mano_params import interhand_mano, load_mano_layers
 from .skinning import skinning_pseudo_ground_truth
 
-__all__ = ["ScanImportConfig", "KeypointsFn", "import_scans", "scan_records"]
+__all__ = ["ScanImportConfig", "KeypointsFn", "import_scans", "scan_records",
+           "KEYPOINT_MAX_DISTANCE_M"]
 
 _CLOUD_SDF_SIGMA_M = 0.002
+KEYPOINT_MAX_DISTANCE_M = 0.05
+"""Farthest a scan's keypoint may lie from the scan's nearest point (or vertex): joints are
+inside the hand, at most about 2 cm under its skin, plus the gaps of a partial scan."""
 
 
 @dataclass(frozen=True)
@@ -123,6 +139,50 @@ def _searched_keypoints(geometry: dict[str, Any], side: str, keypoints_fn: Keypo
     return keypoints
 
 
+def _read_object(path: Path) -> dict[str, Any]:
+    data = read_json(path)
+    if not isinstance(data, dict):
+        raise SkipFrame(f"{path}: expected a JSON object, got a {type(data).__name__}",
+                        "bad input")
+    return data
+
+
+def _scan_keypoints(data: dict[str, Any], geometry: dict[str, Any], path: Path,
+                    scan: Path, report: ImportReport) -> np.ndarray:
+    """The 21 keypoints [21, 3] metres of a ``NAME.keypoints3d.json`` (``path``) of ``scan``:
+    in the scan's units, else in the unit their own size says when that puts them on the scan
+    (with a note); SkipFrame naming the file when they are malformed or lie off the scan."""
+    if "keypoints" not in data:
+        raise SkipFrame(f"{path}: no 'keypoints'", "bad input")
+    try:
+        keypoints = np.asarray(data["keypoints"], np.float64).reshape(21, 3)
+    except (TypeError, ValueError):
+        raise SkipFrame(f"{path}: 'keypoints' must be 21 [x, y, z]", "bad input") from None
+    if not np.isfinite(keypoints).all():
+        raise SkipFrame(f"{path}: 'keypoints' has non-finite values", "bad input")
+    from scipy.spatial import cKDTree
+
+    tree = cKDTree(geometry["vertices"])
+    scales = [geometry["scale"]]
+    own = detect_length_unit(keypoints)
+    if own is not None and LENGTH_UNITS[own] != geometry["scale"]:
+        scales.append(LENGTH_UNITS[own])
+    low, high = POSSIBLE_DIAGONAL_M
+    distances = []
+    for scale in scales:
+        scaled = keypoints * scale
+        distance = float(tree.query(scaled)[0].max())
+        distances.append(distance)
+        if distance <= KEYPOINT_MAX_DISTANCE_M and low <= bounding_diagonal(scaled) <= high:
+            if scale != geometry["scale"]:
+                report.note(f"{path}: the keypoints are in {UNIT_NAMES[own]}, not in the "
+                            f"scan's units (the keypoints3d.json convention): converted")
+            return scaled
+    raise SkipFrame(f"{path}: the keypoints lie up to {distances[0] * 100:.3g} cm from the scan "
+                    f"{scan.name} (in its units; at most {KEYPOINT_MAX_DISTANCE_M * 100:g} cm): "
+                    "they are not this scan's", "keypoints off the scan")
+
+
 def scan_records(config: ScanImportConfig, report: ImportReport, mano_sides: set[str],
                  keypoints_fn: KeypointsFn | None = None) -> Iterator[FrameRecord]:
     """The records of a scan folder (geometry is read again when scan.npz is written);
@@ -134,13 +194,12 @@ def scan_records(config: ScanImportConfig, report: ImportReport, mano_sides: set
             mano_file, keypoint_file = Path(f"{stem}.mano.json"), Path(f"{stem}.keypoints3d.json")
             mano, keypoints, side = None, None, check_side(config.side)
             if keypoint_file.is_file():
-                data = read_json(keypoint_file)
+                data = _read_object(keypoint_file)
                 side = check_side(str(data.get("side", side)))
-                geometry = _read_geometry(path, config.units)
-                keypoints = np.asarray(data["keypoints"], np.float64).reshape(21, 3) * geometry[
-                    "scale"]
+                keypoints = _scan_keypoints(data, _read_geometry(path, config.units),
+                                            keypoint_file, path, report)
             if mano_file.is_file() and mano_sides:
-                data = read_json(mano_file)
+                data = _read_object(mano_file)
                 side = check_side(str(data.get("side", side)))
                 if side in mano_sides:
                     mano = interhand_mano(data, str(mano_file))
