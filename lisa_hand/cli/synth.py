@@ -45,10 +45,11 @@ def synth(
              "dataset.json and split.json (nothing else).",
     )] = False,
     hand_model: Annotated[str, typer.Option(
-        "--hand-model", metavar="v1|v2",
+        "--hand-model", metavar="v1|v2|v3",
         help="Version of the open hand model: v1 (default; what the shipped model was trained "
-             "on) or v2 (rounded, padded palm, forearm stub, D-shaped fingers, shapes drawn "
-             "from adult hand anthropometry).")] = "v1",
+             "on), v2 (rounded, padded palm, forearm stub, D-shaped fingers, shapes drawn "
+             "from adult hand anthropometry) or v3 (MakeHuman's sculpted hand, CC0: sizes from "
+             "the same anthropometry, skinned by dual quaternions, skin tones by ethnic mix).")] = "v1",
     quiet: Annotated[bool, typer.Option("--quiet", help="No progress bar.")] = False,
 ) -> None:
     """Write a synthetic dataset (LISA-open layout, docs/data_formats.md) and/or a preview sheet.

@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from ..geometry.fields import SdfFn, call_sdf
+from ..geometry.mesh_distance import mesh_distance
 from ..handmodel.hand import SurfaceSamples
 from .arrays import to_numpy
 from .raycast import MeshRayCaster, check_mesh, vertex_normals
@@ -386,7 +387,7 @@ def sdf_samples(target: SdfFn | tuple | object, surface_points, normals=None,
     target: ``sdf_fn(points [N, 3] float32 torch) -> [N] metres`` (negative inside), or a
         watertight mesh as ``(vertices [V, 3], faces [F, 3])`` or any object with ``vertices``
         and ``faces`` (``lisa_hand.geometry.meshing.Mesh``, trimesh): distances from
-        point-cloud-utils' ``signed_distance_to_mesh`` (sign by fast winding numbers).
+        :func:`lisa_hand.geometry.mesh_distance.mesh_distance` (sign by fast winding numbers).
     surface_points: [N, 3] metres; normals: [N, 3] unit or None.
     num_samples: M; sigma: metres, > 0, one value or several.
     generator: numpy Generator or int seed.
@@ -421,19 +422,8 @@ def sdf_samples(target: SdfFn | tuple | object, surface_points, normals=None,
     points = (surface_points[index] + offsets).astype(np.float32)
 
     if mesh is not None:
-        import point_cloud_utils as pcu
-
         vertices, faces = mesh
-        vertices64 = vertices.astype(np.float64)
-        sdf, closest_face, closest_bary = pcu.signed_distance_to_mesh(
-            points.astype(np.float64), vertices64, faces)
-        # The sign comes from the winding number; the magnitude is recomputed from the closest
-        # point, since the value pcu returns strays from |p - closest| by up to 0.2% of the
-        # distance (1e-4 m at 5 cm, point-cloud-utils 0.34), while the closest point is exact.
-        closest = (np.asarray(closest_bary)[:, :, None]
-                   * vertices64[faces[np.asarray(closest_face)]]).sum(axis=1)
-        magnitude = np.linalg.norm(points.astype(np.float64) - closest, axis=1)
-        sdf = np.where(np.asarray(sdf) < 0, -magnitude, magnitude).astype(np.float32)
+        sdf = mesh_distance(points, vertices, faces).sdf.astype(np.float32)
     else:
         values = []
         with torch.no_grad():

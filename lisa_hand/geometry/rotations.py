@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import torch
 
-__all__ = ["axis_angle_to_matrix", "matrix_to_axis_angle", "skew"]
+__all__ = ["axis_angle_to_matrix", "matrix_to_axis_angle", "matrix_to_quaternion", "skew"]
 
 # Below this squared angle the Taylor series (to theta^4) is exact to machine precision for
 # float64 (error ~ theta^6 / 5040) and float32 alike; above it the closed form is well conditioned.
@@ -56,6 +56,22 @@ def matrix_to_axis_angle(rotmats: torch.Tensor) -> torch.Tensor:
 
     rotmats: [..., 3, 3] -> [..., 3] radians, angle in [0, pi]
     """
+    quat = matrix_to_quaternion(rotmats)
+    w, xyz = quat[..., 0], quat[..., 1:]
+    sin_half = xyz.norm(dim=-1)
+    angle = 2.0 * torch.atan2(sin_half, w)
+    # angle / sin(angle/2) -> 2 as the angle -> 0
+    scale = torch.where(
+        sin_half > 1e-8, angle / sin_half.clamp_min(1e-12), 2.0 / w.clamp_min(1e-12)
+    )
+    return xyz * scale[..., None]
+
+
+def matrix_to_quaternion(rotmats: torch.Tensor) -> torch.Tensor:
+    """Unit quaternions ``(w, x, y, z)`` of rotation matrices, ``w >= 0``.
+
+    rotmats: [..., 3, 3] -> [..., 4]
+    """
     if rotmats.shape[-2:] != (3, 3):
         raise ValueError(f"rotmats must have shape [..., 3, 3], got {tuple(rotmats.shape)}")
     m00, m01, m02 = rotmats[..., 0, 0], rotmats[..., 0, 1], rotmats[..., 0, 2]
@@ -78,12 +94,4 @@ def matrix_to_axis_angle(rotmats: torch.Tensor) -> torch.Tensor:
     best = diag.argmax(-1)
     quat = torch.gather(cands, -2, best[..., None, None].expand(*best.shape, 1, 4)).squeeze(-2)
     quat = quat / quat.norm(dim=-1, keepdim=True)
-    quat = torch.where(quat[..., :1] < 0, -quat, quat)
-    w, xyz = quat[..., 0], quat[..., 1:]
-    sin_half = xyz.norm(dim=-1)
-    angle = 2.0 * torch.atan2(sin_half, w)
-    # angle / sin(angle/2) -> 2 as the angle -> 0
-    scale = torch.where(
-        sin_half > 1e-8, angle / sin_half.clamp_min(1e-12), 2.0 / w.clamp_min(1e-12)
-    )
-    return xyz * scale[..., None]
+    return torch.where(quat[..., :1] < 0, -quat, quat)

@@ -13,6 +13,7 @@ axis-angle vector in the hand's own side convention (see :mod:`lisa_hand.handmod
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
@@ -24,6 +25,9 @@ from ..skeleton.kinematics import check_side, forward_kinematics, mirror_points,
 from ..skeleton.tree import FINGER_JOINTS, FINGER_NAMES, NUM_JOINTS, POSE_DIM, joints_to_keypoints
 from .anthropometry import sample_anthropometric_shape
 from .appearance import Appearance, albedo, sample_appearance
+from .makehuman import MakeHumanShape, sample_makehuman_shape, skin_tone
+from .mesh_hand import PosedMeshHand
+from .mesh_rest import MeshRest, build_mesh_rest
 from .parts import HandParts, build_hand_parts
 from .parts_v2 import build_hand_parts_v2
 from .sdf import HandFieldOutput, PosedField, single_threaded
@@ -42,11 +46,13 @@ DEFAULT_VOXELS_PER_LENGTH = 255
 """Default meshing resolution: voxels per hand length (0.73 mm for an 18.5 cm hand: 100k-150k
 vertices in any pose, since the surface area scales with the squared length)."""
 
-HAND_MODELS = ("v1", "v2")
+HAND_MODELS = ("v1", "v2", "v3")
 """Versions of the open hand model: ``"v1"`` (the default: slab palm, round fingers, independent
-clipped-normal shape draws; :mod:`.parts`, :func:`.shape.sample_shape`) and ``"v2"`` (rounded,
+clipped-normal shape draws; :mod:`.parts`, :func:`.shape.sample_shape`), ``"v2"`` (rounded,
 padded palm, forearm stub, D-shaped fingers; shape draws from adult anthropometry, jointly;
-:mod:`.parts_v2`, :mod:`.anthropometry`)."""
+:mod:`.parts_v2`, :mod:`.anthropometry`) and ``"v3"`` (MakeHuman's sculpted hand, its shape a
+:class:`~.makehuman.MakeHumanShape` drawn from the same anthropometry, skinned by dual
+quaternions; :mod:`.makehuman`, :mod:`.mesh_rest`, :mod:`.mesh_hand`)."""
 
 _MIRROR = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=torch.float64))
 # Gradient bound passed to the mesher: the displacements keep |grad sdf| below about 1.1.
@@ -57,22 +63,26 @@ _LIPSCHITZ = 1.2
 class OpenHand:
     """One subject of the open hand model.
 
-    shape: the hand's :class:`HandShape` (bone lengths, widths, thickness, ...).
+    shape: the hand's :class:`HandShape` (bone lengths, widths, thickness, ...; v1, v2) or
+        :class:`~.makehuman.MakeHumanShape` (MakeHuman's sliders; v3).
     appearance: its skin :class:`Appearance`.
     detail_seed: seeds the fine detail (creases, palm lines, bumps).
     side: 'right' or 'left' (the left hand is the mirror image of the right one).
     model: the hand model version, one of :data:`HAND_MODELS` (default "v1").
     """
 
-    shape: HandShape = field(default_factory=HandShape)
+    shape: HandShape | MakeHumanShape = field(default_factory=HandShape)
     appearance: Appearance = field(default_factory=Appearance)
     detail_seed: int = 0
     side: str = "right"
     model: str = "v1"
 
     def __post_init__(self) -> None:
-        if not isinstance(self.shape, HandShape):
-            raise TypeError(f"shape must be a HandShape, got {type(self.shape).__name__}")
+        check_hand_model(self.model)
+        expected = MakeHumanShape if self.model == "v3" else HandShape
+        if not isinstance(self.shape, expected):
+            raise TypeError(f"a {self.model} hand's shape must be a {expected.__name__}, got "
+                            f"{type(self.shape).__name__}")
         if not isinstance(self.appearance, Appearance):
             raise TypeError(
                 f"appearance must be an Appearance, got {type(self.appearance).__name__}"
@@ -82,12 +92,14 @@ class OpenHand:
         ):
             raise TypeError(f"detail_seed must be an int, got {self.detail_seed!r}")
         check_side(self.side)
-        check_hand_model(self.model)
 
     @functools.cached_property
-    def parts(self) -> HandParts:
-        """The right-hand rest-pose parts and detail (float64, CPU; :mod:`.parts` for v1,
-        :mod:`.parts_v2` for v2)."""
+    def parts(self) -> HandParts | MeshRest:
+        """The right-hand rest hand, with its ``skeleton`` (float64, CPU): the parts and detail
+        of :mod:`.parts` (v1) or :mod:`.parts_v2` (v2), the rest mesh of :mod:`.mesh_rest`
+        (v3)."""
+        if self.model == "v3":
+            return build_mesh_rest(self.shape)
         if self.model == "v2":
             return build_hand_parts_v2(self.shape, int(self.detail_seed))
         return build_hand_parts(self.shape, int(self.detail_seed))
@@ -110,13 +122,15 @@ class OpenHand:
         translation: torch.Tensor | None = None,
         dtype: torch.dtype = torch.float32,
         device: torch.device | str | None = None,
-    ) -> PosedHand:
-        """Pose the hand.
+    ) -> PosedHand | PosedMeshHand:
+        """Pose the hand (a :class:`PosedHand`; v3: a :class:`~.mesh_hand.PosedMeshHand`).
 
         pose: [48] or [1, 48] axis-angle radians in this side's convention; None = rest pose.
         translation: [3] or [1, 3] metres, added after the rotations; None = zero.
         dtype, device: of the field's evaluation (float32 or float64; default CPU).
         """
+        if self.model == "v3":
+            return PosedMeshHand(self, pose, translation, dtype, device)
         return PosedHand(self, pose, translation, dtype, device)
 
 
@@ -129,18 +143,25 @@ def check_hand_model(model: str) -> str:
 
 def sample_hand(generator: torch.Generator, side: str = "right", model: str = "v1") -> OpenHand:
     """A random subject: shape (:func:`sample_shape` for v1, the anthropometric
-    :func:`~lisa_hand.handmodel.anthropometry.sample_anthropometric_shape` for v2), appearance
-    (:func:`sample_appearance`) and detail seed, all from ``generator`` (same seed, same subject).
+    :func:`~lisa_hand.handmodel.anthropometry.sample_anthropometric_shape` for v2,
+    :func:`~lisa_hand.handmodel.makehuman.sample_makehuman_shape` for v3), appearance
+    (:func:`sample_appearance`; for v3 the skin tone follows the drawn ethnic mix,
+    :func:`~lisa_hand.handmodel.makehuman.skin_tone`) and detail seed, all from ``generator``
+    (same seed, same subject).
 
     model: the hand model version, one of :data:`HAND_MODELS`.
     """
     check_side(side)
     check_hand_model(model)
-    if model == "v2":
+    if model == "v3":
+        shape = sample_makehuman_shape(generator)
+    elif model == "v2":
         shape = sample_anthropometric_shape(generator)
     else:
         shape = sample_shape(generator)
     appearance = sample_appearance(generator)
+    if model == "v3":
+        appearance = dataclasses.replace(appearance, skin_tone=skin_tone(shape, generator))
     detail_seed = int(torch.randint(0, 2**31 - 1, (), generator=generator))
     return OpenHand(shape=shape, appearance=appearance, detail_seed=detail_seed, side=side,
                     model=model)

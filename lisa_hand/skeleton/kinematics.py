@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import torch
 
-from ..geometry.rotations import axis_angle_to_matrix
+from ..geometry.rotations import axis_angle_to_matrix, matrix_to_quaternion
 from ..geometry.transforms import make_transform
 from .tree import NUM_JOINTS, PARENTS, POSE_DIM
 
@@ -14,6 +14,7 @@ __all__ = [
     "Kinematics",
     "forward_kinematics",
     "linear_blend_skinning",
+    "dual_quaternion_skinning",
     "check_pose",
     "mirror_pose",
     "mirror_points",
@@ -156,6 +157,57 @@ def linear_blend_skinning(
     return (blended[..., :3] @ points_rest.to(transforms.dtype)[..., None])[..., 0] + blended[
         ..., 3
     ]
+
+
+def _quaternion_product(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Hamilton product of quaternions ``(w, x, y, z)``: [..., 4] x [..., 4] -> [..., 4]."""
+    aw, ax, ay, az = a.unbind(-1)
+    bw, bx, by, bz = b.unbind(-1)
+    return torch.stack([aw * bw - ax * bx - ay * by - az * bz,
+                        aw * bx + ax * bw + ay * bz - az * by,
+                        aw * by - ax * bz + ay * bw + az * bx,
+                        aw * bz + ax * by - ay * bx + az * bw], -1)
+
+
+def dual_quaternion_skinning(
+    points_rest: torch.Tensor, weights: torch.Tensor, transforms: torch.Tensor
+) -> torch.Tensor:
+    """Dual quaternion skinning (Kavan et al. 2008): the bones' rigid transforms blended as unit
+    dual quaternions, so that a blend is itself rigid.
+
+    Linear blend skinning averages matrices, which shrinks the skin where bones rotate apart
+    (volume lost at a flexed knuckle, the "candy wrapper" of a twisted joint); a blended unit dual
+    quaternion is a rotation and a translation, so the skin keeps its thickness. Each vertex's
+    quaternions are first put on the hemisphere of its most weighted bone's.
+
+    points_rest: [V, 3] rest points, metres. weights: [V, J], rows summing to 1.
+    transforms: [J, 4, 4] rest-to-posed rigid bone transforms. -> [V, 3] posed points.
+    """
+    if transforms.dim() != 3 or transforms.shape[-2:] != (4, 4):
+        raise ValueError(f"transforms must be [J, 4, 4], got {tuple(transforms.shape)}")
+    if points_rest.dim() != 2 or points_rest.shape[-1] != 3:
+        raise ValueError(f"points_rest must be [V, 3], got {tuple(points_rest.shape)}")
+    if weights.shape != (points_rest.shape[0], transforms.shape[0]):
+        raise ValueError(f"weights {tuple(weights.shape)} do not match points "
+                         f"{tuple(points_rest.shape)} and transforms {tuple(transforms.shape)}")
+    dtype = transforms.dtype
+    real = matrix_to_quaternion(transforms[:, :3, :3])  # [J, 4]
+    shift = torch.cat([torch.zeros_like(transforms[:, :1, 3]), transforms[:, :3, 3]], -1)
+    dual = 0.5 * _quaternion_product(shift, real)  # [J, 4]
+    weights = weights.to(dtype)
+    pivot = real[weights.argmax(dim=1)]  # [V, 4]
+    signs = torch.where(pivot @ real.T < 0, -1.0, 1.0).to(dtype)  # [V, J]
+    signed = weights * signs
+    blend_real, blend_dual = signed @ real, signed @ dual  # [V, 4]
+    norm = blend_real.norm(dim=-1, keepdim=True)
+    blend_real, blend_dual = blend_real / norm, blend_dual / norm
+    w, vec = blend_real[:, :1], blend_real[:, 1:]
+    dual_w, dual_vec = blend_dual[:, :1], blend_dual[:, 1:]
+    points = points_rest.to(dtype)
+    rotated = points + 2.0 * torch.cross(vec, torch.cross(vec, points, dim=-1) + w * points,
+                                         dim=-1)
+    translation = 2.0 * (w * dual_vec - dual_w * vec + torch.cross(vec, dual_vec, dim=-1))
+    return rotated + translation
 
 
 _SIDES = ("right", "left")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import json
 
+import numpy as np
 import pytest
 import typer
 from typer.testing import CliRunner
@@ -27,8 +28,26 @@ def test_config_default_is_v1_and_v1_configs_are_written_as_before():
     assert SynthConfig().hand_model == "v1"
     assert "hand_model" not in SynthConfig().to_dict()  # dataset.json of v1 as before versions
     assert SynthConfig(hand_model="v2").to_dict()["hand_model"] == "v2"
-    with pytest.raises(ValueError, match="hand_model must be one of v1, v2"):
-        SynthConfig(hand_model="v3")
+    assert SynthConfig(hand_model="v3").to_dict()["hand_model"] == "v3"
+    with pytest.raises(ValueError, match="hand_model must be one of v1, v2, v3"):
+        SynthConfig(hand_model="v4")
+
+
+def test_a_v3_dataset_is_made_of_makehuman_hands(tmp_path):
+    from lisa_hand.data.synth.dataset import synthesize
+    from lisa_hand.handmodel.makehuman import MakeHumanShape
+
+    config = dataclasses.replace(TINY, hand_model="v3")
+    synthesize(tmp_path / "v3", config, progress=False)
+    subject = json.loads((tmp_path / "v3" / "s000" / "subject.json").read_text())
+    assert subject["hand_model"] == "v3"
+    assert MakeHumanShape(**subject["shape"]) == make_subject(config, 0, False).hand.shape
+    from lisa_hand.data.layout import FramePaths
+
+    frame = FramePaths(tmp_path / "v3" / "s000" / "f000")
+    with np.load(frame.scan) as scan:
+        assert abs(scan["sdf"]).max() < 0.05 and scan["weights"].shape == (100, 16)
+    assert frame.mesh.exists() and frame.image("cam000").exists()
 
 
 def test_subjects_of_v2_are_v2_hands_and_say_so():

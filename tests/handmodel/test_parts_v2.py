@@ -167,7 +167,7 @@ def test_palm_is_padded_in_front_and_rounded_on_the_back(hand):
 def test_v1_is_unchanged_and_the_default():
     # Numbers of a v1 subject computed before hand model v2 existed.
     hand = sample_hand(torch.Generator().manual_seed(7))
-    assert hand.model == "v1" and OpenHand().model == "v1" and HAND_MODELS == ("v1", "v2")
+    assert hand.model == "v1" and OpenHand().model == "v1" and HAND_MODELS == ("v1", "v2", "v3")
     shape = dataclasses.asdict(hand.shape)
     assert shape["hand_length"] == 0.18704753959412035
     assert shape["palm_width"] == 0.9524299934629422
@@ -186,8 +186,8 @@ def test_v1_is_unchanged_and_the_default():
 
 
 def test_bad_model_is_rejected():
-    with pytest.raises(ValueError, match="v1, v2"):
-        OpenHand(model="v3")
+    with pytest.raises(ValueError, match="v1, v2, v3"):
+        OpenHand(model="v4")
     with pytest.raises(ValueError, match="v1, v2"):
         sample_hand(torch.Generator().manual_seed(0), model="V2")
 

@@ -24,7 +24,7 @@ __all__ = ["SynthConfig", "SynthSummary", "parse_resolution", "check_integer"]
 
 _MAX_IMAGE_SIDE = 16384
 _MAX_WORKERS = 8
-_HAND_MODELS = ("v1", "v2")  # lisa_hand.handmodel.HAND_MODELS (checked equal by the tests)
+_HAND_MODELS = ("v1", "v2", "v3")  # lisa_hand.handmodel.HAND_MODELS (checked equal by the tests)
 
 
 @dataclass(frozen=True)
@@ -89,8 +89,9 @@ class SynthConfig:
     not depend on it."""
     hand_model: str = "v1"
     """Version of the open hand model the subjects are made of (``lisa_hand.handmodel.
-    HAND_MODELS``): "v1" (default, what the shipped model was trained on) or "v2" (rounded,
-    padded palm, forearm stub, D-shaped fingers, anthropometric shape draws)."""
+    HAND_MODELS``): "v1" (default, what the shipped model was trained on), "v2" (rounded,
+    padded palm, forearm stub, D-shaped fingers, anthropometric shape draws) or "v3"
+    (MakeHuman's sculpted hand, anthropometric sizes, skin tones by ethnic mix)."""
 
     def __post_init__(self) -> None:
         for name in ("num_subjects", "num_poses", "num_views", "supersample"):
