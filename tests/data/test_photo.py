@@ -24,8 +24,7 @@ from lisa_hand.data.photo import (
     save_camera,
 )
 from lisa_hand.geometry.cameras import load_cameras
-
-SHARED_PHOTOS = Path(__file__).resolve().parents[2] / ".." / "shared" / "data" / "photos"
+from tests.assets import PHOTOS
 
 
 def gradient(width: int, height: int) -> np.ndarray:
@@ -302,14 +301,12 @@ def test_exif_focal_present_but_unusable_noted(tmp_path):
     assert any("EXIF focal length present but unusable" in note for note in photo.notes)
 
 
-@pytest.mark.skipif(not SHARED_PHOTOS.is_dir(),
-                    reason=f"the shared photos are not here ({SHARED_PHOTOS})")
-def test_shared_photos():
-    photo = read_photo(SHARED_PHOTOS / "thumbs-up.png")
+def test_real_photos():
+    photo = read_photo(PHOTOS / "thumbs-up.png")
     assert photo.original_size == (1920, 1280) and photo.image.shape == (1067, 1600, 3)
     assert photo.scale == pytest.approx(1600 / 1920)
     assert any(note.startswith("alpha channel dropped") for note in photo.notes)
-    small = read_photo(SHARED_PHOTOS / "hand_thumb_up.jpg")
+    small = read_photo(PHOTOS / "hand_thumb_up.jpg")
     assert small.original_size == (640, 521) and small.scale == 1.0 and small.notes == ()
 
 

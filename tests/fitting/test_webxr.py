@@ -1,4 +1,4 @@
-"""Fitting a hand the project did not make: the artist-made WebXR hand (``shared/data/
+"""Fitting a hand the project did not make: the artist-made WebXR hand (``tests/assets/
 webxr_hand``, MIT, Amazon), an OBJ in millimetres, and its own rig (the benchmark's poses).
 
 A tiny untrained model (a blob hand on the template's skeleton) cannot fit its shape, so these
@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,16 +23,14 @@ from lisa_hand.fitting.points.io import fit_point_file, prepare_point_cloud, rea
 from lisa_hand.model.trained import export_trained
 from lisa_hand.skeleton import forward_kinematics
 from lisa_hand.skeleton.params import read_params
+from tests.assets import WEBXR_HAND as WEBXR
 
 from .test_points import tiny_model
 
-WEBXR = Path(__file__).resolve().parents[3] / "shared" / "data" / "webxr_hand"
 METRICS = ("v2v_recon_to_scan_mm", "v2s_recon_to_scan_mm", "v2v_scan_to_recon_mm",
            "v2s_scan_to_recon_mm")
 
-pytestmark = [pytest.mark.skipif(not (WEBXR / "right_hand.npz").is_file(),
-                                 reason=f"the WebXR hand is not in {WEBXR}"),
-              pytest.mark.usefixtures("one_thread")]
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def _joints_mm() -> dict[str, np.ndarray]:

@@ -2,7 +2,7 @@
 
 The search (windows, zoom, crops, refinement, mapping back to pixels, mirroring, merging) is
 checked without MediaPipe, with a stand-in detector that finds coloured rectangles of a known
-size range; MediaPipe itself (the photo extra) on the two shared photos."""
+size range; MediaPipe itself (the photo extra) on the two real photos of ``tests/assets/photos``."""
 
 from __future__ import annotations
 
@@ -26,8 +26,8 @@ from lisa_hand.fitting.photo.detect import (
     to_skeleton_wrist,
 )
 from lisa_hand.skeleton import KEYPOINT_NAMES
+from tests.assets import PHOTOS
 
-SHARED_PHOTOS = Path(__file__).resolve().parents[3] / ".." / "shared" / "data" / "photos"
 MAGENTA, GREEN, GREY = (1.0, 0.0, 1.0), (0.0, 1.0, 0.0), (0.45, 0.45, 0.45)
 
 # --- a stand-in for MediaPipe: "hands" are magenta rectangles, a green patch on the thumb side --
@@ -331,13 +331,6 @@ def mediapipe():
     return mediapipe
 
 
-@pytest.fixture(scope="module")
-def shared_photos():
-    if not SHARED_PHOTOS.is_dir():
-        pytest.skip(f"the shared photos are not here ({SHARED_PHOTOS})")
-    return SHARED_PHOTOS
-
-
 def test_mediapipe_landmark_names(mediapipe):
     assert tuple(mediapipe.solutions.hands.HandLandmark._member_names_) == MEDIAPIPE_LANDMARKS
     assert photo_extra_missing() is None
@@ -351,15 +344,15 @@ def read_rgb(path: Path) -> np.ndarray:
 
 
 # (photo, the true side: see the module docstring of detect.py, region the hand lies in)
-SHARED = [
+REAL_PHOTOS = [
     ("hand_thumb_up.jpg", "left", (120, 40, 460, 470)),
     ("thumbs-up.png", "right", (700, 250, 1300, 1000)),  # at full size, 1920 x 1280
 ]
 
 
-@pytest.mark.parametrize("name, side, region", SHARED)
-def test_shared_photo_one_hand(mediapipe, shared_photos, name, side, region):
-    image = read_rgb(shared_photos / name)
+@pytest.mark.parametrize("name, side, region", REAL_PHOTOS)
+def test_real_photo_one_hand(mediapipe, name, side, region):
+    image = read_rgb(PHOTOS / name)
     start = time.perf_counter()
     hands = detect_hands(image)
     seconds = time.perf_counter() - start
@@ -377,11 +370,11 @@ def test_shared_photo_one_hand(mediapipe, shared_photos, name, side, region):
 
 
 @pytest.mark.filterwarnings("ignore::UserWarning")  # protobuf deprecations inside mediapipe
-@pytest.mark.parametrize("name, side, region", SHARED)
-def test_shared_photo_agrees_with_plain_mediapipe(mediapipe, shared_photos, name, side, region):
+@pytest.mark.parametrize("name, side, region", REAL_PHOTOS)
+def test_real_photo_agrees_with_plain_mediapipe(mediapipe, name, side, region):
     """The refined keypoints stay within 5% of the hand's size of MediaPipe's on the whole
     photo: the windows map back to the right pixels."""
-    image = read_rgb(shared_photos / name)
+    image = read_rgb(PHOTOS / name)
     (hand,) = detect_hands(image)
     pixels = (image * 255 + 0.5).astype(np.uint8)
     with mediapipe.solutions.hands.Hands(static_image_mode=True, max_num_hands=1) as plain:
@@ -394,10 +387,10 @@ def test_shared_photo_agrees_with_plain_mediapipe(mediapipe, shared_photos, name
     assert MEDIAPIPE_LABEL_TO_SIDE[label] == side
 
 
-def test_two_mirrored_hands(mediapipe, shared_photos):
+def test_two_mirrored_hands(mediapipe):
     """The photo beside its mirror image: two hands of opposite sides, left to right, whose
     keypoints mirror each other."""
-    image = read_rgb(shared_photos / "hand_thumb_up.jpg")
+    image = read_rgb(PHOTOS / "hand_thumb_up.jpg")
     both = np.concatenate([image, image[:, ::-1]], axis=1)
     hands = detect_hands(both)
     assert [hand.side for hand in hands] == ["left", "right"]
@@ -411,10 +404,10 @@ def test_blank_photo_no_hand(mediapipe):
     assert detect_hands(np.full((480, 640, 3), 0.5, np.float32)) == []
 
 
-def test_a_greyscale_real_photo_is_found_tinted(mediapipe, shared_photos):
+def test_a_greyscale_real_photo_is_found_tinted(mediapipe):
     """thumbs-up.png in greyscale: MediaPipe finds no hand as it is, and the hand once tinted
     (its keypoints near the colour photo's), its side left unknown."""
-    image = read_rgb(shared_photos / "thumbs-up.png")
+    image = read_rgb(PHOTOS / "thumbs-up.png")
     grey = np.repeat(image.mean(axis=2, keepdims=True), 3, axis=2)
     (colour,) = detect_hands(image)
     (hand,) = detect_hands(grey)

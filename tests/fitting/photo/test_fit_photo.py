@@ -1,14 +1,13 @@
 """The photo fit below the command line: the --keypoints formats, the crop the fit sees, the 3D
 keypoints every fit writes, several photos of one hand (cameras placed by the hand), the side
-chosen by fitting both, all-or-nothing writing, and a real photo (needs MediaPipe and the shared
-photos)."""
+chosen by fitting both, all-or-nothing writing, and a real photo (``tests/assets/photos``; needs
+MediaPipe)."""
 
 from __future__ import annotations
 
 import dataclasses
 import json
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -29,6 +28,7 @@ from lisa_hand.geometry import axis_angle_to_matrix
 from lisa_hand.geometry.meshing import Mesh
 from lisa_hand.skeleton import KEYPOINT_NAMES, forward_kinematics, mirror_points
 from lisa_hand.utils.threads import cpu_threads
+from tests.assets import PHOTOS
 from tests.fitting.image_scene import load_float_template, tiny_model
 from tests.fitting.photo.photo_scene import (
     FOCAL,
@@ -41,8 +41,6 @@ from tests.fitting.photo.photo_scene import (
 from tests.fitting.photo.photo_scene import (
     photo_camera as true_camera,
 )
-
-SHARED = Path(__file__).resolve().parents[3] / ".." / "shared" / "data" / "photos"
 
 
 def fast_config(**overrides) -> FitPhotoConfig:
@@ -340,9 +338,7 @@ def test_a_failure_while_writing_leaves_the_previous_fit(model_file, tmp_path, m
 @pytest.mark.slow
 def test_a_real_photo_with_detection(tmp_path):
     pytest.importorskip("mediapipe", reason="detection needs the photo extra (MediaPipe)")
-    photo = SHARED / "hand_thumb_up.jpg"
-    if not photo.is_file():
-        pytest.skip(f"the shared photos are absent ({SHARED}: see its README)")
+    photo = PHOTOS / "hand_thumb_up.jpg"
     config = FitPhotoConfig(fit=photo_fit_defaults(keypoint_iters=150, color_iters=10,
                                                    num_rays=128), mesh_resolution=64)
     reports = fit_photo_folder(photo, tmp_path / "out", device="cpu", progress=False,
