@@ -55,7 +55,8 @@ def animate(
         "--poses", help="Pose sequence JSON: a list of poses of 48 numbers (global rotation "
                         "and 15 joints, axis-angle radians, MANO order) or 45 (finger joints "
                         "only: the hand's global rotation is kept), or {\"poses\": [...], "
-                        "\"translations\": [[x, y, z], ...]} (metres; default the hand's).")
+                        "\"translations\": [[x, y, z], ...]} (metres; default the hand's); "
+                        "at most 10000 poses.")
     ] = None,
     motion: Annotated[str | None, typer.Option(
         "--motion", help="A named motion: from the hand's pose to the named pose and back "

@@ -127,6 +127,10 @@ def _eval_real(data: Path | None, out: Path, split: str, keypoints: str, frames:
                                   device=device)
     scores = evaluate_split(data, split, predict, out=out / "results.json", max_frames=frames,
                             log=typer.echo)
+    if not scores.frames:
+        first = f"; the first: {scores.failed[0]}" if scores.failed else ""
+        raise ValueError(f"{data}: no frame of split {split!r} was scored ({len(scores.failed)} "
+                         f"failed{first}); see {out / 'results.json'}")
     means = ", ".join(f"{key} {value:.4g}" for key, value in scores.means.items())
     typer.echo(f"{scores.dataset}: {len(scores.frames)} frames scored, {len(scores.failed)} "
                f"failed; means: {means}")

@@ -12,9 +12,8 @@ from .options import AutoSide, DeviceOpt, PointModelOpt, Units
 TriesOpt = Annotated[int, typer.Option(
     "--tries", min=1,
     help="Fits from seeds SEED, SEED+1, ... (of each side with --side auto), the one "
-         "nearest the scan kept: on one-view scans of held-out generator hands 2 tries gave "
-         "1.74 mm against 2.06 (V2S), on the real WebXR hand no gain; each try costs a "
-         "fit.")]
+         "nearest the scan kept: it can help on one-view scans, where the seed decides "
+         "whether a hidden finger is found; each try costs a fit.")]
 ViewpointOpt = Annotated[str, typer.Option(
     "--viewpoint", metavar="X,Y,Z|auto|none",
     help="The sensor position of a one-view scan, in the cloud's units (a depth camera's "

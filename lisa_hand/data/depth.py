@@ -35,9 +35,10 @@ def _read_image(path: Path, what: str) -> np.ndarray:
     require_file(path)
     try:
         return np.asarray(iio.imread(path))
-    except Exception as exc:  # imageio raises many types for a bad file
-        raise ValueError(f"{path}: cannot read this {what} ({type(exc).__name__}: {exc})") \
-            from None
+    except Exception:  # imageio raises many types for a bad file (and suggests plugins)
+        state = ("the file is empty" if path.stat().st_size == 0 else
+                 "unreadable (not a PNG or TIFF file, or a truncated or corrupted one)")
+        raise ValueError(f"{path}: cannot read this {what}: {state}") from None
 
 
 def read_depth_image(path: str | os.PathLike, scale_m: float = 0.001) -> np.ndarray:

@@ -97,6 +97,10 @@ def read_frame_table(root: str | os.PathLike, split: str = "train") -> FrameTabl
     root = Path(root)
     if split not in SPLITS:
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
+    if root.exists() and not root.is_dir():
+        raise NotADirectoryError(f"{root}: is a file, not a dataset folder (a folder with "
+                                 "split.json and one folder per subject, as 'lisa synth' and "
+                                 "'lisa import' write)")
     if not root.is_dir():
         raise FileNotFoundError(f"{root}: no such dataset folder")
     subjects = sorted(read_split(root)[split])

@@ -47,7 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..utils.io import atomic_path, read_json, require_file
+from ..utils.io import atomic_path, read_json, read_numpy, require_file
 
 __all__ = [
     "FORMAT_NAME",
@@ -293,12 +293,9 @@ def write_npz(path: str | os.PathLike, **arrays: np.ndarray) -> Path:
 
 def read_npz(path: str | os.PathLike, required: Sequence[str] = ()) -> dict[str, np.ndarray]:
     """Read an NPZ into a dict; missing file or keys raise errors naming the file."""
-    path = require_file(path)
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            arrays = {key: data[key] for key in data.files}
-    except Exception as exc:
-        raise ValueError(f"{path}: cannot read NPZ ({exc})") from None
+    arrays = read_numpy(path)
+    if not isinstance(arrays, dict):
+        raise ValueError(f"{path}: a .npy array, not an .npz archive")
     missing = [key for key in required if key not in arrays]
     if missing:
         raise ValueError(f"{path}: missing array(s) {', '.join(missing)}")

@@ -12,8 +12,8 @@ line in :attr:`Photo.notes`:
   bits per channel (the high byte), which is far finer than anything the fit resolves;
 * an alpha channel (RGBA, LA, palette transparency) is **dropped**: the stored colours are kept as
   they are, also under transparent pixels. A cut-out photo keeps the background it was saved
-  with (the shared ``thumbs-up.png`` stores black there, as its README describes); compositing
-  over white would change what the photo looks like. The note gives the transparent fraction;
+  with (often black); compositing over white would change what the photo looks like. The note
+  gives the transparent fraction;
 * greyscale (L, 1-bit, 16-bit) is replicated to three channels;
 * a photo larger than ``max_side`` along its long side is downscaled (Lanczos; large JPEGs are
   first decoded at 1/2, 1/4 or 1/8 scale, never below the target size). :attr:`Photo.scale` and
@@ -55,7 +55,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from ..geometry.cameras import Camera
+from ..geometry.cameras import FOCAL_RANGE, Camera
 from ..utils.io import read_json, require_file, write_json
 
 __all__ = [
@@ -332,6 +332,11 @@ def photo_camera(photo: Photo, camera_json: str | os.PathLike | None = None,
     else:
         if focal_px is not None:
             focal, source = _check_positive(focal_px, "focal_px (pixels)"), "focal-px"
+            low, high = (bound * max(orig_w, orig_h) for bound in FOCAL_RANGE)
+            if not low <= focal <= high:
+                raise ValueError(f"focal_px {focal:g} is implausible for the "
+                                 f"{orig_w}x{orig_h} photo {photo.path.name} (expected {low:g} "
+                                 f"to {high:g} px)")
         elif fov_deg is not None:
             fov = _check_positive(fov_deg, "fov_deg (degrees)")
             if not fov < 180.0:

@@ -27,17 +27,27 @@ A reused ``--out`` is replaced as a whole: after a fit it holds exactly that fit
 :data:`FIT_FILES` is refused before the work. A ``kill -9`` while the files are written leaves a
 hidden ``.OUT.staging-PID-*`` (or ``.OUT.old-PID-*``) folder beside ``OUT``; the next fit into
 ``OUT`` removes it (:func:`remove_stale_staging`).
+
+One fit at a time into an ``OUT``: a fit claims it right after checking it (:func:`prepare_fit`,
+:func:`lock_output_folder`: the file ``.OUT.lock`` beside it, created exclusively, holding the
+process id) and frees it when it ends (:func:`releases_output_locks` on the fit functions); a
+second fit into the same ``OUT`` meanwhile is refused in one line before its work, instead of
+replacing the first one's files unsaid. A lock whose process is gone (``kill -9``) is taken over.
 """
 
 from __future__ import annotations
 
+import atexit
+import functools
 import math
 import os
 import secrets
 import shutil
+import socket
 import stat
 import tempfile
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -48,12 +58,16 @@ import torch
 from ..data.units import UNIT_CHOICES, decide_length_unit
 from ..geometry.meshing import Mesh
 from ..skeleton.params import HandParams
-from ..utils.io import check_output_dir
+from ..utils.io import check_output_dir, is_no_space, no_space_error
 
 __all__ = [
     "FIT_FILES",
     "GroundTruth",
     "check_output_folder",
+    "lock_output_folder",
+    "unlock_output_folder",
+    "output_lock",
+    "releases_output_locks",
     "remove_stale_staging",
     "read_ground_truth",
     "ground_truth_metrics",
@@ -105,9 +119,9 @@ def check_output_folder(out: str | os.PathLike, allowed: Allowed | None = None,
     allowed: which entries a previous fit of this kind leaves (default: the files
     :data:`FIT_FILES`); described: how the error message names them (default: that list).
     Raises NotADirectoryError when ``out`` (or an ancestor) is a file, PermissionError when the
-    folder or its nearest existing ancestor is not writable, and FileExistsError when ``out``
-    holds anything else (a fit replaces the folder as a whole and never deletes what it did
-    not write).
+    folder, its nearest existing ancestor or the folder holding it (where the files are staged
+    and swapped in) is not writable, and FileExistsError when ``out`` holds anything else (a
+    fit replaces the folder as a whole and never deletes what it did not write).
     """
     allowed = fit_file() if allowed is None else allowed
     described = ", ".join(FIT_FILES) if described is None else described
@@ -115,6 +129,7 @@ def check_output_folder(out: str | os.PathLike, allowed: Allowed | None = None,
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"{out}: --out must be a folder, and this is a file")
     check_output_dir(out)
+    _check_beside_writable(out)
     if out.is_dir():
         foreign = sorted(p.name for p in out.iterdir() if not allowed(p))
         if foreign:
@@ -124,6 +139,147 @@ def check_output_folder(out: str | os.PathLike, allowed: Allowed | None = None,
                 f"replaces the folder as a whole, so choose a new or empty folder (or one "
                 f"holding only a previous fit's {described})")
     return out
+
+
+def _target(out: str | os.PathLike) -> Path:
+    """The folder a fit into ``out`` replaces: absolute, a symbolic link resolved."""
+    target = Path(os.path.abspath(out))
+    return target.resolve() if target.is_symlink() else target
+
+
+def _check_beside_writable(out: Path) -> None:
+    """Fail, naming ``out``, when the folder holding it cannot take the staging folder and the
+    lock (:func:`write_folder`, :func:`lock_output_folder`)."""
+    parent = _target(out).parent
+    try:
+        check_output_dir(parent)
+    except OSError as exc:
+        raise PermissionError(f"{out}: cannot write the fit: the folder holding it, {parent}, is "
+                              f"not writable (a fit writes its files beside --out, then renames "
+                              f"them into place): {str(exc).split(': ', 1)[-1]}") from None
+
+
+# ------------------------------------------------------------------------------------------------
+# one fit at a time into a folder
+
+_HELD_LOCKS: set[Path] = set()
+"""Lock files this process holds (a fit claims its folder once; later claims are no-ops)."""
+
+
+def _lock_path(out: str | os.PathLike) -> Path:
+    target = _target(out)
+    return target.parent / f".{target.name}.lock"
+
+
+def _lock_owner(lock: Path) -> tuple[int | None, str]:
+    """(process id, host) written in ``lock``; (None, "") when unreadable or empty."""
+    try:
+        words = lock.read_text().split()
+        return int(words[0]), (words[1] if len(words) > 1 else "")
+    except (OSError, ValueError, IndexError):
+        return None, ""
+
+
+def lock_output_folder(out_dir: str | os.PathLike) -> Path:
+    """Claim ``out_dir`` for this process's fit: create ``.OUT.lock`` beside it exclusively
+    (``O_EXCL``), holding this process id and host. -> the lock file.
+
+    Raises FileExistsError naming ``out_dir`` and the other process when a running process of
+    this host holds it (or another host, or a lock just being created). A lock whose process has
+    ended is removed and taken. Claiming a folder this process holds does nothing. Freed by
+    :func:`unlock_output_folder` (and at the exit of this process).
+    """
+    lock = _lock_path(out_dir)
+    if lock in _HELD_LOCKS:
+        return lock
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise type(exc)(f"{out_dir}: cannot create the folder holding it "
+                        f"({exc.strerror or exc})") from None
+    host = socket.gethostname()
+    for _ in range(3):
+        try:
+            fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        except FileExistsError:
+            pid, owner_host = _lock_owner(lock)
+            fresh = pid is None and _age_seconds(lock) < 60.0  # being written right now
+            if fresh or (pid is not None and pid != os.getpid() and
+                         (owner_host != host or _pid_alive(pid))):
+                who = "a process being started" if pid is None else (
+                    f"process {pid}" + (f" on {owner_host}" if owner_host != host else ""))
+                raise FileExistsError(
+                    f"{out_dir}: another fit ({who}) is writing this folder; wait for it to "
+                    f"end or choose another --out (if no fit runs, delete {lock})") from None
+            lock.unlink(missing_ok=True)  # its process has ended: take it over
+            continue
+        except OSError as exc:
+            raise type(exc)(f"{out_dir}: cannot claim the folder ({exc.strerror or exc})"
+                            ) from None
+        with os.fdopen(fd, "w") as handle:
+            handle.write(f"{os.getpid()} {host}\n")
+        if not _HELD_LOCKS:
+            atexit.register(_release_all)
+        _HELD_LOCKS.add(lock)
+        return lock
+    raise FileExistsError(f"{out_dir}: another fit keeps claiming this folder; choose another "
+                          "--out")
+
+
+def _age_seconds(path: Path) -> float:
+    import time
+
+    try:
+        return time.time() - path.stat().st_mtime
+    except OSError:
+        return 0.0
+
+
+def unlock_output_folder(out_dir: str | os.PathLike) -> None:
+    """Free ``out_dir`` if this process holds it (:func:`lock_output_folder`)."""
+    _release(_lock_path(out_dir))
+
+
+def _release(lock: Path) -> None:
+    if lock not in _HELD_LOCKS:
+        return
+    _HELD_LOCKS.discard(lock)
+    if _lock_owner(lock)[0] == os.getpid():
+        lock.unlink(missing_ok=True)
+
+
+def _release_all() -> None:
+    for lock in list(_HELD_LOCKS):
+        _release(lock)
+
+
+@contextmanager
+def output_lock(out_dir: str | os.PathLike) -> Iterator[Path]:
+    """Hold ``out_dir`` (:func:`lock_output_folder`) inside the block; freed after it unless
+    this process already held it before."""
+    held = _lock_path(out_dir) in _HELD_LOCKS
+    lock = lock_output_folder(out_dir)
+    try:
+        yield lock
+    finally:
+        if not held:
+            _release(lock)
+
+
+def releases_output_locks(function: Callable) -> Callable:
+    """Decorator of a fit function: the folders it claims (:func:`prepare_fit`,
+    :func:`lock_output_folder`) are freed when it returns or raises."""
+
+    @functools.wraps(function)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        before = set(_HELD_LOCKS)
+        try:
+            return function(*args, **kwargs)
+        finally:
+            for lock in _HELD_LOCKS - before:
+                _release(lock)
+
+    return wrapper
 
 
 def read_ground_truth(path: str | os.PathLike, units: str = "auto") -> GroundTruth:
@@ -154,7 +310,9 @@ def prepare_fit(
 ) -> tuple[GroundTruth | None, Any]:
     """What both fit commands check before fitting, in this order so that bad input fails
     before the slow part: the ground truth (``gt_path``, its unit note logged), the output
-    folder, then the model (:func:`lisa_hand.model.trained.load_trained` on ``device``).
+    folder (then claimed, :func:`lock_output_folder`: the caller frees it,
+    :func:`releases_output_locks`), then the model
+    (:func:`lisa_hand.model.trained.load_trained` on ``device``).
     -> (the ground truth or None, the :class:`~lisa_hand.model.trained.TrainedModel`)."""
     from ..model.trained import load_trained
     from ..utils.device import resolve_device
@@ -165,6 +323,7 @@ def prepare_fit(
         if truth.note is not None:
             log(truth.note)
     check_output_folder(out_dir)
+    lock_output_folder(out_dir)
     return truth, load_trained(model_path, resolve_device(device))
 
 
@@ -339,15 +498,21 @@ def write_folder(out_dir: str | os.PathLike, write: Callable[[Path], list[Path]]
     renames): the folder holds these files and nothing else. An exception in ``write`` leaves
     ``out_dir`` as it was. allowed, described: what a previous fit of this kind leaves
     (:func:`check_output_folder`; default :data:`FIT_FILES`): ``out_dir`` must be new, empty or
-    hold only that. Stale staging folders of killed fits into ``out_dir`` are removed first
+    hold only that, and no other process may hold it (:func:`lock_output_folder`: claimed while
+    writing). Stale staging folders of killed fits into ``out_dir`` are removed first
     (:func:`remove_stale_staging`).
     -> the written paths as they are after the move (under ``out_dir``), in ``write``'s order.
     """
     allowed = fit_file() if allowed is None else allowed
     out_dir = check_output_folder(out_dir, allowed, described)
-    target = Path(os.path.abspath(out_dir))
-    if target.is_symlink():
-        target = target.resolve()
+    with output_lock(out_dir):
+        return _write_folder(out_dir, write, allowed)
+
+
+def _write_folder(out_dir: Path, write: Callable[[Path], list[Path]],
+                  allowed: Allowed) -> list[Path]:
+    """:func:`write_folder` once ``out_dir`` is checked and claimed."""
+    target = _target(out_dir)
     target.parent.mkdir(parents=True, exist_ok=True)
     remove_stale_staging(target)
     staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.staging-{os.getpid()}-",
@@ -360,6 +525,11 @@ def write_folder(out_dir: str | os.PathLike, write: Callable[[Path], list[Path]]
         os.chmod(staging, mode)
         files = write(staging)
         _swap_in(staging, target, allowed)
+    except Exception as exc:  # a full disk names --out, not the hidden staging folder
+        if is_no_space(exc):
+            raise no_space_error(out_dir, then="nothing was written; the folder is as it was"
+                                 ) from None
+        raise
     finally:
         shutil.rmtree(staging, ignore_errors=True)
     return [out_dir / Path(file).relative_to(staging) for file in files]

@@ -36,11 +36,21 @@ __all__ = [
     "make_rig",
     "save_cameras",
     "load_cameras",
+    "MAX_IMAGE_SIDE",
+    "FOCAL_RANGE",
 ]
 
 # Tolerances for validating loaded matrices (float32 round trips through JSON stay far below).
 _ROTATION_TOL = 1e-4
 _K_LAST_ROW_TOL = 1e-6
+
+MAX_IMAGE_SIDE = 16384
+"""Largest image width or height in pixels a camera may have (a 16384 x 16384 RGB float image
+is 3 GB; a larger one is a typo, not a camera)."""
+FOCAL_RANGE = (0.01, 1000.0)
+"""Focal lengths a camera may have, in units of its image's longer side: 0.01 is a field of
+view of 179.4 degrees, 1000 one of 0.06 degrees; beyond either the pinhole model in float32
+flattens the hand."""
 
 
 def _as_tensor(value: Any, name: str, dtype: torch.dtype | None = None) -> torch.Tensor:
@@ -65,8 +75,9 @@ class Camera:
     """One calibrated pinhole camera (OpenCV convention, see the module docstring).
 
     ``K``, ``R`` and ``t`` are stored as tensors of one dtype on one device; lists and numpy arrays
-    are converted to float32. Construction validates shapes, that ``R`` is a rotation and that
-    ``K`` has a positive focal length and last row ``[0, 0, 1]``.
+    are converted to float32. Construction validates shapes, that ``R`` is a rotation, that ``K``
+    is invertible with last row ``[0, 0, 1]`` and focal lengths in :data:`FOCAL_RANGE`, and that
+    the image is at most :data:`MAX_IMAGE_SIDE` pixels a side.
     """
 
     K: torch.Tensor
@@ -102,16 +113,27 @@ class Camera:
         if not (float(K[0, 0]) > 0 and float(K[1, 1]) > 0):
             raise ValueError(f"K: focal lengths fx, fy must be positive, got "
                              f"{float(K[0, 0])}, {float(K[1, 1])}")
+        for name in ("width", "height"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
+                raise ValueError(f"{name} must be a positive integer (pixels), got {value!r}")
+            if value > MAX_IMAGE_SIDE:
+                raise ValueError(f"{name} must be at most {MAX_IMAGE_SIDE} pixels, got {value}")
+        side = max(self.width, self.height)
+        for name, focal in (("fx", float(K[0, 0])), ("fy", float(K[1, 1]))):
+            if not FOCAL_RANGE[0] * side <= focal <= FOCAL_RANGE[1] * side:
+                raise ValueError(f"K: focal length {name} = {focal:g} px is implausible for a "
+                                 f"{self.width}x{self.height} image (expected "
+                                 f"{FOCAL_RANGE[0] * side:g} to {FOCAL_RANGE[1] * side:g} px)")
+        K64 = K.double().cpu()
+        if abs(float(torch.linalg.det(K64))) <= 1e-9 * float(K64[0, 0] * K64[1, 1]):
+            raise ValueError(f"K is singular (not invertible): {K64.tolist()}")
         R64 = R.double().cpu()
         ortho_err = float((R64 @ R64.T - torch.eye(3, dtype=torch.float64)).abs().max())
         det = float(torch.linalg.det(R64))
         if ortho_err > _ROTATION_TOL or abs(det - 1.0) > _ROTATION_TOL:
             raise ValueError(f"R must be a rotation matrix (R R^T = I, det R = 1), got "
                              f"max |R R^T - I| = {ortho_err:.3g}, det R = {det:.6g}")
-        for name in ("width", "height"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value <= 0:
-                raise ValueError(f"{name} must be a positive integer (pixels), got {value!r}")
         if self.name is not None and not isinstance(self.name, str):
             raise TypeError(f"name must be a string or None, got {type(self.name).__name__}")
         object.__setattr__(self, "K", K)

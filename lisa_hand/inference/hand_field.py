@@ -20,7 +20,7 @@ import torch
 
 from ..geometry.fields import FieldFn, SdfFn
 from ..model import FrameState
-from ..model.trained import TrainedModel, load_trained
+from ..model.trained import SHIPPED_MODELS, TrainedModel, load_trained, shipped_model_path
 from ..render.renderer import apply_gain_bias
 from ..skeleton import mirror_points, mirror_pose
 from ..skeleton.params import HandParams, read_params
@@ -28,6 +28,7 @@ from ..skeleton.params import HandParams, read_params
 __all__ = [
     "GEOMETRY_ONLY_GREY",
     "HandField",
+    "HandOutput",
     "check_params",
     "field_inputs",
     "hand_field",
@@ -37,6 +38,22 @@ __all__ = [
 
 GEOMETRY_ONLY_GREY = 0.7
 """Albedo given to a geometry-only model (a shape prior) when it is rendered or meshed."""
+
+
+@dataclass
+class HandOutput:
+    """The field of one hand at world points (:meth:`HandField.evaluate`).
+
+    sdf: [N] metres, negative inside the hand.
+    rgb: [N, 3] in [0, 1], calibrated with the model's mean gain and bias
+        (:data:`GEOMETRY_ONLY_GREY` for a geometry-only model), or None when not asked.
+    weights: [N, 16] skinning weights (>= 0, rows sum to 1; bone order of
+        :data:`lisa_hand.skeleton.PARENTS`), or None for the 'single' composition (no bones).
+    """
+
+    sdf: torch.Tensor
+    rgb: torch.Tensor | None
+    weights: torch.Tensor | None
 
 
 @dataclass
@@ -97,6 +114,37 @@ class HandField:
             return sdf, apply_gain_bias(rgb, gain.to(rgb.dtype), bias.to(rgb.dtype))
 
         return calibrated
+
+    def evaluate(self, points: torch.Tensor, colors: bool = True,
+                 chunk_size: int = 65536) -> HandOutput:
+        """The SDF, calibrated colour and skinning weights at world points, in one pass of the
+        field per ``chunk_size`` points (what ``model(pose, codes, points)`` is in smplx's
+        terms). Not differentiable (``torch.no_grad``): for gradients call
+        :meth:`lisa_hand.model.lisa.LisaModel.field` on ``self.frame``.
+
+        points: [N, 3] metres (the model's dtype and device). colors: also the colours.
+        -> :class:`HandOutput` on the model's device.
+        """
+        parts = [self._evaluate(chunk, colors) for chunk in points.split(max(1, chunk_size))]
+
+        def joined(name: str) -> torch.Tensor | None:
+            values = [getattr(part, name) for part in parts]
+            return None if values[0] is None else torch.cat(values)
+
+        return HandOutput(sdf=joined("sdf"), rgb=joined("rgb"), weights=joined("weights"))
+
+    def _evaluate(self, points: torch.Tensor, colors: bool) -> HandOutput:
+        """:meth:`evaluate` of one chunk."""
+        with torch.no_grad():
+            out = self.model.field.field(self.frame, self._field_points(points)[None],
+                                         with_color=colors and self.has_color)
+        rgb = None
+        if colors and self.has_color:
+            rgb = apply_gain_bias(out.rgb[0], self.model.gain, self.model.bias).clamp(0.0, 1.0)
+        elif colors:
+            rgb = points.new_full((points.shape[0], 3), GEOMETRY_ONLY_GREY)
+        return HandOutput(sdf=out.sdf[0], rgb=rgb,
+                          weights=None if out.weights is None else out.weights[0])
 
     def attributes(
         self, points: torch.Tensor, colors: bool = True, skin_weights: bool = True
@@ -183,19 +231,30 @@ def field_inputs(model: TrainedModel, params: HandParams) -> list[torch.Tensor |
 def resolve_model_path(
     params: HandParams, params_path: str | os.PathLike | None, model: str | os.PathLike | None
 ) -> Path | None:
-    """The model to load for a hand: ``model`` when given; else the one ``params`` names
-    (``"default"``: the shipped model, returned as None), tried as given and then relative to
-    the params file's folder."""
+    """The model to load for a hand: ``model`` (the command line's ``--model``) when given; else
+    the one ``params`` names: ``"default"`` (the shipped model, returned as None), another
+    shipped model's name, an absolute path (what the fits and ``lisa blend`` record for a model
+    given with ``--model``), or a relative path, taken relative to the params file's folder
+    (never the working folder) and refused with a ValueError naming the file when it leaves
+    that folder (``../m.pt``): a model elsewhere is given with ``--model``. Without
+    ``params_path`` (a hand in memory) a relative path is taken as it is."""
     if model is not None:
         return Path(model)
     if params.model in ("", "default"):
         return None
+    if params.model in SHIPPED_MODELS:
+        shipped = shipped_model_path(params.model)
+        return shipped if shipped.is_file() else Path(params.model)  # missing: load_trained says
     named = Path(params.model)
-    if not named.exists() and not named.is_absolute() and params_path is not None:
-        beside = Path(params_path).parent / named
-        if beside.exists():
-            return beside
-    return named
+    if named.is_absolute() or params_path is None:
+        return named
+    folder = Path(params_path).resolve().parent
+    target = (folder / named).resolve()
+    if not target.is_relative_to(folder):
+        raise ValueError(f"{params_path}: its model {params.model!r} leaves the file's folder, "
+                         f"which a relative path in params.json may not; give the model on the "
+                         f"command line: --model {target}")
+    return target
 
 
 def load_hand(

@@ -45,7 +45,7 @@ class MeshConfig:
     same voxel size, to the cube of the bone regions (:func:`hand_bounds`)."""
     lipschitz: float = 2.0
     """Bound on the learned SDF's gradient norm: the coarse-to-fine pass skips a block only when
-    this bound proves it far from the surface. Measured up to ~1.7 on a geometric-init LISA;
+    this bound proves it far from the surface. Up to ~1.7 on a geometric-init LISA;
     a trained field is close to 1 (Eikonal loss). Larger only costs evaluations."""
     coarse_to_fine: bool = True
     """Evaluate the grid coarse to fine (False: every grid point, the dense reference)."""

@@ -9,9 +9,13 @@ from pathlib import Path
 import torch
 
 from ..skeleton import POSE_DIM
-from ..skeleton.params import HandParams
+from ..skeleton.params import MAX_TRANSLATION_M, HandParams
 
-__all__ = ["PoseSequence", "read_pose_sequence", "resolve_poses", "motion_poses"]
+__all__ = ["MAX_POSES", "PoseSequence", "read_pose_sequence", "resolve_poses", "motion_poses"]
+
+MAX_POSES = 10_000
+"""The most poses a sequence file may hold (each one a mesh and a frame: about 7 minutes of
+animation at 24 frames a second)."""
 
 
 @dataclass
@@ -39,6 +43,9 @@ def _sequence_lists(path: Path, data) -> tuple[list, list | None]:
         data = data["poses"]
     if not isinstance(data, list) or not data:
         raise ValueError(f"{path}: expected a non-empty list of poses")
+    if len(data) > MAX_POSES:
+        raise ValueError(f"{path}: {len(data)} poses, more than the {MAX_POSES} a sequence may "
+                         "hold; split it into several files")
     return data, translations
 
 
@@ -70,6 +77,10 @@ def read_pose_sequence(path: str | os.PathLike) -> PoseSequence:
             raise ValueError(f"{path}: translations must have shape [T, 3] = "
                              f"[{poses.shape[0]}, 3] with finite values, got "
                              f"{list(translations.shape)}")
+        farthest = float(translations.double().norm(dim=1).max())
+        if farthest > MAX_TRANSLATION_M:
+            raise ValueError(f"{path}: a translation is {farthest:.3g} m from the origin (at "
+                             f"most {MAX_TRANSLATION_M:g} m: positions in metres)")
     return PoseSequence(poses=poses, translations=translations)
 
 

@@ -27,6 +27,7 @@ __all__ = [
     "Checkpoint",
     "load_checkpoint",
     "load_run_checkpoint",
+    "read_torch_file",
 ]
 
 CHECKPOINT_FORMAT = "lisa_hand.checkpoint"
@@ -63,6 +64,31 @@ class Checkpoint:
     """File it was loaded from (None for one built in memory)."""
 
 
+def read_torch_file(path: str | os.PathLike, what: str = "LISA model file",
+                    map_location: Any = "cpu") -> Any:
+    """What a torch file holds, read with ``torch.load(weights_only=True)``.
+
+    Raises ValueError naming the file and saying it is not a ``what`` for anything torch cannot
+    read that way: text or another format, a truncated or corrupted file, or a pickle of Python
+    objects (never loaded; torch's advice to turn ``weights_only`` off is not passed on).
+    """
+    import pickle
+
+    try:
+        return torch.load(path, map_location=map_location, weights_only=True)
+    except pickle.UnpicklingError as exc:
+        if "global" in str(exc):  # a class or function named in the file: refused
+            reason = "it holds Python objects besides tensors, which are never loaded"
+        else:
+            reason = "not a torch file, or a truncated or corrupted one"
+    except RuntimeError as exc:
+        reason = ("truncated or corrupted" if "zip archive" in str(exc)
+                  else "not a torch file, or a truncated or corrupted one")
+    except Exception:  # text and other formats: KeyError, IndexError, EOFError, ...
+        reason = "not a torch file, or a truncated or corrupted one"
+    raise ValueError(f"{path}: not a {what} ({reason})")
+
+
 def load_checkpoint(path: str | os.PathLike, map_location: Any = "cpu") -> Checkpoint:
     """Read a checkpoint written by ``save_checkpoint``.
 
@@ -72,12 +98,7 @@ def load_checkpoint(path: str | os.PathLike, map_location: Any = "cpu") -> Check
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such checkpoint file")
-    try:
-        payload = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as exc:  # torch raises RuntimeError, UnpicklingError, EOFError, ...
-        reason = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ValueError(f"{path}: not a readable checkpoint (truncated, corrupt or not a "
-                         f"torch file): {reason}") from None
+    payload = read_torch_file(path, "readable checkpoint", map_location)
     if not isinstance(payload, dict) or payload.get("format") != CHECKPOINT_FORMAT:
         raise ValueError(f"{path}: not a lisa_hand training checkpoint (no "
                          f"format={CHECKPOINT_FORMAT!r} marker)")

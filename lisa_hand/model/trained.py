@@ -10,7 +10,7 @@ What fitting, meshing, rendering and animation load. It comes from one of
   (``lisa_hand/assets/lisa_geometry_mix.pt``, the same on 308 subjects of hand models v1 and v2),
   ``"geometry"``
   (``lisa_hand/assets/lisa_geometry.pt``, the same on hand model v1: the prior LISA-full was
-  trained from, and the point fits' model until 2026-12-04), ``"full_v2"``
+  trained from), ``"full_v2"``
   (``lisa_hand/assets/lisa_full_v2.pt``, LISA-full trained on hand model v2) or ``"full_8k"``
   (``lisa_hand/assets/lisa_full_8k.pt``, the ``"default"`` recipe trained 8000 steps);
 * a file written by :func:`export_trained` (``python -m lisa_hand.model.trained RUN --out FILE``);
@@ -37,7 +37,14 @@ from ..render.density import laplace_beta
 from ..render.shading import HeadlightShading
 from ..utils.config import config_from_dict
 from ..utils.io import atomic_path
-from .checkpoint import IMAGE_KIND, LAST_CHECKPOINT, PRIOR_KIND, Checkpoint, load_checkpoint
+from .checkpoint import (
+    IMAGE_KIND,
+    LAST_CHECKPOINT,
+    PRIOR_KIND,
+    Checkpoint,
+    load_checkpoint,
+    read_torch_file,
+)
 from .lisa import LisaModel
 
 __all__ = [
@@ -332,11 +339,7 @@ def load_trained(
         raise FileNotFoundError(f"{path}: no such model file or run folder")
     if path.is_dir():
         return _from_run(path).to(device)
-    try:
-        data = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as exc:  # torch raises many types for corrupt or foreign files
-        raise ValueError(f"{path}: cannot read this model file ({type(exc).__name__}: "
-                         f"{str(exc).splitlines()[0] if str(exc) else 'corrupt'})") from None
+    data = read_torch_file(path)
     if isinstance(data, dict) and data.get("format") == TRAINED_FORMAT:
         return _from_export(path, data).to(device)
     if isinstance(data, dict) and data.get("format") == "lisa_hand.checkpoint":

@@ -10,8 +10,16 @@ Keys (JSON object):
 * ``rest_joints`` [16, 3]: the rest-pose skeleton, metres;
 * ``betas`` [K] or null: the mesh template's shape coefficients that gave ``rest_joints``;
 * ``shape_code`` [D]: LISA's shape latent; ``color_code`` [D'] or null (geometry only);
-* ``model``: the model the codes belong to (a path, or ``"default"`` for the shipped model);
+* ``model``: the model the codes belong to: a shipped model's name (``"default"``, ...), an
+  absolute path (what a fit records for a model given with ``--model``), or a path relative to
+  the params file's folder that stays inside it (``"model.pt"``; ``"../m.pt"`` is refused: a
+  model elsewhere is given with ``--model``;
+  :func:`lisa_hand.inference.hand_field.resolve_model_path`);
 * ``extra``: free-form information (fit losses, timings), optional.
+
+:func:`read_params` refuses what no hand is: another ``version``, arrays of anything but
+numbers (``true``, strings), a translation over :data:`MAX_TRANSLATION_M` from the origin (float32
+would flatten the hand), and a skeleton with a bone shorter than :data:`MIN_BONE_M`.
 """
 
 from __future__ import annotations
@@ -26,12 +34,17 @@ import torch
 
 from ..utils.io import read_json, write_json
 from .kinematics import check_side
-from .tree import NUM_JOINTS, POSE_DIM
+from .tree import NUM_JOINTS, PARENTS, POSE_DIM
 
-__all__ = ["PARAMS_FORMAT", "HandParams", "read_params", "write_params"]
+__all__ = ["PARAMS_FORMAT", "MAX_TRANSLATION_M", "MIN_BONE_M", "HandParams", "read_params",
+           "write_params"]
 
 PARAMS_FORMAT = "lisa-hand-params"
 _VERSION = 1
+MAX_TRANSLATION_M = 100.0
+"""The farthest a hand of ``params.json`` may be from the origin, metres."""
+MIN_BONE_M = 0.001
+"""The shortest bone of a ``params.json`` skeleton, metres (a real hand's are over 1 cm)."""
 
 
 @dataclass
@@ -122,12 +135,21 @@ def read_params(path: str | os.PathLike) -> HandParams:
         raise ValueError(f"{path}: expected a JSON object")
     if data.get("format", PARAMS_FORMAT) != PARAMS_FORMAT:
         raise ValueError(f"{path}: format {data.get('format')!r} is not {PARAMS_FORMAT!r}")
+    version = data.get("version", _VERSION)
+    if isinstance(version, bool) or version != _VERSION:
+        raise ValueError(f"{path}: version {version!r} is not one this code reads ({_VERSION})")
     missing = [k for k in ("pose", "translation", "rest_joints", "shape_code") if k not in data]
     if missing:
         raise ValueError(f"{path}: missing key(s) {', '.join(missing)}")
+    model = data.get("model", "default")
+    if not isinstance(model, str):
+        raise ValueError(f"{path}: model must be a shipped model's name or a path, got "
+                         f"{type(model).__name__}")
     extra = data.get("extra") or {}
     try:
-        return HandParams(
+        for key in ("pose", "translation", "rest_joints", "shape_code", "color_code", "betas"):
+            _check_numbers(data.get(key), key)
+        params = HandParams(
             pose=data["pose"],
             translation=data["translation"],
             rest_joints=data["rest_joints"],
@@ -135,11 +157,42 @@ def read_params(path: str | os.PathLike) -> HandParams:
             color_code=data.get("color_code"),
             betas=data.get("betas"),
             side=data.get("side", "right"),
-            model=str(data.get("model", "default")),
+            model=model,
             extra=extra if isinstance(extra, dict) else {},
         )
+        _check_plausible(params)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
+    return params
+
+
+def _check_numbers(value: Any, name: str) -> None:
+    """ValueError naming ``name`` when the JSON value ``value`` (nested lists) holds anything
+    but numbers: booleans, strings, null, objects."""
+    stack = [value] if value is not None else []
+    while stack:
+        item = stack.pop()
+        if isinstance(item, list):
+            stack.extend(item)
+        elif isinstance(item, bool) or not isinstance(item, (int, float)):
+            raise ValueError(f"{name} must hold numbers only, found {item!r}")
+
+
+def _check_plausible(params: HandParams) -> None:
+    """ValueError when ``params`` is no hand: far beyond any camera's reach (float32 flattens
+    it), or with a bone of (about) zero length."""
+    distance = float(params.translation.double().norm())
+    if distance > MAX_TRANSLATION_M:
+        raise ValueError(f"translation is {distance:.3g} m from the origin (at most "
+                         f"{MAX_TRANSLATION_M:g} m: a hand's position in metres)")
+    joints = params.rest_joints.double()
+    children = list(range(1, NUM_JOINTS))
+    lengths = (joints[children] - joints[[PARENTS[child] for child in children]]).norm(dim=1)
+    shortest = int(lengths.argmin())
+    if float(lengths[shortest]) < MIN_BONE_M:
+        raise ValueError(f"rest_joints is degenerate: the bone to joint {children[shortest]} is "
+                         f"{1000 * float(lengths[shortest]):.3g} mm long (at least "
+                         f"{1000 * MIN_BONE_M:g} mm)")
 
 
 def write_params(path: str | os.PathLike, params: HandParams) -> Path:

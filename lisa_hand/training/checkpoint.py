@@ -30,7 +30,7 @@ import numpy as np
 import torch
 
 from ..model.checkpoint import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, Checkpoint
-from ..utils.io import atomic_path
+from ..utils.io import NoSpaceError, atomic_path, no_space_error
 
 __all__ = [
     "NonFiniteError",
@@ -139,7 +139,8 @@ def save_checkpoint(path: str | os.PathLike, checkpoint: Checkpoint) -> Path:
     """Write ``checkpoint`` to ``path`` atomically (temp file, fsync, rename); return the path.
 
     Raises ``NonFiniteError`` (writing nothing, the previous file intact) when a model tensor is
-    NaN or inf.
+    NaN or inf, and ``NoSpaceError`` (an OSError; the previous file intact) naming ``path``, the
+    free space and about the size needed when the disk is full.
     """
     path = Path(path)
     if not isinstance(checkpoint.step, int) or checkpoint.step < 0:
@@ -158,12 +159,27 @@ def save_checkpoint(path: str | os.PathLike, checkpoint: Checkpoint) -> Path:
         "trainer": checkpoint.trainer,
         "extra": checkpoint.extra,
     }
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as handle:
-            torch.save(payload, handle)
-            handle.flush()
-            os.fsync(handle.fileno())
+    try:
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as handle:
+                torch.save(payload, handle)
+                handle.flush()
+                os.fsync(handle.fileno())
+    except NoSpaceError:
+        raise no_space_error(path, _tensor_bytes(payload),
+                             "the previous checkpoint is left intact") from None
     return path
+
+
+def _tensor_bytes(value: Any) -> int:
+    """Bytes of the tensors in a nested structure (about a checkpoint's size on disk)."""
+    if torch.is_tensor(value):
+        return value.numel() * value.element_size()
+    if isinstance(value, Mapping):
+        return sum(_tensor_bytes(item) for item in value.values())
+    if isinstance(value, (list, tuple)):
+        return sum(_tensor_bytes(item) for item in value)
+    return 0
 
 
 def copy_checkpoint(src: str | os.PathLike, dst: str | os.PathLike) -> Path:

@@ -177,6 +177,56 @@ def _flat_diff(a: Any, b: Any, prefix: str = "") -> list[str]:
     return [] if a == b else [prefix or "<root>"]
 
 
+_FRESH_KEYS_SKIPPED = ("params", "initial_lr", "lr")
+"""Keys of a parameter group that the resume does not copy from the freshly built optimizer:
+the parameters, and the learning rates, which come from the schedule's base rates."""
+
+
+def _group_settings(optimizer: torch.optim.Optimizer) -> list[dict[str, Any]]:
+    """The hyperparameters of each parameter group (betas, weight decay, ...), without the
+    parameters and the learning rates."""
+    return [{key: value for key, value in group.items() if key not in _FRESH_KEYS_SKIPPED}
+            for group in optimizer.param_groups]
+
+
+def _apply_optimizer_settings(optimizer: torch.optim.Optimizer, scheduler: Any,
+                              fresh_groups: list[dict[str, Any]],
+                              fresh_base_lrs: list[float]) -> list[str]:
+    """After loading a checkpoint's optimizer and scheduler states, put back this run's
+    settings where they differ: each group's hyperparameters (``fresh_groups``) and the
+    schedule's base learning rates (``fresh_base_lrs``), and the rate of the current step
+    (``LambdaLR``: ``base_lr * lr_lambda(step)`` with this run's lambdas; other schedules: scaled
+    by the ratio of the base rates). -> one ``"name old -> new"`` per change (empty: none)."""
+    changed: list[str] = []
+    groups = optimizer.param_groups
+    for index, (group, fresh) in enumerate(zip(groups, fresh_groups, strict=False)):
+        where = f" (group {index})" if len(groups) > 1 else ""
+        for key, value in fresh.items():
+            if key in group and group[key] != value:
+                changed.append(f"{key}{where} {group[key]} -> {value}")
+                group[key] = value
+    base_lrs = getattr(scheduler, "base_lrs", None)
+    if not fresh_base_lrs or base_lrs is None or len(base_lrs) != len(fresh_base_lrs):
+        return changed
+    is_lambda = isinstance(scheduler, torch.optim.lr_scheduler.LambdaLR)
+    for index, (group, old, new) in enumerate(zip(groups, list(base_lrs), fresh_base_lrs,
+                                                  strict=False)):
+        if old != new:
+            where = f" (group {index})" if len(groups) > 1 else ""
+            changed.append(f"lr{where} {old:g} -> {new:g}")
+            scheduler.base_lrs[index] = new
+            group["initial_lr"] = new
+        if is_lambda:
+            # The rate of this step under this run's schedule (its lambdas are rebuilt from
+            # this run's config; unchanged settings give the checkpoint's rate bit for bit).
+            group["lr"] = new * scheduler.lr_lambdas[index](scheduler.last_epoch)
+        elif old != new:
+            group["lr"] = group["lr"] * new / old
+    if hasattr(scheduler, "_last_lr"):
+        scheduler._last_lr = [group["lr"] for group in groups]
+    return changed
+
+
 class Trainer:
     """One training run: owns the device placement, optimizer, schedule, data generator, files.
 
@@ -206,6 +256,7 @@ class Trainer:
             (``Checkpoint.extra``); after a resume ``trainer.resumed_extra`` holds the loaded one.
         dist: a ready ``DistContext``; default: ``init_distributed(config.device)`` (torchrun's
             environment, else one process).
+        name: the command its notes are printed as (``lisa train: resuming ...``).
     """
 
     def __init__(
@@ -222,6 +273,7 @@ class Trainer:
         hooks: Sequence[Hook] = (),
         extra_state: Mapping[str, Any] | Callable[[], Mapping[str, Any]] | None = None,
         dist: DistContext | None = None,
+        name: str = "lisa train",
     ) -> None:
         if not isinstance(model, nn.Module):
             raise TypeError(f"model must be a torch.nn.Module, got {type(model).__name__}")
@@ -230,6 +282,7 @@ class Trainer:
         if not isinstance(config, TrainerConfig):
             raise TypeError(f"config must be a TrainerConfig, got {type(config).__name__}")
         self.config = config
+        self.name = name
         self.step_fn = step_fn
         self.out_dir = Path(out_dir)
         self.run_config = run_config if run_config is not None else config
@@ -295,6 +348,8 @@ class Trainer:
             first = str(exc).strip().splitlines()
             raise ValueError(f"{path}: the checkpoint does not fit the model "
                              f"({' '.join(line.strip() for line in first[:3])})") from None
+        fresh_groups = _group_settings(self.optimizer)
+        fresh_base_lrs = list(getattr(self.scheduler, "base_lrs", []))
         try:
             if ckpt.optimizer is not None:
                 self.optimizer.load_state_dict(ckpt.optimizer)
@@ -303,6 +358,12 @@ class Trainer:
         except (ValueError, KeyError, RuntimeError) as exc:
             raise ValueError(f"{path}: the optimizer/scheduler state does not fit "
                              f"({exc})") from None
+        changed = _apply_optimizer_settings(self.optimizer, self.scheduler, fresh_groups,
+                                            fresh_base_lrs)
+        if changed:
+            self._note(f"resuming {path} at step {ckpt.step} with this run's optimizer "
+                       f"settings, not the checkpoint's: {'; '.join(changed)} (the learning-"
+                       "rate schedule continues from this step at the new rate)")
         generators = {"data": self.generator}
         if len(ckpt.rng) == self.dist.world_size:
             restore_rng_state(ckpt.rng[self.dist.rank], generators)
@@ -324,7 +385,7 @@ class Trainer:
 
     def _note(self, message: str) -> None:
         if self.dist.is_main:
-            print(f"lisa train: {message}", file=sys.stderr, flush=True)
+            print(f"{self.name}: {message}", file=sys.stderr, flush=True)
 
     # --------------------------------------------------------------------------------------------
     # checkpoints

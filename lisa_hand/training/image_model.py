@@ -216,8 +216,8 @@ class ImageModel(nn.Module):
             trace and one field evaluation for the batch) and evaluate the skinning points
             without the gradient pass they do not need; False renders frame after frame (one
             stratified generator each, seeded by ``batch.seeds``) and runs the skinning points
-            through the Eikonal gradient pass: the step as it was before (the reference of
-            ``python -m lisa_hand.bench train``). Both compute the same losses; the random jitter
+            through the Eikonal gradient pass: the reference step of
+            ``python -m lisa_hand.bench train``. Both compute the same losses; the random jitter
             of the samples differs.
         -> {"col", "eik", "w", "surf", "reg", "mask"} scalar tensors.
         """

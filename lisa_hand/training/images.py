@@ -85,11 +85,9 @@ def _default_image_trainer() -> TrainerConfig:
 def _default_image_render() -> RenderConfig:
     # 12 samples in the band [-4 beta, +8 beta] around the traced surface (one per beta) and
     # 4 uniform ones; 12 marching steps, full steps after entering the band's shell and the
-    # surface reached within 1 beta (after 16 steps 88% of the rays have found their band,
-    # against 59% with the first release's stepping; 12 steps instead of 16 made a step 12%
-    # faster for 0.15 dB of held-out PSNR at 400 steps, within the runs' noise, and 10 steps
-    # cost 0.4 dB). The first release used 48 + 16 samples in [-8 beta, +16 beta] and 64
-    # steps: ``python -m lisa_hand.bench train`` compares them.
+    # surface reached within 1 beta: full steps let most rays find their band within these few
+    # steps, and fewer steps start to cost held-out PSNR. ``python -m lisa_hand.bench train``
+    # compares this with a denser reference (48 + 16 samples in [-8 beta, +16 beta], 64 steps).
     return RenderConfig(sampler="sphere_traced", num_samples=12, num_samples_extra=4,
                         stratified=True, sphere_num_steps=12, sphere_band_outside=4.0,
                         sphere_band_inside=8.0, sphere_full_steps=True,
@@ -131,8 +129,8 @@ class ImageTrainConfig:
     batched_step: bool = True
     """Render every frame of a step in one pass (one sphere trace and one field evaluation for
     all of them, grouped by frame) and skip the gradient pass for the skinning points. False:
-    frame after frame, the step of the first release (``python -m lisa_hand.bench train``'s
-    reference). The same losses either way."""
+    frame after frame (``python -m lisa_hand.bench train``'s reference step). The same losses
+    either way."""
     stream: bool = False
     """Read frames while training runs (:mod:`lisa_hand.training.streaming`: a DataLoader with
     ``stream_workers`` processes decodes the images and masks, cropped to the hand, into a
@@ -145,14 +143,13 @@ class ImageTrainConfig:
     """With ``stream``: frames held in memory (the buffer a step draws its frames from); at
     least ``num_frames``."""
     eikonal_ray_points: int = 64
-    """Per frame: samples of the rendered rays where L_Eik is evaluated (the first release:
-    256; a quarter with the faster step: ``python -m lisa_hand.bench train`` measured 64 + 64
-    Eikonal and 128 skinning points as good as 128 + 128 and 256 in PSNR and surface error)."""
+    """Per frame: samples of the rendered rays where L_Eik is evaluated (64 + 64 Eikonal and 128
+    skinning points do as well in PSNR and surface error as twice as many, at less cost:
+    ``python -m lisa_hand.bench train`` compares them)."""
     eikonal_uniform_points: int = 64
-    """Per frame: uniform points (in the box around the bones' regions) for L_Eik (first
-    release: 256)."""
+    """Per frame: uniform points (in the box around the bones' regions) for L_Eik."""
     skinning_points: int = 128
-    """Per frame: scan points where L_w is evaluated (0 with lambda_w = 0; first release: 512)."""
+    """Per frame: scan points where L_w is evaluated (0 with lambda_w = 0)."""
     lambda_col: float = 1.0
     """Weight of L_col (L1 over RGB in [0, 1], per ray)."""
     lambda_eik: float = 0.1
@@ -189,8 +186,8 @@ class ImageTrainConfig:
     pose_lr: float | None = 1e-5
     """Learning rate of the pose (radians) and translation (metres) offsets (None: the
     trainer's lr). Small: the offsets correct annotation errors of a few degrees and
-    millimetres. Measured on exact synthetic poses, refining at the trainer's 5e-4 raised the
-    colour loss by about 18% and the skinning loss by about 40% within 250 steps."""
+    millimetres; at the trainer's lr (5e-4) they wander off even exact poses and raise the
+    colour and skinning losses."""
     shading: str = "none"
     """How the rendered colour is lit (:mod:`lisa_hand.render.shading`): "none", the field's
     colour as it is (the paper, the shipped model); "headlight", the composited colour times a

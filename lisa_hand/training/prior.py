@@ -279,7 +279,8 @@ def train_prior(
     group_lrs = {("shape_codes",): config.latent_lr}
     trainer = Trainer(model, step_fn, config.trainer, out_dir, run_config=config,
                       optimizer_fn=lambda bare: build_optimizer(bare, config.trainer, group_lrs),
-                      resume=resume, hooks=hooks, extra_state=extra, dist=dist)
+                      resume=resume, hooks=hooks, extra_state=extra, dist=dist,
+                      name="lisa train-prior")
     check_resumed_extra(trainer, extra)
     return trainer.run()
 

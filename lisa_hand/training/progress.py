@@ -10,7 +10,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from ..utils.io import atomic_path
+from ..utils.io import atomic_path, is_no_space, no_space_error
 from .config import TrainerConfig
 
 __all__ = ["LOG_FILE", "RunLog", "Progress", "format_losses"]
@@ -58,13 +58,23 @@ class RunLog:
     def write(self, entry: Mapping[str, Any]) -> None:
         """Append one JSON line and flush it."""
         if self._file is not None:
-            self._file.write(json.dumps(entry) + "\n")
-            self._file.flush()
+            try:
+                self._file.write(json.dumps(entry) + "\n")
+                self._file.flush()
+            except OSError as exc:
+                if is_no_space(exc):
+                    raise no_space_error(self._file.name) from None
+                raise
 
     def close(self) -> None:
         if self._file is not None:
-            self._file.close()
-            self._file = None
+            handle, self._file = self._file, None
+            try:
+                handle.close()
+            except OSError as exc:  # the flush of a line a full disk refused
+                if is_no_space(exc):
+                    raise no_space_error(handle.name) from None
+                raise
 
 
 class Progress:

@@ -8,8 +8,10 @@ the user's path, never the hidden temporary file."""
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+import shutil
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -18,8 +20,12 @@ from typing import Any
 
 __all__ = [
     "atomic_path",
+    "NoSpaceError",
+    "is_no_space",
+    "no_space_error",
     "write_json",
     "read_json",
+    "read_numpy",
     "ensure_writable_dir",
     "require_file",
     "check_output_file",
@@ -99,6 +105,50 @@ def check_output_dir(path: str | os.PathLike) -> Path:
     return path
 
 
+_NO_SPACE_ERRNOS = (errno.ENOSPC, errno.EDQUOT)
+
+
+class NoSpaceError(OSError):
+    """A write failed for want of disk space (``errno`` ENOSPC): ``str()`` is the one-line
+    message, which names the path written (:func:`no_space_error`)."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(errno.ENOSPC, message)
+
+    def __str__(self) -> str:
+        return str(self.strerror)
+
+    def __reduce__(self) -> tuple:  # survives the trip back from a worker process
+        return (type(self), (self.strerror,))
+
+
+def is_no_space(exc: BaseException | None) -> bool:
+    """Whether ``exc``, or an exception it was raised from (``torch.save`` wraps the OSError of
+    a full disk in a RuntimeError), is a full disk or quota (ENOSPC, EDQUOT)."""
+    for _ in range(16):  # the chain of causes, bounded
+        if exc is None:
+            return False
+        if isinstance(exc, OSError) and exc.errno in _NO_SPACE_ERRNOS:
+            return True
+        exc = exc.__cause__ or exc.__context__
+    return False
+
+
+def no_space_error(path: str | os.PathLike, needed_bytes: int | None = None,
+                   then: str | None = None) -> NoSpaceError:
+    """The one-line error of a full disk while writing ``path``: the free space of its disk,
+    ``needed_bytes`` (about what the write needed) when known, and ``then`` (what is left, what
+    to do) appended."""
+    path = Path(path)
+    try:
+        free = f"{shutil.disk_usage(_nearest_existing(path.parent)).free / 1e6:.0f} MB free there"
+    except OSError:
+        free = "free space unknown"
+    needed = f", about {needed_bytes / 1e6:.1f} MB needed" if needed_bytes else ""
+    tail = f"; {then}" if then else ""
+    return NoSpaceError(f"{path}: no space left on device ({free}{needed}){tail}")
+
+
 @contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; move it onto ``path`` only if the block succeeds.
@@ -130,7 +180,12 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     os.umask(umask)
     os.chmod(tmp_path, 0o666 & ~umask)
     try:
-        yield tmp_path
+        try:
+            yield tmp_path
+        except Exception as exc:  # a full disk names the user's path, not the temporary file
+            if is_no_space(exc) and not isinstance(exc, NoSpaceError):
+                raise no_space_error(path) from None
+            raise
         try:
             os.replace(tmp_path, path)
         except OSError as exc:
@@ -155,6 +210,44 @@ def read_json(path: str | os.PathLike) -> Any:
         return json.loads(path.read_text())
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    except RecursionError:
+        raise ValueError(f"{path}: not valid JSON (nested too deeply)") from None
+
+
+def read_numpy(path: str | os.PathLike) -> Any:
+    """A ``.npy`` file's array, or a ``.npz`` file's arrays as a dict (all read now), never
+    unpickling anything.
+
+    -> numpy.ndarray (``.npy``) or dict[str, numpy.ndarray] (``.npz``; any other suffix is read
+    as what its content is). Raises ValueError naming the file for a truncated or corrupted file
+    and for one that holds Python objects (a pickle: refused, never loaded).
+    """
+    import numpy as np
+
+    path = require_file(path)
+    try:
+        loaded = np.load(path, allow_pickle=False)
+        if not isinstance(loaded, np.ndarray):  # an NpzFile: read every array, close the file
+            with loaded:
+                return {key: loaded[key] for key in loaded.files}
+        return loaded
+    except Exception as exc:  # numpy, zipfile, zlib and tokenize raise many types for a bad file
+        raise _numpy_error(path, exc) from None
+
+
+def _numpy_error(path: Path, exc: Exception) -> ValueError:
+    """The one-line error of a ``.npy``/``.npz`` file numpy cannot read; numpy's advice to
+    allow pickles is not passed on (a pickle runs code: LISA never loads one)."""
+    with open(path, "rb") as handle:
+        magic = handle.read(6)
+    if "pickle" in str(exc).lower():
+        if magic.startswith((b"\x93NUMPY", b"PK")) or magic[:1] == b"\x80":
+            return ValueError(f"{path}: cannot read: it holds Python objects (pickled data), "
+                              "which LISA never loads; save plain numeric arrays (numpy.save, "
+                              "numpy.savez)")
+        return ValueError(f"{path}: cannot read: not a .npy or .npz file")
+    return ValueError(f"{path}: cannot read: not a .npy/.npz file, or a truncated or corrupted "
+                      f"one ({type(exc).__name__}: {exc})")
 
 
 def ensure_writable_dir(path: str | os.PathLike) -> Path:

@@ -120,7 +120,7 @@ def test_keypoints_far_outside_the_image_are_dropped(lisa, files, tmp_path, caps
 def _corrupt_model(files, tmp_path):
     path = tmp_path / "broken.pt"
     path.write_bytes(b"not a model")
-    return ["--model", str(path)], "broken.pt: cannot read this model file"
+    return ["--model", str(path)], "broken.pt: not a LISA model file"
 
 
 def _small_image(files, tmp_path):

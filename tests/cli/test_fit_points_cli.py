@@ -172,7 +172,7 @@ def test_bad_inputs_give_one_line_errors(lisa, files, capsys):
         (["nan.npy"], "nan.npy: only 0 of 50 points have finite coordinates"),
         (["mm.npy", "--units", "m"], "mm.npy: the cloud is"),
         (["missing.xyz"], "missing.xyz: no such file"),
-        (["scan.npz", "--model", "corrupt.pt"], "corrupt.pt: cannot read this model file"),
+        (["scan.npz", "--model", "corrupt.pt"], "corrupt.pt: not a LISA model file"),
         (["scan.npz", "--model", "nothing.pt"], "nothing.pt: no such model file"),
         (["scan.npz", "--gt", "nothing.ply"], "nothing.ply: no such file"),
     ]

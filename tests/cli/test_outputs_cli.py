@@ -49,7 +49,8 @@ def no_work(monkeypatch):
 @pytest.fixture()
 def params_file(tmp_path):
     hand = HandParams(pose=torch.zeros(48), translation=torch.zeros(3),
-                      rest_joints=torch.zeros(16, 3), shape_code=torch.zeros(4))
+                      rest_joints=torch.arange(48.0).reshape(16, 3) * 0.01,
+                      shape_code=torch.zeros(4))
     return write_params(tmp_path / "hand.json", hand)
 
 

@@ -116,13 +116,13 @@ def test_demo_rejects_bad_input_before_writing(model_file, tmp_path):
     out = tmp_path / "demo"
     with pytest.raises(ValueError, match="num_views must be >= 5"):
         run_demo(out, tiny_config(model_file, num_views=4), log=lambda line: None)
-    with pytest.raises(ValueError, match="hand_model must be one of v1, v2, got 'v3'"):
-        run_demo(out, tiny_config(model_file, hand_model="v3"), log=lambda line: None)
+    with pytest.raises(ValueError, match="hand_model must be one of v1, v2, v3, got 'v4'"):
+        run_demo(out, tiny_config(model_file, hand_model="v4"), log=lambda line: None)
     with pytest.raises(FileNotFoundError, match="nothing.pt: no such model file"):
         run_demo(out, tiny_config(tmp_path / "nothing.pt"), log=lambda line: None)
     corrupt = tmp_path / "corrupt.pt"
     corrupt.write_bytes(b"\x00garbage" * 100)
-    with pytest.raises(ValueError, match="corrupt.pt: cannot read this model file"):
+    with pytest.raises(ValueError, match="corrupt.pt: not a LISA model file"):
         run_demo(out, tiny_config(corrupt), log=lambda line: None)
     assert not out.exists()  # nothing half-written
 
@@ -135,7 +135,7 @@ def test_demo_command_reports_a_corrupt_model_in_one_line(tmp_path, capsys):
         cli_main.main(["demo", "--out", str(out), "--model", str(corrupt), "--device", "cpu"])
     assert info.value.code == 2
     error = capsys.readouterr().err.strip()
-    assert error.startswith("lisa: error: ") and "corrupt.pt: cannot read this model file" in error
+    assert error.startswith("lisa: error: ") and "corrupt.pt: not a LISA model file" in error
     assert "\n" not in error and not out.exists()
     with pytest.raises(SystemExit) as info:
         cli_main.main(["demo", "--out", str(out), "--fit-scale", "0"])

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 import torch
 
-from lisa_hand.cli.main import main
 from lisa_hand.data.importers.common import ImportReport
 from lisa_hand.data.importers.freihand import FreiHandConfig, import_freihand
 from lisa_hand.data.importers.scans import ScanImportConfig, import_scans
@@ -20,6 +19,7 @@ from lisa_hand.geometry.meshing import Mesh
 from lisa_hand.handmodel.poses import sample_pose
 from lisa_hand.handmodel.template import load_template
 from lisa_hand.skeleton.mano_file import load_mano_pkl
+from tests.cli.test_import_cli import run
 from tests.data.importers.fixtures import freihand_fixture, interhand_fixture
 from tests.skeleton.synthetic_mano import (
     FakeCscMatrix,
@@ -30,15 +30,6 @@ from tests.skeleton.synthetic_mano import (
 
 F64 = torch.float64
 IH_ARGS = ("--hand", "right", "--captures", "0", "--skinning-points", "0", "--quiet")
-
-
-def run(capsys, *args):
-    code = 0
-    try:
-        main([str(a) for a in args])
-    except SystemExit as exc:
-        code = exc.code or 0
-    return code, capsys.readouterr()
 
 
 def one_line_refusal(code, output, *needles):

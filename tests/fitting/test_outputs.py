@@ -21,7 +21,8 @@ from lisa_hand.skeleton.params import HandParams, read_params
 
 def hand(x: float = 0.0) -> HandParams:
     return HandParams(pose=torch.zeros(48), translation=torch.tensor([x, 0.0, 0.0]),
-                      rest_joints=torch.zeros(16, 3), shape_code=torch.zeros(4))
+                      rest_joints=torch.arange(48.0).reshape(16, 3) * 0.01,
+                      shape_code=torch.zeros(4))
 
 
 MESH = Mesh(vertices=np.eye(3), faces=np.array([[0, 1, 2]]))
@@ -116,7 +117,8 @@ def stuck(path, mesh):
 
 meshio.save_mesh = stuck
 hand = HandParams(pose=torch.zeros(48), translation=torch.zeros(3),
-                  rest_joints=torch.zeros(16, 3), shape_code=torch.zeros(4))
+                  rest_joints=torch.arange(48.0).reshape(16, 3) * 0.01,
+                  shape_code=torch.zeros(4))
 write_fit_outputs(sys.argv[1], hand, Mesh(vertices=np.eye(3), faces=np.array([[0, 1, 2]])))
 """
 
@@ -135,7 +137,9 @@ def test_a_kill_during_the_write_keeps_the_previous_fit_and_the_next_fit_cleans_
         writer.kill()  # SIGKILL: no cleanup runs
         writer.wait()
         writer.stdout.close()
-    staging = [p.name for p in tmp_path.iterdir() if p.name != "fit"]
+    # The killed writer's claim (.fit.lock, its dead pid) is taken over by the next fit.
+    assert (tmp_path / ".fit.lock").read_text().split()[0] == str(writer.pid)
+    staging = [p.name for p in tmp_path.iterdir() if p.name not in ("fit", ".fit.lock")]
     assert len(staging) == 1 and staging[0].startswith(f".fit.staging-{writer.pid}-")
     assert sorted(p.name for p in out.iterdir()) == ["keypoints.json", "mesh.ply", "metrics.json",
                                                      "params.json"]

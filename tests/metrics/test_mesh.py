@@ -179,3 +179,21 @@ def test_load_mesh_names_folders_and_ply_faces_without_vertices(tmp_path):
     with pytest.raises(ValueError, match=r"zero\.ply: the PLY has no vertices \(element vertex "
                                          r"0\) but 1 face\(s\)"):
         load_mesh(tmp_path / "zero.ply")
+
+
+def test_roughness_is_small_on_a_sphere_and_grows_with_bumps():
+    import trimesh
+
+    from lisa_hand.metrics.mesh import surface_roughness
+
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=0.05)
+    smooth = surface_roughness(sphere.vertices, sphere.faces)
+    noise = np.random.default_rng(0).normal(0.0, 0.0005, len(sphere.vertices))
+    bumpy = sphere.vertices * (1.0 + noise / 0.05)[:, None]
+    rough = surface_roughness(bumpy, sphere.faces)
+    assert smooth < 0.1  # mm: a sphere of 2.5k vertices (2 mm edges) barely moves
+    assert 0.25 < rough < 0.45  # 0.5 mm SD bumps, 0.4 mm mean size: most of it is removed
+    doubled = surface_roughness(sphere.vertices * (1.0 + 2 * noise / 0.05)[:, None], sphere.faces)
+    assert 1.6 < doubled / rough < 2.2  # twice the bumps, about twice the figure
+    with pytest.raises(ValueError, match="faces"):
+        surface_roughness(sphere.vertices, None)

@@ -104,14 +104,16 @@ def _stop_at(step: int):
     return hook
 
 
-def test_resume_equals_an_uninterrupted_run(tiny_data, tmp_path):
+def test_resume_equals_an_uninterrupted_run(tiny_data, tmp_path, capsys):
     config = tiny_prior_config(trainer=tiny_trainer(steps=16, lr_schedule="cosine",
                                                     checkpoint_every=5))
     train_prior(tiny_data, tmp_path / "whole", config)
     first = train_prior(tiny_data, tmp_path / "part", config, hooks=[_stop_at(7)])
     assert first.status == "interrupted" and first.steps_done == 8
+    capsys.readouterr()
     second = train_prior(tiny_data, tmp_path / "part", config)
     assert second.start_step == 8 and second.steps_done == 16
+    assert "lisa train-prior: resuming" in capsys.readouterr().err
     whole = load_checkpoint(tmp_path / "whole/last.pt").model
     part = load_checkpoint(tmp_path / "part/last.pt").model
     assert whole.keys() == part.keys()

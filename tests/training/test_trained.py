@@ -77,7 +77,7 @@ def test_bad_model_files_get_clear_errors(tmp_path):
         load_trained(tmp_path / "missing.pt")
     corrupt = tmp_path / "corrupt.pt"
     corrupt.write_bytes(b"not a torch file")
-    with pytest.raises(ValueError, match="corrupt.pt: cannot read"):
+    with pytest.raises(ValueError, match="corrupt.pt: not a LISA model file"):
         load_trained(corrupt)
     other = tmp_path / "other.pt"
     torch.save({"format": "something"}, other)

@@ -41,7 +41,7 @@ that order (test first, then val, then train); each list is sorted. Defaults 0.7
 subjects -> 14/2/4, 3 -> 2/0/1, 2 -> 1/0/1, 1 -> 1/0/0.
 
 Timing, one frame at the defaults (about 120k mesh vertices, 20k scan points, 20k SDF samples)
-and 8 views of 512x334, one core, measured on the shared 2-core machine: about 3.5 s of CPU, of
+and 8 views of 512x334, on one CPU core: about 3.5 s, of
 which the mesh (the exact field on the coarse-to-fine grid, then albedo and weights at the
 vertices) takes half, the SDF samples' closest points a quarter, the images, the scan and the
 file writes the rest (``SynthSummary.stage_seconds`` has the per-stage sums of a run). Two
@@ -51,6 +51,12 @@ Modules: :mod:`.synth_config` (settings and summary), :mod:`.synth_scene` (subje
 choices, split), :mod:`.synth_frame` (one frame's files), :mod:`.synth_preview` (the contact
 sheet); this module runs them over the dataset.
 
+All or nothing per subject: a run writes into the hidden ``OUT/.synth-staging`` and moves each
+subject folder into ``OUT`` once all its frames are written; ``OUT/.synth-unfinished.json`` (the
+settings) marks the dataset unfinished until ``dataset.json``, the last file, is written. A run
+stopped half-way (a full disk, Ctrl-C) thus leaves complete subjects only, and the same command
+run again continues it: the subjects already there are kept, the others written.
+
 Worker processes are started with ``spawn``: a script that calls :func:`synthesize` with more
 than one worker must guard its entry point with ``if __name__ == "__main__":`` (the ``lisa``
 command does).
@@ -58,17 +64,20 @@ command does).
 
 from __future__ import annotations
 
+import json
 import os
+import shutil
+import sys
 import time
-from concurrent.futures import Executor, as_completed
+from concurrent.futures import Executor, Future, as_completed
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ...utils.io import write_json
+from ...utils.io import ensure_writable_dir, is_no_space, no_space_error, write_json
 from ...utils.pool import worker_pool
-from ..layout import FORMAT_NAME, FORMAT_VERSION, prepare_dataset_folder
+from ..layout import FORMAT_NAME, FORMAT_VERSION, prepare_dataset_folder, subject_id
 from .config import SynthConfig, SynthSummary, parse_resolution
 from .frame import write_frame
 from .preview import write_preview
@@ -98,6 +107,13 @@ __all__ = [
 
 GENERATOR_VERSION = 1
 """Version of the generator: bumped whenever the files written for a given seed change."""
+
+UNFINISHED_FILE = ".synth-unfinished.json"
+"""In the dataset folder while a run writes it: the settings; removed once ``dataset.json`` is
+written."""
+STAGING_DIR = ".synth-staging"
+"""In the dataset folder while a run writes it: the subjects being written (each moved into the
+dataset folder once complete)."""
 
 
 
@@ -142,25 +158,75 @@ def _frame_task(root: str, config: SynthConfig, subject_json: dict[str, Any],
 # The dataset
 
 
-def _run_tasks(out: Path, config: SynthConfig, executor: Executor, bar) -> dict[str, float]:
-    """Subjects first (their ``subject.json`` written here, in order), then every frame;
-    -> seconds per stage summed over the tasks."""
+def _run_tasks(out: Path, config: SynthConfig, executor: Executor, bar,
+               todo: list[int]) -> dict[str, float]:
+    """Subjects ``todo`` first (their ``subject.json`` written here, in order, into the staging
+    folder), then every frame of them; each subject moved into ``out`` once its frames are
+    written. -> seconds per stage summed over the tasks."""
+    staging = out / STAGING_DIR
     stage_seconds: dict[str, float] = {"subject": 0.0}
-    futures = [executor.submit(_subject_task, config, k) for k in range(config.num_subjects)]
-    subjects: list[dict[str, Any]] = []
+    futures = [executor.submit(_subject_task, config, k) for k in todo]
+    subjects: dict[str, dict[str, Any]] = {}
     for future in futures:
         subject_json, seconds = future.result()
-        subjects.append(subject_json)
+        subjects[subject_json["id"]] = subject_json
         stage_seconds["subject"] += seconds
-        write_json(out / subject_json["id"] / "subject.json", subject_json)
+        write_json(staging / subject_json["id"] / "subject.json", subject_json)
         bar.update(1)
-    futures = [executor.submit(_frame_task, str(out), config, subjects[k], f)
-               for k in range(config.num_subjects) for f in range(config.num_poses)]
-    for future in as_completed(futures):
-        for name, seconds in future.result().items():
-            stage_seconds[name] = stage_seconds.get(name, 0.0) + seconds
-        bar.update(1)
+    left = {name: config.num_poses for name in subjects}
+    frame_futures = {executor.submit(_frame_task, str(staging), config, subject, f): name
+                     for name, subject in subjects.items() for f in range(config.num_poses)}
+    counted: set[Future] = set()
+
+    def frame_done(future: Future) -> None:
+        counted.add(future)
+        name = frame_futures[future]
+        left[name] -= 1
+        if left[name] == 0:  # the subject is complete: into the dataset as a whole
+            os.rename(staging / name, out / name)
+
+    try:
+        for future in as_completed(frame_futures):
+            for stage, seconds in future.result().items():
+                stage_seconds[stage] = stage_seconds.get(stage, 0.0) + seconds
+            frame_done(future)
+            bar.update(1)
+    except BaseException:
+        # The frames written before the failure still count: their complete subjects are kept.
+        for future in frame_futures:
+            future.cancel()
+        for future in frame_futures:
+            if (future not in counted and future.done() and not future.cancelled()
+                    and future.exception() is None):
+                frame_done(future)
+        raise
     return stage_seconds
+
+
+def _unfinished_record(config: SynthConfig) -> dict[str, Any]:
+    """What :data:`UNFINISHED_FILE` holds: the generator version and the settings, as JSON
+    reads them back."""
+    record = {"generator_version": GENERATOR_VERSION, "config": config.to_dict()}
+    return json.loads(json.dumps(record))
+
+
+def _unfinished_subjects(out: Path, config: SynthConfig) -> list[str] | None:
+    """The complete subjects of an unfinished dataset of ``config`` in ``out`` (a run of the
+    same settings stopped half-way), or None when ``out`` is not one (no marker, other settings,
+    a ``dataset.json``, or entries the generator does not write)."""
+    marker = out / UNFINISHED_FILE
+    if not marker.is_file() or (out / "dataset.json").exists():
+        return None
+    try:
+        if json.loads(marker.read_text()) != _unfinished_record(config):
+            return None
+    except (OSError, ValueError):
+        return None
+    names = {entry.name for entry in out.iterdir()}
+    subjects = {subject_id(k) for k in range(config.num_subjects)}
+    if not names <= subjects | {UNFINISHED_FILE, STAGING_DIR}:
+        return None
+    return sorted(names & subjects)
 
 
 def _dataset_json(config: SynthConfig, camera_names: list[str],
@@ -190,38 +256,60 @@ def synthesize(out: str | os.PathLike, config: SynthConfig | None = None, progre
 
     out: the dataset folder; created if missing, must be empty unless ``overwrite`` (which first
         removes a previous dataset's subject folders s000..., ``dataset.json`` and
-        ``split.json``, nothing else).
+        ``split.json``, nothing else), or an unfinished dataset of the same settings, which is
+        continued (see the module docstring).
     config: what to write (default :class:`SynthConfig()`).
     progress: show a tqdm bar over the frames.
-    Raises FileExistsError for a non-empty ``out``, OSError for an unwritable one, ValueError
-    for bad settings. ``dataset.json`` is written last: a folder without it is unfinished.
+    Raises FileExistsError for a non-empty ``out``, OSError for an unwritable one (a full disk:
+    ``NoSpaceError`` naming ``out``, the subjects complete, and that a rerun continues),
+    ValueError for bad settings. ``dataset.json`` is written last: a folder without it is
+    unfinished.
     -> :class:`SynthSummary` (counts, split, wall-clock seconds, seconds per stage).
     """
     config = SynthConfig() if config is None else config
     if not isinstance(config, SynthConfig):
         raise TypeError(f"config must be a SynthConfig, got {type(config).__name__}")
     out = Path(out)
-    prepare_dataset_folder(out, overwrite, "--overwrite (overwrite=True)")
+    done = None if overwrite or not out.is_dir() else _unfinished_subjects(out, config)
+    if done is None:
+        prepare_dataset_folder(out, overwrite, "--overwrite (overwrite=True)")
+        done = []
+    else:
+        ensure_writable_dir(out)
+        if progress:
+            print(f"synth: {out}: continuing an unfinished dataset of these settings "
+                  f"({len(done)} of {config.num_subjects} subjects already written)",
+                  file=sys.stderr, flush=True)
+    shutil.rmtree(out / STAGING_DIR, ignore_errors=True)  # a stopped run's partial subjects
+    write_json(out / UNFINISHED_FILE, _unfinished_record(config))
     start = time.perf_counter()
     from tqdm.auto import tqdm
 
     split = split_subjects(config.num_subjects, config.split_fractions, config.seed)
     cameras, _ = dataset_rig(config)
+    todo = [k for k in range(config.num_subjects) if subject_id(k) not in done]
     num_workers = config.workers()
     executor = worker_pool(num_workers)
-    bar = tqdm(total=config.num_subjects + config.num_frames, desc="synth", unit="task",
+    bar = tqdm(total=len(todo) * (1 + config.num_poses), desc="synth", unit="task",
                disable=not progress, dynamic_ncols=True)
     try:
-        stage_seconds = _run_tasks(out, config, executor, bar)
-    except BaseException:
+        stage_seconds = _run_tasks(out, config, executor, bar, todo)
+    except BaseException as exc:
         executor.shutdown(wait=True, cancel_futures=True)
+        if isinstance(exc, Exception) and is_no_space(exc):
+            complete = sum((out / subject_id(k)).is_dir() for k in range(config.num_subjects))
+            raise no_space_error(out, then=(
+                f"{complete} of {config.num_subjects} subjects are complete; free some space "
+                "and run the same command again to continue")) from None
         raise
     finally:
         bar.close()
     executor.shutdown(wait=True)
 
+    shutil.rmtree(out / STAGING_DIR, ignore_errors=True)
     write_json(out / "split.json", split)
     write_json(out / "dataset.json", _dataset_json(config, [c.name for c in cameras], split))
+    (out / UNFINISHED_FILE).unlink(missing_ok=True)
     return SynthSummary(root=out, num_subjects=config.num_subjects, num_frames=config.num_frames,
                         num_views=config.num_views,
                         num_images=config.num_frames * config.num_views, split=split,

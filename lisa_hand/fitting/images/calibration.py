@@ -3,14 +3,9 @@
 LISA calibrates every training camera with a per-channel gain and bias (Section 4.2, after
 Neural Volumes) and renders a new hand with their mean. The cameras of a fit are not training
 cameras: each has its own response, and with the mean calibration alone the colour code
-absorbs the input views' responses. On the demo's unseen hand (``lisa demo``: 4 views, synthetic
-gains uniform in [0.85, 1.15] and biases in [-0.05, 0.05] per camera and channel) the fitted
-views' average response is bluer than neutral (blue gain 1.056, bias +0.017, on a hand whose
-blue is ~0.16); the colour code, whose decoder makes skin colours only, met it half way with a
-greyer, less red skin (R/G 1.32 in the novel views where the hand, without camera responses,
-is 1.47) and the novel views came out grey-olive. With the responses fitted: R/G 1.45, novel-view
-PSNR 21.4 -> 22.5 dB (the colour stage alone, from the same keypoint-stage hand: 21.5 ->
-22.7 dB; learning rates 0.01-0.1 of the code without it all gave the same colour).
+absorbs the input views' responses: a few views whose average response is, say, bluer than
+neutral pull the code, whose decoder makes skin colours only, towards a greyer, less red skin,
+and the novel views (rendered without those responses) come out with the wrong colour.
 
 Each view ``v`` gets the response
 
@@ -37,7 +32,7 @@ class ViewCalibration:
 
     num_views: V. gain_std, bias_std: the spread of the cameras' gains (unitless) and biases
     (colour units, [0, 1] scale) the unknowns are measured in. enabled: False keeps ``z = 0``
-    (the model's mean calibration for every view, as before issue 15). device: of the unknowns.
+    (the model's mean calibration for every view). device: of the unknowns.
     """
 
     def __init__(self, num_views: int, gain_std: float, bias_std: float, enabled: bool,

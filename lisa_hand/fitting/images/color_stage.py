@@ -25,8 +25,9 @@ fitted response, :class:`lisa_hand.fitting.images.calibration.ViewCalibration`, 
 * ``L_shape = 0.5 |c|^2`` (NOT in the paper): the shape code's coefficients ``c`` in the
   principal subspace of the training subjects' codes (:class:`ShapeCode`,
   ``shape_fit="space"``, the default), in standard deviations, clamped to the training codes'
-  range along each direction. The paper's free code (``shape_fit="free"``) left the training codes'
-  span on real photos and broke the surface; ``shape_fit="fixed"`` keeps the start's code.
+  range along each direction. The paper's free code (``shape_fit="free"``) can leave the
+  training codes' span on real photos and break the surface; ``shape_fit="fixed"`` keeps the
+  start's code.
 * ``L_calibration`` (NOT in the paper): the Gaussian prior of the views' responses, in standard
   deviations of the cameras' spread (:meth:`ViewCalibration.prior`; 0 without
   ``view_calibration``).

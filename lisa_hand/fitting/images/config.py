@@ -70,18 +70,16 @@ class FitImagesConfig:
     distance from the camera (moved along the ray through its keypoints' centre; ``2^(k/4)``,
     k = -2, -1, 1, 2), and the lowest objective without the silhouette terms wins (the
     unmoved hand, as it was, when it ranks first). One view leaves the depth to the priors and
-    the silhouette, and the fit can stop at a depth the objective does not prefer (the demo's
-    second hand, ``lisa demo --seed 1``: 10 cm too near, 0.3 px off in the image). () turns it
-    off."""
+    the silhouette, and the fit can stop at a depth the objective does not prefer (centimetres
+    off, the keypoints still matched to a fraction of a pixel). () turns it off."""
     depth_restart_fraction: float = 0.2
     """Keypoint stage, one view: the depth restarts (``depth_factors``) take this fraction of
     ``keypoint_iters`` more iterations, before the finger restarts."""
     finger_restart_px: float = 0.0
     """Keypoint stage: mean error (pixels) of a finger's visible keypoints that triggers its
     restart. 0 (the default) restarts every finger: one that fits its keypoints to the pixel can
-    still be bent the wrong way in depth (on 6 synthetic photos of seed 1 with their true
-    keypoints, 2.0 px gave PA-MPJPE 3.57 mm on average, 0 gave 3.28 mm, 6.64 -> 5.09 mm on the
-    worst, for about 1 s more a fit)."""
+    still be bent the wrong way in depth, and restarting every finger costs about a second a
+    fit."""
     keypoint_pose_lr: float = 0.03
     """Keypoint stage: Adam learning rate of the pose, radians."""
     keypoint_translation_lr: float = 0.005
@@ -95,7 +93,7 @@ class FitImagesConfig:
     color_betas_lr: float = 0.0
     """Colour stage: Adam learning rate of the betas (0, the default: the skeleton stays the
     keypoint stage's; the keypoints are its only evidence, and with the colour stage's small
-    keypoint weight Adam let it drift toward the priors; 0.01 before issue 13)."""
+    keypoint weight Adam lets it drift toward the priors)."""
     latent_lr: float = 0.01
     """Colour stage: Adam learning rate of the colour code (and of the shape code with
     ``shape_fit="free"``)."""
@@ -105,8 +103,8 @@ class FitImagesConfig:
     clamped to the training codes' range along each direction (widened by
     ``shape_range_margin``), with the Gaussian prior ``shape_prior_weight * 0.5 |c|^2``
     (:class:`lisa_hand.fitting.images.shape_prior.ShapeSpace`); "free": every dimension (the
-    paper; on real photos it broke the surface into lumps and floaters); "fixed": kept at the
-    start (the mean code)."""
+    paper; on real photos it can break the surface into lumps and floaters); "fixed": kept at
+    the start (the mean code)."""
     shape_dims: int = 20
     """Colour stage, ``shape_fit="space"``: principal directions used (at most S - 1 for S
     training subjects)."""
@@ -163,13 +161,12 @@ class FitImagesConfig:
     """Colour stage: fit each input view's colour response (a per-channel gain and bias relative
     to the model's mean calibration, :class:`lisa_hand.fitting.images.calibration.ViewCalibration`)
     beside the colour code, so that the code does not absorb the input cameras' responses (not
-    in the paper; False: every view with the model's mean calibration, as before issue 15; only
-    with at least ``view_calibration_min_views`` views)."""
+    in the paper; False: every view with the model's mean calibration; only with at least
+    ``view_calibration_min_views`` views)."""
     view_calibration_min_views: int = 2
     """Colour stage, ``view_calibration``: fit the responses only with at least this many views.
-    One view's response cannot be told from the hand's colour: on the demo's unseen hand one
-    view with it gave 14.4 dB in the novel views and V2S 9.2 mm (16.0 dB, 5.8 mm without); two
-    views 21.7 dB, 2.7 mm (20.9 dB, 2.6 mm without); four 22.5 dB, 2.8 mm (21.4 dB, 2.8 mm)."""
+    One view's response cannot be told from the hand's colour: fitted from one view, it makes
+    both the novel views and the surface worse; from two views on it helps."""
     view_gain_std: float = 0.087
     """Colour stage, ``view_calibration``: the spread of the cameras' gains (unitless) the
     per-view gains are measured in (0.087: a gain uniform in 1 +- 0.15, ``lisa synth``'s)."""
@@ -196,13 +193,13 @@ class FitImagesConfig:
     guard_resolution: int = 128
     """Marching-cubes samples a side of the guard's meshes: that of the written mesh
     (``lisa fit-images --res``, default 128, about 1.7 mm voxels, ~2 s a mesh on one CPU
-    thread). Coarser grids miss floaters: one of 0.6 cm^2 at 128 was 0.007 cm^2 at 96 and
-    absent at 64."""
+    thread). Coarser grids miss floaters: one that is clear at 128 can shrink to a speck at 96
+    and vanish at 64."""
     max_area_change: float = 0.10
     """The guard's largest allowed relative change of the surface area."""
     num_threads: int | None = 1
     """CPU threads of torch during the fit (restored afterwards); None keeps torch's setting.
-    The fit runs many small operations: on a busy 2-core machine one thread was 2x (colour
+    The fit runs many small operations: on a busy 2-core machine one thread is 2x (colour
     stage) to 10x (keypoint stage) faster than two."""
     device: str | None = None
     """Where to fit ('cpu', 'cuda', 'cuda:1', ...); None: the model's device."""

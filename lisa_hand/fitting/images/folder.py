@@ -27,6 +27,7 @@ import torch
 from ...render import RenderConfig
 from ...skeleton.params import HandParams
 from ...utils.threads import cpu_threads
+from ..outputs import releases_output_locks
 from .config import FitImagesConfig
 from .fit import FitImagesResult, fit_images
 from .views import ImageView, background_colour, fit_target, input_notes, read_views
@@ -118,6 +119,7 @@ class FitImagesReport:
     notes: list[str]
 
 
+@releases_output_locks
 def fit_image_folder(
     frame_dir: str | os.PathLike,
     out_dir: str | os.PathLike,

@@ -15,12 +15,11 @@ meshed the same way), by two figures:
 The fit passes when its area is within ``max_area_change`` of the reference's and it has no more
 pieces than the reference (one, for a trained model), or its extra pieces add little floating
 area (area outside the largest piece) to the reference's own: at most ``max_area_change`` of
-it, the relative change allowed to the area. An untrained field is full of specks (the test
-models: 355 pieces, 3.4 % of the area at 128^3) whose count flips around the threshold between
-two meshes of the same surface; a trained model's reference is one piece with 0.003-0.03 %
-outside it, so that any counted floater fails. On real photos the colour loss can
-otherwise grow floaters and lumps where the model's colours cannot match the photo (issue 13:
-7-61 pieces and 5-55 % more surface than the keypoint-stage mesh).
+it, the relative change allowed to the area. An untrained field is full of specks (hundreds of
+pieces, a few percent of the area) whose count flips around the threshold between two meshes
+of the same surface; a trained model's reference is one piece with a tiny fraction of its area
+outside it, so that any counted floater fails. On real photos the colour loss can otherwise
+grow floaters and lumps where the model's colours cannot match the photo.
 
 :func:`guard_mesh` meshes a hand for the guard (marching cubes at the guard's resolution,
 :func:`lisa_hand.inference.mesh_hand` without colours or skinning weights).

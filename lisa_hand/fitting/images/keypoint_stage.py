@@ -22,13 +22,13 @@ whose keypoints are off by more than ``finger_restart_px`` restarts from the fla
 fist poses (a finger bent the wrong way is a local minimum). The lowest objective wins.
 
 One view leaves the depth open: the keypoints fit to a fraction of a pixel with the hand 10-15%
-too near, its fingers curled to match, a local minimum the objective does not prefer (the demo's
-second hand: 10 cm too near, 0.3 px off). So with one view, before the finger restarts, the best
+too near, its fingers curled to match, a local minimum the objective does not prefer. So with
+one view, before the finger restarts, the best
 candidate also restarts at ``depth_factors`` times its distance from the camera, for
 ``depth_restart_fraction`` more of the iterations, and the candidates are ranked by the
 objective without the silhouette terms: the template's silhouette is not the subject's, and its
-vertices outside the mask cost less the farther (smaller) the hand, which ranked a hand 8 cm too
-far first on one of ten unseen hands. The best candidate stays as it was unless a moved copy
+vertices outside the mask cost less the farther (smaller) the hand, which would rank a hand
+that is too far first. The best candidate stays as it was unless a moved copy
 ranks lower.
 """
 

@@ -7,11 +7,11 @@
   codes' range along each direction (``low``, ``high``: about +-1.5-2.2 std for the shipped
   model's 21 subjects), with the Gaussian prior ``0.5 |c|^2`` (the Mahalanobis distance of the
   code to the training codes' mean, squared, halved). A code outside this space is one the
-  decoder never saw: on real photos the colour loss pushed the free code 5-7x further from the
-  mean than any training subject, and the surface broke into lumps and floaters (issue 13).
+  decoder never saw: on real photos the colour loss can push a free code several times further
+  from the mean than any training subject, and the surface breaks into lumps and floaters.
   The range matters too: along the shipped model's first direction (the flesh: -1 std is
-  +10 % of surface area) a hand at +3 std falls apart into 6 pieces, at the training range's
-  end (+1.45 std) it is whole.
+  +10 % of surface area) a hand at +3 std falls apart into pieces, at the training range's
+  end it is whole.
 * :class:`HandSizePrior`: the hand's size (:func:`hand_size`, the summed length of the 15 bones
   of the rest skeleton, metres) over the training subjects: the template's betas are
   unit-variance principal coefficients of the open hand's subjects (the population the training

@@ -172,6 +172,11 @@ def _read_cameras(paths: FramePaths) -> dict[str, Camera]:
         if not camera.name:
             raise ValueError(f"{paths.cameras}: camera {index} has no name (its image is "
                              "images/NAME.png)")
+        if (camera.name in (".", "..") or Path(camera.name).name != camera.name
+                or "\\" in camera.name or "\0" in camera.name):
+            raise ValueError(f"{paths.cameras}: camera {index} is named {camera.name!r}, which "
+                             "is not a plain file name (its image is images/NAME.png, inside "
+                             "the frame folder)")
         if camera.name in by_name:
             raise ValueError(f"{paths.cameras}: camera name {camera.name!r} appears twice")
         by_name[camera.name] = camera

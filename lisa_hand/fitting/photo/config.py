@@ -15,12 +15,9 @@ __all__ = ["photo_fit_defaults", "FitPhotoConfig"]
 
 def photo_fit_defaults(**overrides: Any) -> FitImagesConfig:
     """The image fit's settings for photos: :class:`FitImagesConfig`'s defaults with fewer
-    iterations and rays (300 keypoint-stage iterations, 40 colour-stage iterations of 256 rays).
-    Measured on ``hand_thumb_up.jpg`` (two torch threads, the 2-core machine otherwise idle):
-    0.4 s reading and masks, 3.4 s keypoint stage, 13.6 s colour stage with the guard (its
-    marching cubes at 128^3, about 2 s each), 0.8 s mesh attributes, render and files: 18 s
-    (29 s on one busy thread before the overlay became a ray cast of the guard's mesh). Then
-    ``overrides``."""
+    iterations and rays (300 keypoint-stage iterations, 40 colour-stage iterations of 256 rays),
+    so that a photo takes well under half a minute on 2 CPU cores, most of it the colour stage
+    and the guard's marching cubes. Then ``overrides``."""
     values: dict[str, Any] = {"keypoint_iters": 300, "color_iters": 40, "num_rays": 256}
     values.update(overrides)
     return FitImagesConfig(**values)
@@ -47,9 +44,8 @@ class FitPhotoConfig:
     """``--side auto``: a detected side less certain than this (the detector's score, 0.5-1) is
     not trusted: both sides are fitted and the better one kept. A side the detector's own
     estimates disagree on (:attr:`lisa_hand.fitting.photo.detect.DetectedHand.side_votes`: it
-    changed with the window or the mirroring) gets a note; fitting both sides then did not
-    help (measured on the one such photo of ``python -m lisa_hand.bench photo``: the detector's
-    keypoints fit the side it chose better, objective 5.2 against 6.8)."""
+    changed with the window or the mirroring) only gets a note: its keypoints still fit the
+    side it chose better than the other."""
     detector_wrist_shift: float = 0.0
     """Detected hands: the detector's wrist is moved back towards the forearm by this fraction of
     the wrist-to-middle-knuckle length (:func:`lisa_hand.fitting.photo.detect.to_skeleton_wrist`)

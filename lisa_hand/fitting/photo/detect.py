@@ -5,12 +5,11 @@ extra: ``pip install -e '.[photo]'``, ``mediapipe==0.10.14``, whose wheel ships
 MediaPipe's legacy ``solutions.hands`` runs a palm detector on the whole input letterboxed to
 192 x 192 pixels, then a landmark model on a crop around each palm. Hands much smaller than about
 a tenth of the input's long side are missed, and so can be hands that fill it; large inputs also
-lose small hands to aliasing (the detector's own resize does not low-pass: the hand of
-``thumbs-up.png``, shrunk to about 160 px in a 1600 x 1200 photo, was missed at full size and
-found in the same photo averaged down to 640 px). So :func:`detect_hands` searches windows of
-the image, coarse to fine, each resized to a long side of :attr:`DetectConfig.window_side_px`
-(Pillow's bicubic, which low-passes when it shrinks), and stops at the first level that finds a
-hand:
+lose small hands to aliasing (the detector's own resize does not low-pass, so a small hand in a
+large photo can be missed at full size and found in the same photo averaged down). So
+:func:`detect_hands` searches windows of the image, coarse to fine, each resized to a long side
+of :attr:`DetectConfig.window_side_px` (Pillow's bicubic, which low-passes when it shrinks), and
+stops at the first level that finds a hand:
 
 1. the whole image, and the whole image zoomed out (padded on every side with the median colour
    of its border, for hands that fill it);
@@ -24,41 +23,27 @@ Every hand found is **refined**: detected again in square windows 1.5 and 2.5 ti
 box (:attr:`DetectConfig.refine_contexts`), resized to :attr:`DetectConfig.refine_side_px`, each
 as it is and mirrored. Of these estimates and the first one, those within 10% of the hand's size
 (:attr:`DetectConfig.agreement`) of their medoid are averaged, keypoints and side votes alike.
-Agreement on the shared photos: 1-3% of the hand's box diagonal. A hand found only in a crop
-must be found again around it, or it is dropped. Candidates of one level are merged largest
-first (a part of a hand cut by a crop's edge lies inside the whole one); refined hands whose
-keypoint boxes overlap by more than :attr:`DetectConfig.duplicate_iou` are one hand.
-
-Measured on the shared photos pasted, shrunk, into 1600 x 1200 photos (2 photos x grey, grass
-and coffee backgrounds x 3 sizes x 2 places): 32 of 36 found, each on its true side; every hand
-whose keypoint box is 86 px or more (5% of the long side) is found, most down to 40 px; the four
-misses are ``thumbs-up.png`` at 40-60 px on the textured backgrounds. Cropped tight so that the
-hand fills the photo, both are found (the zoomed-out pass). No hand was reported in 12 images
-without one (``skimage.data``: coffee, chelsea, rocket, hubble_deep_field, retina, brick, grass,
-gravel, immunohistochemistry, colorwheel, astronaut, camera), at thresholds 0.3, 0.4 and 0.5.
+A hand found only in a crop must be found again around it, or it is dropped. Candidates of one
+level are merged largest first (a part of a hand cut by a crop's edge lies inside the whole
+one); refined hands whose keypoint boxes overlap by more than :attr:`DetectConfig.duplicate_iou`
+are one hand. A hand whose keypoint box spans about 5% of the photo's long side or more is
+found; smaller ones often are, less reliably on textured backgrounds.
 
 **Handedness.** MediaPipe labels a hand assuming a mirrored (selfie) image: its label is the
-opposite of the true side in an ordinary photo. Measured with 0.10.14 on the two shared photos
-(``../shared/data/photos``): ``thumbs-up.png`` gets "Left" (score 0.97) and, mirrored, "Right"
-(0.995); ``hand_thumb_up.jpg`` gets "Right" (0.97) and, mirrored, "Left" (0.99). Both photos show
-the palm side of a thumbs-up fist (the four curled fingers' nails face the camera): in
-``thumbs-up.png`` the fingers point to the image's left and the thumb up, which is a right hand
-(for a right hand, thumb direction = finger direction x palm normal); ``hand_thumb_up.jpg`` is its
-mirror image, fingers to the right, thumb up: a left hand (or a mirrored photo of a right one).
-MediaPipe's labels agree with that geometry once swapped, so :attr:`DetectedHand.side` is
-``"right"`` for the label "Left" and ``"left"`` for "Right".
+opposite of the true side in an ordinary photo. In a photo of the palm side of a thumbs-up fist
+with the fingers pointing to the image's left and the thumb up, the hand is a right one (for a
+right hand, thumb direction = finger direction x palm normal), and MediaPipe labels it "Left";
+its labels agree with that geometry once swapped, so :attr:`DetectedHand.side` is ``"right"``
+for the label "Left" and ``"left"`` for "Right".
 
-**Greyscale photos.** MediaPipe looks for skin: in ``thumbs-up.png`` turned greyscale it finds
-no hand at any level (nor after autocontrast, histogram equalisation or a gamma), in
-``hand_thumb_up.jpg`` greyscale it does. A greyscale photo (an infrared camera's, an old print's)
-in which nothing is found is searched again with skin-coloured channels (gains
-:data:`_SKIN_TINT`): the grey ``thumbs-up.png`` is then found. The side MediaPipe gives a tinted
-photo is not to be trusted (with gains 1, 0.85, 0.75 it called the same hand left with score
-1.0), so such a hand's score is 0.5 and ``lisa fit-photo --side auto`` fits it as both sides.
-Tinted photos are also where false hands appear (a 17 x 6 px one on the grass of skimage's
-``camera``), so a hand found only tinted must span 5% of the photo's long side; then none is
-reported in skimage's greyscale ``camera``, ``brick``, ``grass``, ``gravel``, ``moon``,
-``text``, ``page`` or ``coins``. A greyscale photo without a hand takes twice the search time.
+**Greyscale photos.** MediaPipe looks for skin, and finds some hands in a greyscale photo (an
+infrared camera's, an old print's) and not others, whatever its contrast. A greyscale photo in
+which nothing is found is searched again with skin-coloured channels (gains :data:`_SKIN_TINT`).
+The side MediaPipe gives a tinted photo is not to be trusted (it can call a hand's side with a
+full score either way), so such a hand's score is 0.5 and ``lisa fit-photo --side auto`` fits it
+as both sides. Tinted photos are also where false hands appear (small specks on textures such
+as grass), so a hand found only tinted must span 5% of the photo's long side. A greyscale photo
+without a hand takes twice the search time.
 
 **Keypoint order.** MediaPipe's 21 landmarks (wrist, thumb CMC, MCP, IP, tip, then index, middle,
 ring and pinky MCP, PIP, DIP, tip) are exactly :data:`lisa_hand.skeleton.KEYPOINT_NAMES`, so no
@@ -66,24 +51,19 @@ reordering is needed (checked against ``mediapipe.solutions.hands.HandLandmark``
 
 **Wrist.** MediaPipe's wrist landmark is not the skeleton's wrist keypoint (the root joint, at
 the base of the palm, where the open hand model's palm ends): on photos of the open hand model's
-hands it lies 0.16-0.17 of the wrist-to-middle-knuckle length nearer the fingers (the median
-over photos of 6 *training* subjects: 0.160 over the 9 of 12 where a hand is found, ``python -m
-lisa_hand.bench photo --subjects train --seed 1``, which prints it as ``detector_wrist_shift``;
-0.168 over 18 of 24, spread 0.12; on the benchmark's held-out subjects 0.159), while the other
-20 landmarks lie within 0.04-0.13 of that length of the true ones. :func:`to_skeleton_wrist`
-moves the detected wrist back by such a fraction along the wrist-to-middle-knuckle line
+hands it lies about 0.16-0.17 of the wrist-to-middle-knuckle length nearer the fingers (``python
+-m lisa_hand.bench photo --subjects train`` prints it as ``detector_wrist_shift``), while the
+other 20 landmarks lie within about a tenth of that length of the true ones.
+:func:`to_skeleton_wrist` moves the detected wrist back by such a fraction along the
+wrist-to-middle-knuckle line
 (:attr:`lisa_hand.fitting.photo.config.FitPhotoConfig.detector_wrist_shift`). It is OFF by
 default: the offset belongs to the generator's hands (the wrist keypoint at the end of a long,
-flat-cut palm), not to MediaPipe. Measured with 0.17 on the benchmark's 12 photos, PA-MPJPE
-12.7 -> 12.1 mm and the wrist 41 -> 25 mm from the true one; but on both shared real photos the
-moved wrist lies in the forearm, a fifth of the palm's length below the visible wrist, and the
-fitted hand does not follow it (its wrist stays where MediaPipe's was).
+flat-cut palm), not to MediaPipe; on photos of real hands the moved wrist lies in the forearm,
+below the visible wrist, and the fitted hand does not follow it.
 
-**Time.** One process call takes 20-60 ms. Measured on the 2-core CPU machine (one core, the
-other one busy), refinement included: ``hand_thumb_up.jpg`` (640 x 521) 0.35-0.4 s,
-``thumbs-up.png`` at full size (1920 x 1280) 0.5 s, both found in the whole image; a blank
-1600 x 1067 image, where all 31 windows are searched, 1.0-1.2 s. Importing MediaPipe takes about
-1 s more, once.
+**Time.** One process call takes 20-60 ms; with refinement a photo whose hand is found in the
+whole image takes well under a second on one CPU core, a photo without a hand (every window
+searched) about a second. Importing MediaPipe takes about 1 s more, once.
 """
 
 from __future__ import annotations
@@ -124,7 +104,7 @@ MEDIAPIPE_LABEL_TO_SIDE = {"Left": "right", "Right": "left"}
 MEDIAPIPE_WRIST_SHIFT = 0.17
 """How far MediaPipe's wrist lies from the open hand model's wrist keypoint towards the middle
 finger's knuckle on photos of the generator's hands, a fraction of the wrist-to-knuckle length
-(measured on training subjects; not a property of real hands: the module docstring)."""
+(on photos of training subjects; not a property of real hands: the module docstring)."""
 
 MIDDLE_MCP = KEYPOINT_NAMES.index("middle_mcp")
 """Row of the middle finger's knuckle, the wrist shift's other end."""
@@ -454,7 +434,7 @@ _TINTED = "greyscale photo tinted skin-coloured, side unknown"
 _GREY_TOLERANCE = 2  # uint8 levels: channels this close everywhere make a greyscale photo
 _MIN_TINTED_SIZE = 0.05
 """A hand found only tinted must span this share of the photo's long side (its keypoints' box):
-skimage's greyscale ``camera`` photo, tinted, gave a 17 x 6 px "hand" on the grass."""
+a tinted texture such as grass can hold a small false "hand"."""
 
 
 def _greyscale(pixels: np.ndarray) -> bool:

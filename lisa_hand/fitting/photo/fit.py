@@ -62,6 +62,7 @@ import numpy as np
 import torch
 
 from ...skeleton.params import HandParams
+from ..outputs import lock_output_folder, releases_output_locks
 from .config import FitPhotoConfig, photo_fit_defaults
 from .inputs import PhotoHand
 from .outputs import PhotoOfHand, build_hand_outputs, photo_report_html
@@ -216,6 +217,7 @@ def _check_arguments(photos: Any, side: str, hand: int | None) -> list[Path]:
     return photos
 
 
+@releases_output_locks
 def fit_photo_folder(
     photos: Sequence[str | os.PathLike] | str | os.PathLike,
     out_dir: str | os.PathLike,
@@ -257,6 +259,7 @@ def fit_photo_folder(
     config = FitPhotoConfig() if config is None else config
     photos = _check_arguments(photos, side, hand)
     out_dir = check_photo_folder(out_dir)
+    lock_output_folder(out_dir)  # freed when this returns or raises
     inputs = _read_inputs(photos, camera_json, focal_px, fov_deg, keypoints_json, mask_path,
                           config, log)
     targets = _targets(inputs, hand)

@@ -39,6 +39,8 @@ from typing import Any
 import numpy as np
 import torch
 
+from ...utils.io import read_numpy
+
 __all__ = ["NEIGHBOURS", "MIN_RADIUS_M", "ScanColours", "read_point_colours",
            "as_unit_colours", "depth_point_colours", "colour_radius", "harmonic_fill",
            "transfer_colours", "fit_colour_code"]
@@ -126,9 +128,9 @@ def _obj_colours(path: Path) -> np.ndarray | None:
 
 
 def _npz_colours(path: Path) -> np.ndarray | None:
-    with np.load(path, allow_pickle=False) as archive:
-        key = next((k for k in ("colors", "colours") if k in archive.files), None)
-        return None if key is None else as_unit_colours(archive[key], f"{path} '{key}'")
+    archive = read_numpy(path)
+    key = next((k for k in ("colors", "colours") if k in archive), None)
+    return None if key is None else as_unit_colours(archive[key], f"{path} '{key}'")
 
 
 def _mesh_file_colours(path: Path) -> np.ndarray | None:
@@ -142,7 +144,7 @@ def read_point_colours(path: str | os.PathLike, count: int) -> np.ndarray | None
     """The colours of the ``count`` points that
     :func:`lisa_hand.fitting.points.inputs.read_point_cloud` read from ``path`` -> [count, 3]
     float32 in [0, 1], or None when the file has none, not one per point (a mesh whose vertices
-    were merged differently) or one colour for all (a material's, as the WebXR hand's GLB has).
+    were merged differently) or one colour for all (a material's, as some GLB files have).
     ValueError naming the file for colours that cannot be read (out of range, a file trimesh
     cannot take apart)."""
     path = Path(path)

@@ -58,9 +58,9 @@ class FitPointsConfig:
     surface (its tangent plane) in the proxy stages: the distance is
     ``sqrt((n . r)^2 + w |r - (n . r) n|^2)``, ``r`` the offset, ``n`` the proxy point's normal.
     1 is the plain point-to-point distance, which the proxy's spacing (about 6 mm between 1000
-    points) fills with a floor of several millimetres that hid a curled finger (issue 14: a
-    WebXR index curled 160 degrees scored no better than a straight one); 0 is point-to-plane
-    (ICP's), which lets points slide past a fingertip."""
+    points) fills with a floor of several millimetres that hides a curled finger (a finger
+    curled far scores no better than a straight one); 0 is point-to-plane (ICP's), which lets
+    points slide past a fingertip."""
     init_poses: tuple[str, ...] = ("flat", "relaxed", "fist")
     """Finger poses the candidates start from (names of
     :func:`lisa_hand.handmodel.poses.named_pose`, or 'zero'); each is tried in 24
@@ -101,9 +101,9 @@ class FitPointsConfig:
     covered_shape_weight: float = 3e-6
     """``shape_weight`` of the surface stages when the scan covers the hand all round: at least
     ``covered_fraction`` of the best candidate's proxy points within ``covered_mm`` of a scan
-    point after the per-finger restarts (a scan from all sides: 0.74-0.80 on the WebXR hand; one
-    side: 0.36-0.57). Where the scan shows the whole surface it, not the prior, should set the
-    shape; where it shows one side the prior is what guesses the other."""
+    point after the per-finger restarts (a scan from all sides covers about three quarters or
+    more, one side about half or less). Where the scan shows the whole surface it, not the
+    prior, should set the shape; where it shows one side the prior is what guesses the other."""
     covered_fraction: float = 2.0 / 3.0
     """Share of the proxy within ``covered_mm`` of the scan above which the scan counts as
     covering the hand (1 or more: never)."""
@@ -122,15 +122,15 @@ class FitPointsConfig:
     """For a one-view scan whose sensor position is known: weight of the unseen thumb's pull
     toward ``prior_pose`` (:func:`lisa_hand.fitting.priors.thumb_pose_prior`, weighted by the
     thumb's :func:`.proxy.unseen_fingers` weight), radians^2; 0: off. The thumb has no
-    neighbour to follow, and a thumb hidden behind the palm was otherwise pushed anywhere the
-    sensor could not see, tucked under the palm (issue 14)."""
+    neighbour to follow, and without this pull the free space pushes a thumb hidden behind the
+    palm anywhere the sensor could not see, such as tucked under the palm."""
     unseen_share: float = 0.2
     """A finger of which less than this share of the surface could have been seen by the sensor
     counts as unseen (linearly: none seen, fully)."""
     prior_pose: str = "relaxed"
     """The pose the finger-pose prior pulls toward ('relaxed' or 'flat'): what a finger the
-    scan does not show is guessed to be. Relaxed since 2026-12-04 (flat before): a finger hidden
-    in a one-view scan is more often half bent than straight."""
+    scan does not show is guessed to be. Relaxed by default: a finger hidden in a one-view scan
+    is more often half bent than straight."""
     limit_weight: float = 1e-2
     """Weight of the squared excess of the finger joints' anatomical angles over their limits
     (:func:`lisa_hand.fitting.priors.joint_limit_excess`), radians^2."""
@@ -167,7 +167,7 @@ class FitPointsConfig:
     beyond it is not asked to be covered (a scan cut short); metres, the plane of
     :func:`lisa_hand.skeleton.wrist.wrist_plane` (:data:`~lisa_hand.skeleton.wrist.WRIST_CLIP_M`
     by default). The written mesh and the metrics cut at the same plane. None: every point
-    counts, nothing is cut (the behaviour before issue 14)."""
+    counts, nothing is cut."""
     wrist_margin_m: float = 0.03
     """After the global-pose search, whose wrist is known only roughly, points are dropped only
     beyond ``wrist_clip_m + wrist_margin_m``; after the articulated stage, beyond

@@ -1,7 +1,7 @@
 """Per-finger restarts of the point fit ('fingers', no network): a finger left bent the wrong way
-is a local minimum of the articulated stage that the surface stage does not leave (issue 14: the
-largest errors on hands the generator did not make were pose failures, an extended index finger
-left bent, a thumb in the wrong pose).
+is a local minimum of the articulated stage that the surface stage does not leave (on hands the
+generator did not make, the largest errors are such pose failures: an extended finger left bent,
+a thumb in the wrong pose).
 
 After the articulated proxy stage (:func:`lisa_hand.fitting.points.proxy.fit_proxy_pose`), the
 best candidate is copied once per finger and start of :data:`FINGER_STARTS` with that finger's
@@ -35,10 +35,9 @@ __all__ = ["FINGER_STARTS", "THUMB_STARTS", "restart_fingers"]
 
 FINGER_STARTS = ("flat", "relaxed", "pinch", "fist")
 """Named poses (:func:`lisa_hand.handmodel.poses.named_pose`) each finger restarts from.
-"pinch" (the fingers half curled, about 0.6 / 0.95 / 0.8 rad) was added on 2026-12-04 because of
-the WebXR hand's bent index (0.9 / 1.2 / 0.7 rad), which neither "relaxed" nor "fist" reached on
-the proxy from one side; checked on held-out generator subjects too (module
-:mod:`lisa_hand.bench.fit`, README "One-view scans")."""
+"pinch" (the fingers half curled, about 0.6 / 0.95 / 0.8 rad) covers the bend between "relaxed"
+and "fist", which neither of them reaches on the proxy from one side (checked by
+:mod:`lisa_hand.bench.fit`)."""
 THUMB_STARTS = FINGER_STARTS + ("ok",)
 """The thumb's starts."""
 _MM = 1e-3

@@ -298,11 +298,10 @@ _SPARSE_COVER = 2.0
 def _covered_distance(cloud: TargetCloud, config: FitPointsConfig) -> float:
     """How near the scan a proxy point must be to count as covered, metres:
     ``config.covered_mm``, or twice the cloud's median point spacing ``s`` where that is larger
-    (a sparse cloud: a mesh's 1159 vertices, 4.9 mm apart, covered 65% of the hand within 4 mm,
-    as one view of it does). Points scattered at random with median nearest-neighbour distance
-    ``s`` leave ``2^-(r/s)^2`` of the surface farther than ``r`` from all of them: 6% at
-    ``r = 2 s``, 21% at 1.5 s. Measured on the WebXR hand's scans of 300-1000 points: full
-    0.75-0.95 (1.5 s: 0.51-0.78), one view 0.25-0.49."""
+    (a sparse cloud, such as a mesh's vertices some millimetres apart, would otherwise cover a
+    full hand no more than one view of it does). Points scattered at random with median
+    nearest-neighbour distance ``s`` leave ``2^-(r/s)^2`` of the surface farther than ``r`` from
+    all of them: 6% at ``r = 2 s``, 21% at 1.5 s."""
     return max(config.covered_mm * _MM, _SPARSE_COVER * point_spacing(cloud.points))
 
 
@@ -376,17 +375,11 @@ def second_finger_pass(model, cloud: TargetCloud, hand: HandParams, config, ener
 
     The first proxy has the model's mean shape on the template's mean skeleton: on a hand the
     generator did not make it is millimetres from the scan everywhere, and a finger curled the
-    wrong way can cost it no more than the right one (the WebXR hand's index, curled 160
-    degrees, was left straight). Here the per-finger restarts
+    wrong way can cost it no more than the right one. Here the per-finger restarts
     (:func:`.finger_search.restart_fingers`) run again on a proxy of the fitted hand itself
-    (its shape code and skeleton); when a finger changes, the changed hand and the fitted one
-    both take ``config.second_pass_iters`` field steps and the one of lower field energy is
-    kept. (Ranking them by the field energy plus the new proxy's coverage term, surface where
-    the scan has none, was measured too: on the six WebXR scans it lowered the mean V2S
-    recon->scan from 2.70 to 2.59 mm but raised scan->recon from 2.15 to 2.28 mm, the one-sided
-    bent-index scan from 3.00 to 3.81; left out. So was comparing the restarted fingers by
-    their field energy instead of the new proxy's: 2.33 mm scan->recon, the bent index full
-    scan left straight, a finger of the one-sided fist thrown out, recon->scan 10.2 mm.)
+    (its shape code and skeleton), which lies near the scan where the first did not; when a
+    finger changes, the changed hand and the fitted one both take ``config.second_pass_iters``
+    field steps and the one of lower field energy is kept.
 
     hand: the field stage's right hand; cloud: the cloud it was fitted to (the restarts see it
     cut at ``hand``'s wrist, the field steps each candidate at its own); energy: the field

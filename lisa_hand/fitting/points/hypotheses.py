@@ -9,21 +9,15 @@ wrist cuts (the same points for all, so that none wins by cutting more of the sc
 
 Fits run two at a time in threads on a CUDA device, or on a CPU with two cores or more when a
 fit runs on one thread (``config.num_threads`` 1, the default); each fit has its own seeded
-generator, so the results are those of one after the other (a full WebXR scan as both sides:
-10.7 s against 19.2 s one after the other on the 2-core machine). The callback then gets the
-fits' steps interleaved (``step.params().side`` tells the sides apart).
+generator, so the results are those of one after the other, in about half the time. The
+callback then gets the fits' steps interleaved (``step.params().side`` tells the sides apart).
 
-Measured, sides (the WebXR hands, both sides; rest, bent index and fist): the true side kept
-from all 12 full scans of two placements (0.98-1.18 mm against 1.24-1.83 for the mirror image),
-from 18 of 24 one-view scans, where the mirror image can fit the seen side as well (``lisa
-fit-points`` then asks for ``--side``); with the viewpoint found from the scan
-(``viewpoint="auto"``) from 22 of 24 one-view scans of 4 placements, against 20 of the same 24
-without one. Seeds (one-view scans with ``viewpoint="auto"``, V2S scan->recon, mean (worst),
-one try against two): WebXR right, 15 scans (5 placements x 3 poses) 2.23 (4.02) -> 2.20
-(4.02); WebXR left 2.62 (5.40) -> 2.61 (5.54); 12 scans of held-out v2 subjects 2.06 (4.32) ->
-1.74 (4.26). Where the seeds disagree most (6 placements picked for it) the nearest of two pulled
-a 11.8 mm fit back to 4.05 mm, but on the real hand the scan distance ranks its fits no better
-than chance, so a second try (twice the work) is left to ``tries``.
+Which side: from a scan all round the mirror image fits clearly worse, so the true side is kept;
+from one view the mirror image can fit the seen side as well (``lisa fit-points`` then asks for
+``--side``), and a viewpoint found from the scan (``viewpoint="auto"``) tells them apart more
+often. Which seed: on a hand the generator did not make, the scan distance ranks the fits of
+a one-view scan little better than chance, so a second try (twice the work) is left to
+``tries`` rather than made by default.
 """
 
 from __future__ import annotations

@@ -34,7 +34,8 @@ import numpy as np
 
 from ...data.meshio import read_ply_vertices
 from ...data.units import UNIT_CHOICES, decide_length_unit
-from ...utils.io import require_file
+from ...skeleton.params import MAX_TRANSLATION_M
+from ...utils.io import read_numpy, require_file
 
 __all__ = [
     "POINT_CLOUD_SUFFIXES",
@@ -87,7 +88,11 @@ def read_point_cloud(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | 
 
 def _checked_cloud(points, normals, name: str) -> tuple[np.ndarray, np.ndarray | None]:
     """points [N, 3] and normals [N, 3] or None as float64, checked (N >= 1; a ValueError
-    naming ``name`` if not)."""
+    naming ``name`` if not; complex, boolean or text values are refused, not converted)."""
+    for what, values in (("points", points), ("normals", normals)):
+        if values is not None and np.asarray(values).dtype.kind not in "iuf":
+            raise ValueError(f"{name}: {what} must be real numbers, got dtype "
+                             f"{np.asarray(values).dtype}")
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"{name}: points must have shape [N, 3], got {list(points.shape)}")
@@ -107,13 +112,16 @@ def _columns(array: np.ndarray, path: Path, what: str) -> tuple[np.ndarray, np.n
     if array.ndim != 2 or array.shape[1] not in (3, 6):
         raise ValueError(f"{path}: {what} must have shape [N, 3] or [N, 6] (points, normals), "
                          f"got {list(array.shape)}")
-    if not np.issubdtype(array.dtype, np.number):
-        raise ValueError(f"{path}: {what} must be numbers, got dtype {array.dtype}")
+    if array.dtype.kind not in "iuf":
+        raise ValueError(f"{path}: {what} must be real numbers, got dtype {array.dtype}")
     return array[:, :3], (array[:, 3:6] if array.shape[1] == 6 else None)
 
 
 def _read_npy(path: Path):
-    return _columns(np.load(path, allow_pickle=False), path, "the array")
+    array = read_numpy(path)
+    if isinstance(array, dict):
+        raise ValueError(f"{path}: an .npz archive, not a .npy array: name it .npz")
+    return _columns(array, path, "the array")
 
 
 def _read_xyz(path: Path):
@@ -124,16 +132,17 @@ def _read_xyz(path: Path):
 
 
 def _read_npz(path: Path):
-    with np.load(path, allow_pickle=False) as archive:
-        key = next((k for k in ("points", "vertices") if k in archive.files), None)
-        if key is None:
-            raise ValueError(f"{path}: expected an array named 'points' or 'vertices', found "
-                             f"{archive.files}")
-        points = archive[key]
-        if points.ndim != 2 or points.shape[1] != 3:
-            raise ValueError(f"{path}: '{key}' must have shape [N, 3], got {list(points.shape)}")
-        normals = archive["normals"] if "normals" in archive.files else None
-    return points, normals
+    archive = read_numpy(path)
+    if not isinstance(archive, dict):
+        raise ValueError(f"{path}: a .npy array, not an .npz archive: name it .npy")
+    key = next((k for k in ("points", "vertices") if k in archive), None)
+    if key is None:
+        raise ValueError(f"{path}: expected an array named 'points' or 'vertices', found "
+                         f"{list(archive)}")
+    points = archive[key]
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"{path}: '{key}' must have shape [N, 3], got {list(points.shape)}")
+    return points, archive.get("normals")
 
 
 def _read_obj(path: Path):
@@ -213,6 +222,9 @@ def prepare_point_cloud(
     min_points: fewer finite points than this is an error.
     name: how errors call the cloud (the file path, for the command line).
 
+    A cloud whose median lies over :data:`lisa_hand.skeleton.params.MAX_TRANSLATION_M` from the
+    origin is refused (float32 would flatten the fitted hand).
+
     Documented fallbacks (each adds a sentence to ``notes``): points with NaN or inf
     coordinates are dropped (depth sensors write NaN for missing pixels); normals are dropped
     when any kept one is not finite or has zero length.
@@ -255,6 +267,11 @@ def prepare_point_cloud(
         points = points * length.metres_per_unit
     if length.note is not None:
         notes.append(length.note)
+    distance = float(np.linalg.norm(np.median(points, axis=0)))
+    if distance > MAX_TRANSLATION_M:
+        raise ValueError(f"{name}: the cloud lies {distance:.3g} m from the origin (at most "
+                         f"{MAX_TRANSLATION_M:g} m: in float32 a hand that far is flattened); "
+                         "move it near the origin")
 
     if points.shape[0] > max_points:
         rng = np.random.default_rng(seed)
@@ -304,11 +321,17 @@ def read_cloud_file(points_path: Path, units: str, config, hand: int | None, log
                                     seed=config.seed, min_points=config.min_points,
                                     name=str(points_path))
     except ValueError as error:
-        if sensor is None or "too large" not in str(error):
+        large = "too large" in str(error)
+        if sensor is None or not (large or "too small" in str(error)):
             raise
-        raise ValueError(f"{points_path}: the depth image's points reach over "
-                         f"{np.ptp(raw_points, axis=0).max():.1f} m (the room behind the hand): "
-                         "pass --mask MASK.png with the hand's pixels") from None
+        reach = f"{points_path}: the depth image's points reach " \
+                f"{np.ptp(raw_points, axis=0).max():.3g} m"
+        if large and depth.mask is None:
+            raise ValueError(f"{reach} (the room behind the hand): pass --mask MASK.png with "
+                             "the hand's pixels") from None
+        raise ValueError(f"{reach}{' inside the mask' if depth.mask is not None else ''}, no "
+                         f"hand's size: check --depth-scale, the metres per unit of the image's "
+                         f"values (now {depth.scale_m:g}; 0.001 for millimetres)") from None
     cloud.notes[:0] = notes
     if hand is not None:
         cloud = _one_hand(cloud, hand, config.seed, str(points_path), support is not None)

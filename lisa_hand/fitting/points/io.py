@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from ...data.units import LENGTH_UNITS
+from ..outputs import releases_output_locks
 from .inputs import (
     POINT_CLOUD_SUFFIXES,
     UNITS,
@@ -70,11 +71,10 @@ def default_point_model(one_view: bool = True) -> str:
     model v2: geometry that image training has not blurred, a rounded palm and a forearm stub),
     "geometry" (the same on hand model v1) and "default" (LISA-full). A scan from all round
     (``one_view=False``): "geometry_mix" (the prior of hand models v1 and v2, 308 subjects), when
-    installed: its wider shape space is closer on full scans of hands unlike either generator
-    (the WebXR hand, 0.1-0.2 mm), while from one view more shapes explain one side of a hand
-    wrongly (README, "The point fit's prior on both hand models"). A point cloud has no colour,
-    so a prior's lack of one costs nothing but the mesh's vertex colours (``--model default``
-    keeps them)."""
+    installed: its wider shape space comes closer on full scans of hands unlike either
+    generator, while from one view more shapes explain one side of a hand wrongly (README, "The
+    point fit's prior on both hand models"). A point cloud has no colour, so a prior's lack of
+    one costs nothing but the mesh's vertex colours (``--model default`` keeps them)."""
     from ...model.trained import shipped_model_path
 
     names = ("geometry_v2", "geometry") if one_view else ("geometry_mix", "geometry_v2",
@@ -107,6 +107,7 @@ def choose_point_model(points: np.ndarray, viewpoint: Any, config) -> tuple[str,
     return default_point_model(one_view), why
 
 
+@releases_output_locks
 def fit_point_file(
     points_path: str | os.PathLike,
     out_dir: str | os.PathLike,
@@ -372,10 +373,9 @@ _CLOSE_SIDES = 1.15
 
 def _side_choice(points_path: Path, fit, config) -> str:
     """The line that says which side ``--side auto`` chose, and how far to trust it: a close
-    call, or a scan of one side of the hand (whose mirror image fits that side about as well:
-    measured on one-view WebXR scans, the wrong side was kept in 6 of 24; 2 of 24 with
-    ``--viewpoint auto``), asks for
-    ``--side``."""
+    call, or a scan of one side of the hand (whose mirror image fits that side about as well,
+    so that the wrong side is kept now and then, less often with ``--viewpoint auto``), asks
+    for ``--side``."""
     side, distances = fit.params.side, fit.side_distances_mm
     other = "left" if side == "right" else "right"
     line = (f"{points_path}: fitted as a right and as a left hand; kept the {side} hand, "

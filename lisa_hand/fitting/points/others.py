@@ -3,8 +3,8 @@ hand, a bit of background), found and left out (``fit_points(others="auto")``).
 
 A crop around a hand often holds more than the hand. The fit's robust penalty shrugs off stray
 points, but its global search starts from the cloud's centre and its coverage terms weigh every
-point: a cup 15 cm from the WebXR hand, a third of a one-view scan, took the fit from 1.77 to
-3.85 mm V2S. Such a thing is a separate piece: the scan's points are binned into ``link_m``
+point, so a cup beside the hand holding a third of a one-view scan can double the fit's error.
+Such a thing is a separate piece: the scan's points are binned into ``link_m``
 voxels, the occupied voxels joined with their 26 neighbours into pieces (scipy's ``label``),
 and the piece with the most points is taken for the hand. Pieces within ``reach_m`` of it stay
 (a fingertip seen apart from its finger, behind another), and so do small ones (under

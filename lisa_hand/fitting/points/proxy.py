@@ -186,8 +186,8 @@ def unseen_fingers(proxy: SurfaceProxy, cloud: TargetCloud, hand: HandParams,
     A finger that is hidden where the hand puts it tells the scan nothing, so its pose is the
     prior's: its neighbours' curl (:func:`~lisa_hand.fitting.priors.finger_coupling`) is a
     better guess than the mean pose (in a one-view fist, an unseen index left straight); an
-    unseen thumb's is the mean pose (:func:`~lisa_hand.fitting.priors.thumb_pose_prior`: a thumb
-    hidden behind the palm was tucked under it by the free space, issue 14)."""
+    unseen thumb's is the mean pose (:func:`~lisa_hand.fitting.priors.thumb_pose_prior`: the
+    free space alone would tuck a thumb hidden behind the palm under it)."""
     from ...skeleton import FINGER_JOINTS
     from ..priors import UNSEEN_FINGERS
 

@@ -4,9 +4,8 @@ The proxy stages (:mod:`lisa_hand.fitting.points.proxy`) pose the model's mean h
 template's mean skeleton, and only the field stage fits the skeleton (the template's betas). A
 hand much larger or smaller than the mean is then aligned and posed as a mean-sized hand:
 its fingers' joints land millimetres off, and the field stage, starting there, takes the
-skeleton only part of the way, the shape code making up the rest (a 15% larger WebXR hand:
-fitted at 1.05 times the mean skeleton, 2.36 mm V2S scan->recon on a fist; started from its
-true size, 1.97 mm).
+skeleton only part of the way, the shape code making up the rest, and the fit ends farther
+from the scan than one started at the hand's true size.
 
 :func:`search_size` tries the best candidate at each size of ``FitPointsConfig.sizes`` (the
 mean skeleton and proxy scaled about the wrist, a few Adam steps of its pose on the proxy

@@ -2,8 +2,8 @@
 of it and kept as a bound.
 
 A depth camera looking at a hand on a desk returns the desk too: in a 30 cm crop around the hand
-79-86% of the points. Fitted as they are, the hand is pulled into the desk (the WebXR hand on a
-table, seen from above: 16-71 mm V2S, ``python -m lisa_hand.bench fit --webxr-table none``).
+most of the points. Fitted as they are, the hand is pulled into the desk (``python -m
+lisa_hand.bench fit --webxr-table none`` shows it).
 Such a surface is the largest plane of the cloud, and it is not part of a hand:
 
 * **found** by RANSAC (:func:`find_support`: planes through three random points, the one with
@@ -15,10 +15,10 @@ Such a surface is the largest plane of the cloud, and it is not part of a hand:
   of ``sectors`` directions round them (in the plane) they reach ``reach_m`` past them. The last
   two tell a desk from the flat back of a hand seen from behind, whose other points also lie on
   one side of it: a desk reaches out round the hand, the back or the palm of a hand stays within
-  the hand's own outline. (The spread alone was fooled by half the scans of hands in sampled
-  poses: a plane through the hand, its threshold widened by the hand's own thickness, spread
-  over many times a raised thumb's area; such planes reach past the rest of the hand in at most
-  8 of 12 directions, a desk or a wall in view in all 12.)
+  the hand's own outline. (The spread alone is not enough: a plane through the hand, its
+  threshold widened by the hand's own thickness, can spread over many times a raised thumb's
+  area; such a plane reaches past the rest of the hand in some directions only, a desk or a
+  wall in view in all of them.)
 * **taken out**: the points within the threshold of it or beyond it (the fit never sees them).
 * **kept as a bound** (:func:`support_points`): the hand lies on the side of the points off the
   plane. The fit's proxy stages penalise proxy points beyond the plane, its surface stage asks

@@ -15,13 +15,13 @@ asks the field to grow outwards along the normals, which fixes the side of the s
 are on. With a wrist cut (``config.wrist_clip_m``) each candidate's means run over the points
 on its own hand's side of its own cut (scan points) and of its wrist joint (free points): a
 scan's forearm, or the space beyond where a scan stops, weighs on no candidate, whatever their
-wrists (one cut for all, the best proxy candidate's, made a forearm that the model's stub does
-not match cost the right hand more than a flat one that covered it with its palm: the WebXR
-fist seen from its little finger). Far from the hand ``G`` does not vanish: outside every bone
-region the field is the distance to the regions plus a margin, so far points still pull the hand
-towards them. The data term only asks every scan point to be on the surface, never every surface
-point to be seen, so partial scans work; what the scan does not see stays near the prior (shape
-code near the mean, fingers near ``prior_pose`` and within the joint limits).
+wrists (with one cut for all, the best proxy candidate's, a forearm that the model's stub does
+not match can cost the right hand more than a wrong one that covers it with its palm). Far from
+the hand ``G`` does not vanish: outside every bone region the field is the distance to the
+regions plus a margin, so far points still pull the hand towards them. The data term only asks
+every scan point to be on the surface, never every surface point to be seen, so partial scans
+work; what the scan does not see stays near the prior (shape code near the mean, fingers near
+``prior_pose`` and within the joint limits).
 
 The unknowns: the global rotation, the translation, the finger pose, the shape code and the
 template's betas (whose joint regressor gives the skeleton LISA is conditioned on), on
@@ -114,9 +114,8 @@ class _FieldEnergy:
     def place_cuts(self, batch: CandidateBatch) -> None:
         """Fix each candidate's wrist cut where its hand is now (:meth:`hand_side` uses it
         until the next call). Placed at the start, before each pruning and before the final
-        ranking, not at every step: a cut that followed every step let the optimiser drop the
-        points it fitted worst behind its wrist (the full WebXR scans' 18 placements 0.03 mm
-        worse)."""
+        ranking, not at every step: a cut that followed every step would let the optimiser
+        drop the points it fits worst behind its wrist."""
         if self.config.wrist_clip_m is None:
             self.cuts = None
             return

@@ -4,15 +4,10 @@ The free-space terms of a one-view fit (:mod:`.free_space`) need the sensor's po
 a depth camera's points in its own frame give (the origin) but a cloud that was moved, cropped
 or exported from another tool does not. :func:`estimate_viewpoint` finds it from the points:
 
-0. **Noise smoothed first.** A depth camera's 1-2 mm across the surface put neighbours on one
-   surface 5 mm apart in depth often enough that a view looked like several (one-view scans of
-   the WebXR hand, 3 placements x 3 poses x both hands: at 1 mm noise 11 of 18 taken for one
-   view, at 2 mm none, with the axis turned the wrong way in 11). Each point is first moved
-   onto the plane of its 16 nearest points, and the gap below is at least ``gap_noise`` times
-   the scan's noise (:func:`scan_noise`): then 18 of 18 at 1 mm (axes 1-15 degrees off), 18 of
-   18 at 2 mm (one the wrong way, the others 2-28 degrees off), 18 of 18 at 0.3 mm as before
-   (1-15 degrees off, 3-17 before); the same hands' full scans still hide 32-54% at every noise
-   level. With 20% outliers 12 of 24 one-view scans are taken (7 before), all the right way.
+0. **Noise smoothed first.** A depth camera's 1-2 mm of noise across the surface puts
+   neighbours on one surface several millimetres apart in depth, which makes one view look like
+   several. Each point is first moved onto the plane of its 16 nearest points, and the gap below
+   is at least ``gap_noise`` times the scan's noise (:func:`scan_noise`).
 1. **The axis: the direction from which nothing hides.** Seen from its sensor a one-view scan
    is one layer: no point lies behind another. For each of ``num_directions`` directions ``d``
    spread over the sphere, the cloud is projected from a sensor ``distance_m`` from its centre
@@ -20,27 +15,21 @@ or exported from another tool does not. :func:`estimate_viewpoint` finds it from
    nearest neighbours in that image, closer than ``radius_spacings`` times the cloud's point
    spacing (at the centre's range), lies more than ``gap_m`` nearer the sensor. From the best
    direction, refined by local searches, a one-view scan hides only points on surfaces seen
-   at grazing angles (0.2-7% of the WebXR hand's one-view scans, 5000 points); a scan from all
-   round hides about half of its points from any direction (43-55%), and one that hides more
-   than ``max_hidden`` is not taken for one view.
+   at grazing angles (a few percent); a scan from all round hides about half of its points from
+   any direction, and one that hides more than ``max_hidden`` is not taken for one view.
 2. **Which way along it: surfaces bulge towards the sensor.** Fingers, knuckles and the back
    of the hand are convex surfaces seen from outside, so along the axis each point lies on
-   average above its surface neighbours on the sensor's side (measured over points whose
-   neighbours surround them, not on the scan's rim). A scan of the opposite, hollow side
-   would be read the wrong way; a hand seldom shows one. (The median over the points: stray
-   points off the surface do not sway it; the side came out right on the 72 WebXR one-view
-   scans of 4 placements x 3 poses x both hands with 0, 5% and 20% outliers, where a mean
-   got it wrong in 9.)
+   average above its surface neighbours on the sensor's side (over points whose neighbours
+   surround them, not on the scan's rim). A scan of the opposite, hollow side would be read the
+   wrong way; a hand seldom shows one. The median over the points decides, so that stray points
+   off the surface do not sway it as they would a mean.
 3. **How far: the cloud's own origin when it can be the sensor.** When the origin of the
    cloud's frame lies within ``origin_angle_deg`` of the axis, on the sensor's side, between
    ``origin_range_m`` from the centre (a depth camera's points in its own frame), it is taken;
    else the sensor is put ``distance_m`` from the centre along the axis.
 
-Measured on 48 one-view scans of the WebXR hand (both hands, rest, bent index and fist, 8
-random placements each, 5000 points, sensor 0.5 m away): 44 taken for one view, their axes
-2-23 degrees from the true one, all on the right side; the 4 left without a viewpoint (hiding
-16-24%) include the three whose axes were 55-78 degrees off (hands seen nearly edge-on). With 5%
-outliers: 44 taken, 1-26 degrees. The same hands' full scans hide 43-59% and are never taken.
+A hand seen nearly edge-on can hide more than ``max_hidden`` from its best direction and is
+then left without a viewpoint, as a scan from all round is.
 """
 
 from __future__ import annotations
@@ -82,8 +71,7 @@ class ViewpointConfig:
     """The search runs on at most this many of the points (a fixed random subset)."""
     min_points: int = 2000
     """A sparser cloud is not taken for one view (``one_view`` False): with fewer points
-    fewer wrong directions show a point behind another (WebXR one-view scans of 1000 points:
-    one axis in 12 found 109 degrees off, hiding 15%)."""
+    fewer wrong directions show a point behind another, so a wrong axis can look like one view."""
     origin_angle_deg: float = 30.0
     """The cloud's origin is taken as the sensor within this angle of the found axis."""
     origin_range_m: tuple[float, float] = (0.2, 3.0)
