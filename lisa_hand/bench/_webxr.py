@@ -2,7 +2,7 @@
 not make, posed with its own rig, scanned whole or from one side, with its forearm stub as it is,
 run on into a forearm, or cut short at the wrist (``python -m lisa_hand.bench fit --webxr``).
 
-Wrist variants (issue 14): ``as-is`` (the artist's 2.2 cm stub beyond the wrist joint),
+Wrist variants: ``as-is`` (the artist's 2.2 cm stub beyond the wrist joint),
 ``forearm`` (the stub cut 1.5 cm beyond the wrist joint and its cut rim extruded 12 cm along the
 forearm axis, the far end closed), ``cut`` (scan points beyond the wrist joint dropped: a scan
 that stops exactly at the wrist). The fit leaves out what lies beyond its wrist cut
@@ -42,7 +42,7 @@ WEBXR_POSES = {
 def reshape_webxr_rig(vertices: np.ndarray, joints: np.ndarray, names: list[str],
                       proportions: tuple[float, float, float]) -> tuple[np.ndarray, np.ndarray]:
     """The WebXR hand in other proportions, in its bind pose: a hand unlike the artist's for
-    checks beyond one mesh (issue 14), made by a map that keeps the wrist joint where it is.
+    checks beyond one mesh, made by a map that keeps the wrist joint where it is.
 
     vertices: [V, 3] metres; joints: [25, 3] metres, in the rig's order ``names``.
     proportions: (breadth, thickness, fingers): the palm's breadth across the knuckles and its
@@ -98,11 +98,11 @@ def pose_webxr_hand(path: str | Path, pose: str = "rest",
     (``left_hand.npz``): for the four fingers the palm normal is the normal of the knuckle plane
     (wrist, index and little-finger proximal joints) on the thumb's side, so that they curl as
     hinges in their own plane; for the thumb it is the normal of the plane of the thumb's
-    proximal joint and the middle finger, on the same side. (Until
-    2026-12-04 the fingers too turned about ``bone x (thumb x fingers)``, 45 degrees off the
-    knuckle plane's normal because the thumb's proximal joint lies well in front of the palm:
-    the bent index and the fist curled diagonally across the palm, sideways at their PIP and DIP
-    hinges, which a hand cannot do.) proportions: the hand reshaped first
+    proximal joint and the middle finger, on the same side. (The plane of the thumb and the
+    fingers would not do for the four fingers: the thumb's proximal joint lies well in front of
+    the palm, so that axis is about 45 degrees off the knuckle plane's normal and would curl them
+    diagonally across the palm, sideways at their PIP and DIP hinges, which a hand cannot do.)
+    proportions: the hand reshaped first
     (:func:`reshape_webxr_rig`; None: as the artist made it).
     -> (vertices [V, 3] metres, faces [F, 3]).
     """

@@ -18,7 +18,7 @@ Timed in one run, at each resolution (grid samples along the side of the cube ar
 
 Accuracy: the mean vertex-to-surface distance between the two meshes, both ways (mm); the
 coarse-to-fine grid equals the dense one wherever the Lipschitz bound holds, so it is ~0.
-Targets (the issue's, on 2 CPU cores): 2 s at 128^3, 8 s at 256^3.
+Targets (on 2 CPU cores): 2 s at 128^3, 8 s at 256^3.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from . import write_results
 __all__ = ["TARGET_SECONDS", "bench_hand", "run_mesh_benchmark", "main"]
 
 TARGET_SECONDS = {128: 2.0, 256: 8.0}
-"""The issue's targets on 2 CPU cores, seconds per resolution."""
+"""The targets on 2 CPU cores, seconds per resolution."""
 
 
 def bench_hand(model_path: str | None = None, seed: int = 0):

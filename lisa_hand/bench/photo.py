@@ -24,7 +24,7 @@ two shared real photos.
   and the keypoint reprojection error (mean distance between the detected and the fitted 2D
   keypoints of ``keypoints.json``, pixels of the original photo).
 
-Targets (issue 13, on 2 CPU cores): under 30 s a photo (every photo), PA-MPJPE under 5 mm (mean
+Targets (on 2 CPU cores): under 30 s a photo (every photo), PA-MPJPE under 5 mm (mean
 over the synthetic photos), one piece on each real photo; the summary says which are met.
 Torch runs with ``--threads`` CPU threads (default 2).
 """

@@ -67,7 +67,7 @@ __all__ = [
 ]
 
 TARGET_SECONDS = 15.0
-"""The issue's target for a 1024x667 render on 2 CPU cores."""
+"""The target for a 1024x667 render on 2 CPU cores."""
 PAPER_SECONDS_P100 = 60.0
 """LISA paper, Section 5: a 1024x667 novel view in "approximately one minute" on a P100."""
 

@@ -1,4 +1,5 @@
-"""Image-training benchmark: steps per second and novel-view PSNR, against today's step.
+"""Image-training benchmark: steps per second and novel-view PSNR of the default step and a
+reference step.
 
 ``python -m lisa_hand.bench train [--data DIR] [--work DIR] [--budget-s S] [--json FILE]``
 
@@ -8,11 +9,11 @@ start as every other such run).
 
 Two configurations of ``lisa train`` (:class:`~lisa_hand.training.images.ImageTrainConfig`):
 
-* **reference**: the step of the first release: frame after frame (``batched_step=false``), the
+* **reference**: the straightforward step: frame after frame (``batched_step=false``), the
   sphere-traced sampler with 48 samples in the band ``[-8 beta, +16 beta]`` around the surface
   plus 16 uniform ones a ray, 64 marching steps; per frame 256 + 256 Eikonal points (ray
   samples, uniform) and 512 skinning points;
-* **fast** (today's default): every frame of the step rendered in one pass (one sphere trace
+* **fast** (the default): every frame of the step rendered in one pass (one sphere trace
   and one field evaluation for the batch, no gradient pass for the skinning points), 12 band
   samples in ``[-4 beta, +8 beta]`` plus 4 uniform ones, 12 marching steps; 64 + 64 Eikonal
   and 128 skinning points a frame.
@@ -86,8 +87,7 @@ __all__ = ["reference_config", "fast_config", "prior_from_trained", "held_out_co
 
 
 def reference_config(steps: int, seed: int = 0, device: str = "auto") -> ImageTrainConfig:
-    """The image step of the first release (see the module docstring), ``steps`` steps on
-    ``device``."""
+    """The reference image step (see the module docstring), ``steps`` steps on ``device``."""
     render = RenderConfig(sampler="sphere_traced", num_samples=48, num_samples_extra=16,
                           stratified=True, sphere_num_steps=64, sphere_band_outside=8.0,
                           sphere_band_inside=16.0)

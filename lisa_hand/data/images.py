@@ -10,14 +10,9 @@ Two ways to find the first surface point along each camera ray, with the same ou
   bounding sphere (the package's one tracer, :func:`~lisa_hand.geometry.tracing.sphere_trace`),
   with normals from the SDF gradient (:func:`~lisa_hand.geometry.tracing.sdf_normals`, autograd).
 
-Measured on the 2-core CPU machine, 8 views at 512x334 of a hand-like scene (a log-sum-exp
-smooth union of 20 tapered capsules, and its 99k-vertex, 197k-face marching-cubes mesh): Embree
-takes 0.3 s in all (BVH build 0.04 s, casting, shading, a textured albedo), sphere tracing
-(torch float32, one thread, 0.05 mm tolerance) 4.4 s; the two agree to a mask IoU of 0.995 and a
-median depth difference of 0.07 mm (the mesh's marching-cubes error). The dataset writer uses
-:func:`render_views`. On the open hand itself (123k-vertex mesh, relaxed pose, 8 views at
-512x334, one thread): Embree 0.36 s with vertex colours, sphere tracing
-:meth:`lisa_hand.handmodel.PosedHand.sdf` 6.1 s, mask IoU 0.996.
+The two agree to within the mesh's marching-cubes error (a mask IoU above 0.99), and Embree is
+more than ten times faster (8 views at 512x334 of the open hand in well under a second on one
+CPU core), so the dataset writer uses :func:`render_views`.
 
 Shading is Lambertian plus ambient (:mod:`lisa_hand.data.shading`), per pixel::
 

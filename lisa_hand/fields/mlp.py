@@ -32,20 +32,16 @@ __all__ = ["StackedMLP", "ACTIVATIONS", "geometric_init_", "soft_min_init_"]
 ACTIVATIONS = ("softplus", "relu")
 
 # Rows per chunk in forward_grouped. A [4096, 128] float32 activation is 2 MiB, so a chunk's
-# layer input and output stay in the L2/L3 caches across the layers of one group; measured on
-# the 2-core AMD EPYC (Zen 4) dev box, 65536 points, widths 128: a [Q, 128] @ [128, 128] product
-# over all rows at once ran at ~32 GFLOP/s, the same rows in 4096-row chunks at ~85 GFLOP/s.
+# layer input and output stay in the L2/L3 caches across the layers of one group, which makes
+# the chunked products a few times faster on a CPU than one product over all rows.
 GROUP_CHUNK_ROWS = 4096
 
 # Rows (all groups together) up to which forward_grouped runs a GPU query as one padded batched
 # product a layer instead of its loop over the groups (and frames). A GPU's eager step is bound by
-# kernel launches: measured on an H200 (tools/gpu_bench.sh), the image-training step of 4 frames
-# ran ~15k kernels, most of them the loop's (16 bones x 4 frames x 9 per MLP call), at 2.6 steps
-# a second, no faster than 2 CPU cores. Past about this many rows, padding every group to the
-# largest (the palm's) costs more than the launches it saves: the SDF MLP on the benchmark hand's
-# culled pairs, H200, loop / padded, no gradient: 11,883 rows 2.75 / 0.85 ms, 96,466 rows 2.82 /
-# 2.33 ms, 192,629 rows 2.56 / 4.24 ms; forward and backward: 7.68 / 2.13, 10.45 / 7.26, 8.96 /
-# 13.61 ms (`python tools/padded_crossover.py --device cuda`).
+# kernel launches, and the loop launches 9 kernels per MLP call for each of 16 bones and each
+# frame. Past about this many rows, padding every group to the largest (the palm's) costs more
+# than the launches it saves (`python tools/padded_crossover.py --device cuda` finds the
+# crossover).
 GPU_PADDED_ROWS = 1 << 17
 
 
@@ -230,15 +226,12 @@ class StackedMLP(nn.Module):
             to :data:`GPU_PADDED_ROWS` rows, else the loop). The same function either way.
         -> [Q, out_dim]
 
-        On a CPU, a short Python loop over the groups, each group in row chunks through all layers,
-        the fastest way measured (``python -m lisa_hand.bench field``, 2-core AMD EPYC Zen 4,
-        65536 points, 96466 culled pairs, default widths, float32, quiet machine): this loop
-        88.7 ms (82 GFLOP/s); the same without row chunks 106.8 ms; per-bone index_select from
-        the unsorted points and index_copy back 110.7 ms; ``torch.nn.functional.grouped_mm``
-        338.8 ms (and its backward fails on expanded gradients); one padded bmm over the stacked
-        weights 934 ms (padding every bone to the largest bone's count, the palm's, multiplies
-        the work). It also supports double backward (Eikonal loss). On a GPU (launch-bound)
-        the padded bmm wins up to :data:`GPU_PADDED_ROWS` rows."""
+        On a CPU, a short Python loop over the groups, each group in row chunks through all
+        layers: one padded bmm over the stacked weights pads every bone to the largest bone's
+        count (the palm's), which multiplies the work, and ``torch.nn.functional.grouped_mm``
+        is slower and its backward fails on expanded gradients (``python -m lisa_hand.bench
+        field`` compares them). The loop also supports double backward (Eikonal loss). On a GPU
+        (launch-bound) the padded bmm wins up to :data:`GPU_PADDED_ROWS` rows."""
         per_frame, sizes = self._check_grouped(points, group_sizes, first_bias, bias_per_row)
         on_cpu = points.device.type == "cpu"
         if padded is None:

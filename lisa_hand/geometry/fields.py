@@ -13,11 +13,10 @@ tested on an analytic sphere before it meets a network, and none imports the mod
 The output contract, checked by :func:`check_sdf_output` through :func:`call_sdf` and
 :func:`call_field` (every consumer calls its callback through them): ``sdf`` is a tensor of shape
 ``[N]``; ``[N, 1]`` (what a network's last linear layer gives) is also accepted, everywhere, and
-read as ``[N]``. (The mesher, the ground-truth tracer and the SDF sampler accepted ``[N, 1]``
-already; the renderer refused it. One rule for all: no existing callback had to change.) Anything
-else is refused with a ``ValueError`` that names the callback, the expected and the received
-shape, e.g. ``sdf_fn must return [N] or [N, 1] for points [N, 3] (N = 512), got (512, 3)``; a
-result that is not a tensor with a ``TypeError``. Values come back in the points' dtype. The
+read as ``[N]``: one rule for all consumers. Anything else is refused with a ``ValueError``
+that names the callback, the expected and the received shape, e.g. ``sdf_fn must return [N] or
+[N, 1] for points [N, 3] (N = 512), got (512, 3)``; a result that is not a tensor with a
+``TypeError``. Values come back in the points' dtype. The
 points come in the consumer's dtype and device.
 
 Several fields at once (grouped callbacks): a consumer that renders the rays of several frames in

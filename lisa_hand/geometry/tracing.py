@@ -120,7 +120,7 @@ def sdf_normals(
     """Unit outward normals ``grad sdf / |grad sdf|`` at points.
 
     'autograd': backpropagation through ``sdf_fn`` in chunks (exact; needs a differentiable
-    callback; measured on the LISA field as fast as 3 forward evaluations). 'finite_difference':
+    callback; on the LISA field about as fast as 3 forward evaluations). 'finite_difference':
     central differences ``(sdf(x + h e_i) - sdf(x - h e_i)) / 2h`` (6 evaluations a point,
     error O(h^2); the 4-point tetrahedral rule would be cheaper but its error is O(h) times the
     Hessian's off-diagonal, about a degree at a fingertip's curvature with h = 0.1 mm).

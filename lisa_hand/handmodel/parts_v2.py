@@ -30,18 +30,12 @@ the parts out anew (right hand, rest pose, average 18.5 cm hand; offsets scale w
 * **nails, creases, palm lines, bumps**: v1's detail (:func:`~.detail.build_nails`, ...) on the
   v2 surface.
 
-Measured (one core, 2026-12-02; ``tests/handmodel/test_parts_v2.py`` checks the same things
-on one subject): on 4 subjects x flat / fist / pinch, points in a 2 mm band around the
-surface, ``|grad s|`` has median 0.970-0.978 (v1 0.968-0.982), 62-73 % of the points within
-5 % of 1 (v1 61-79 %), 92-98 % within 25 % (v1 89-98 %), at most 1.39
-(v1 1.52); the palm's blends dip most (median 0.96; the forearm slab 1.00, fingers 0.98). At
-the generator's resolution (255 voxels per hand length) 40 of 40 meshes of 10 subjects in
-fist, flat and two sampled poses are one watertight piece (v1: 38 of 40; two fists hold a
-closed air pocket of 6-10 vertices between fingers). A fist keeps 98.1 % of the flat hand's
-volume on average, 96.5 % at least (v1: 97.8 %, 96.7 %): touching parts do not sink into each
-other more than in v1. Speed (one core): 2.8 us per point near the surface against v1's 2.2
-us; a mesh at 255 voxels per length 2.8 s against 1.9 s (9 % more vertices: the forearm);
-``lisa synth`` 11 % more CPU per subject.
+Properties (``tests/handmodel/test_parts_v2.py`` checks them): near the surface ``|grad s|``
+stays within a few percent of 1 on most points, as on v1, dipping most in the palm's blends; at
+the generator's resolution (255 voxels per hand length) meshes in flat, fist and sampled poses
+are one watertight piece; a fist keeps about 97-98 % of the flat hand's volume, as v1 does, so
+touching parts do not sink into each other more than in v1. A v2 mesh takes about 1.5 times as
+long as a v1 mesh (more parts, and about 9 % more vertices: the forearm).
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ How the shipped template (``lisa_hand/assets/template.npz``) is made by :func:`b
 6. Fingertips: per finger, the vertex closest (over the subjects) to the open hand's fingertip
    keypoint (the one placed on it in step 1).
 
-Measured (200 subjects, seed 0; 50 held-out subjects): 10 components explain 99.6 % of the
+Accuracy (200 subjects, seed 0; 50 held-out subjects): 10 components explain 99.6 % of the
 variance; from fitted betas the vertices lie 0.13 mm (mean |SDF|; 0.36 mm 95th percentile) from
 the subject's surface, 0.24 mm from their exact correspondences, the rest joints 0.29 mm from
 the true ones (the regressor alone: 0.11 mm), the fingertip vertices 0.5 mm from the fingertips.

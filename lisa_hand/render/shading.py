@@ -3,8 +3,8 @@
 LISA's colour networks give a colour per point and nothing else: no normal, no view direction.
 Images of a hand lit from the camera (a flash, a ring light; the synthetic datasets of
 ``lisa synth``, lit from beside each camera) then show a shading that changes with pose and view,
-and a colour field trained on them can only average it into its albedo (issue 15: on the demo's
-hand the shading was 60% of the colour variance inside the mask). :class:`HeadlightShading`
+and a colour field trained on them can only average it into its albedo (on synthetic hands it
+is a large share of the colour variance inside the mask). :class:`HeadlightShading`
 models it per ray, after volume rendering::
 
     c = albedo * ((1 - k) + k * max(0, n . -d))

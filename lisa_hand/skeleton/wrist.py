@@ -26,9 +26,9 @@ __all__ = ["WRIST_CLIP_M", "wrist_plane"]
 
 WRIST_CLIP_M = 0.01
 """Default distance (metres) of the cut beyond the wrist joint, towards the forearm: inside the
-stub of LISA's surface (about 2.5 cm) and of the WebXR hand's (2.2 cm), past the wrist joint's
-own uncertainty between rigs (MANO, OpenXR and the open hand model put it within about 1 cm of
-each other)."""
+stub of LISA's surface (about 2.5 cm) and of rigged hand meshes cut at the wrist (about 2 cm),
+past the wrist joint's own uncertainty between rigs (MANO, OpenXR and the open hand model put it
+within about 1 cm of each other)."""
 
 
 def wrist_plane(params: HandParams, offset: float = WRIST_CLIP_M) -> Plane:
