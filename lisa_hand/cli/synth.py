@@ -49,7 +49,12 @@ def synth(
         help="Version of the open hand model: v1 (default; what the shipped model was trained "
              "on), v2 (rounded, padded palm, forearm stub, D-shaped fingers, shapes drawn "
              "from adult hand anthropometry) or v3 (MakeHuman's sculpted hand, CC0: sizes from "
-             "the same anthropometry, skinned by dual quaternions, skin tones by ethnic mix).")] = "v1",
+             "the same anthropometry, skinned by dual quaternions, skin tones by ethnic "
+             "mix).")] = "v1",
+    ages: Annotated[str, typer.Option(
+        "--ages", metavar="MIN,MAX",
+        help="Ages in years of the v3 hands (default 18,80); a narrower range holds the rest "
+             "out, e.g. 18,65 to test on older hands.")] = "18,80",
     quiet: Annotated[bool, typer.Option("--quiet", help="No progress bar.")] = False,
 ) -> None:
     """Write a synthetic dataset (LISA-open layout, docs/data_formats.md) and/or a preview sheet.
@@ -67,7 +72,7 @@ def synth(
         num_subjects=subjects, num_poses=poses, num_views=views,
         resolution=parse_resolution(resolution), seed=seed, num_workers=workers,
         scan=ScanConfig(num_points=scan_points), num_sdf_samples=sdf_samples,
-        voxels_per_length=mesh_resolution, hand_model=hand_model,
+        voxels_per_length=mesh_resolution, hand_model=hand_model, ages=_ages(ages),
     )
     if out is not None:
         summary = synthesize(out, config, progress=not quiet, overwrite=overwrite)
@@ -79,3 +84,12 @@ def synth(
 
 def register(app: typer.Typer) -> None:
     app.command("synth")(synth)
+
+
+def _ages(text: str) -> tuple[float, float]:
+    """``--ages MIN,MAX`` -> (MIN, MAX) years."""
+    try:
+        youngest, oldest = (float(part) for part in text.split(","))
+    except ValueError:
+        raise ValueError(f"--ages must be MIN,MAX in years (e.g. 18,65), got {text!r}") from None
+    return youngest, oldest

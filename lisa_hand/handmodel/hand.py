@@ -25,7 +25,8 @@ from ..skeleton.kinematics import check_side, forward_kinematics, mirror_points,
 from ..skeleton.tree import FINGER_JOINTS, FINGER_NAMES, NUM_JOINTS, POSE_DIM, joints_to_keypoints
 from .anthropometry import sample_anthropometric_shape
 from .appearance import Appearance, albedo, sample_appearance
-from .makehuman import MakeHumanShape, sample_makehuman_shape, skin_tone
+from .checks import check_query_points, check_vector
+from .makehuman import ADULT_AGES, MakeHumanShape, sample_makehuman_shape, skin_tone
 from .mesh_hand import PosedMeshHand
 from .mesh_rest import MeshRest, build_mesh_rest
 from .parts import HandParts, build_hand_parts
@@ -141,7 +142,8 @@ def check_hand_model(model: str) -> str:
     return model
 
 
-def sample_hand(generator: torch.Generator, side: str = "right", model: str = "v1") -> OpenHand:
+def sample_hand(generator: torch.Generator, side: str = "right", model: str = "v1",
+                ages: tuple[float, float] = ADULT_AGES) -> OpenHand:
     """A random subject: shape (:func:`sample_shape` for v1, the anthropometric
     :func:`~lisa_hand.handmodel.anthropometry.sample_anthropometric_shape` for v2,
     :func:`~lisa_hand.handmodel.makehuman.sample_makehuman_shape` for v3), appearance
@@ -150,11 +152,12 @@ def sample_hand(generator: torch.Generator, side: str = "right", model: str = "v
     (same seed, same subject).
 
     model: the hand model version, one of :data:`HAND_MODELS`.
+    ages: (youngest, oldest) years of a v3 hand (v1 and v2 hands have no age).
     """
     check_side(side)
     check_hand_model(model)
     if model == "v3":
-        shape = sample_makehuman_shape(generator)
+        shape = sample_makehuman_shape(generator, ages)
     elif model == "v2":
         shape = sample_anthropometric_shape(generator)
     else:
@@ -213,19 +216,6 @@ class SurfaceSamples:
         return SurfaceSamples(**joined)
 
 
-def _check_vector(value, size: int, name: str) -> torch.Tensor:
-    if not isinstance(value, torch.Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(value).__name__}")
-    if value.shape not in ((size,), (1, size)):
-        raise ValueError(
-            f"{name} must have shape [{size}] or [1, {size}], got {tuple(value.shape)}"
-        )
-    value = value.reshape(size).detach().to(torch.float64)
-    if not torch.isfinite(value).all():
-        raise ValueError(f"{name} contains NaN or inf values")
-    return value
-
-
 class PosedHand:
     """A subject in one pose: joints, keypoints, and the exact field (SDF, ownership, albedo).
 
@@ -252,12 +242,12 @@ class PosedHand:
         self.pose = (
             torch.zeros(POSE_DIM, dtype=torch.float64)
             if pose is None
-            else _check_vector(pose, POSE_DIM, "pose")
+            else check_vector(pose, POSE_DIM, "pose")
         )
         self.translation = (
             torch.zeros(3, dtype=torch.float64)
             if translation is None
-            else _check_vector(translation, 3, "translation")
+            else check_vector(translation, 3, "translation")
         )
         self.dtype = dtype
         self.device = torch.device(device) if device is not None else torch.device("cpu")
@@ -285,13 +275,7 @@ class PosedHand:
 
     # ------------------------------------------------------------------------------------------
     def _to_field(self, points: torch.Tensor, name: str = "points") -> torch.Tensor:
-        if not isinstance(points, torch.Tensor):
-            raise TypeError(f"{name} must be a torch.Tensor, got {type(points).__name__}")
-        if points.dim() != 2 or points.shape[1] != 3:
-            raise ValueError(f"{name} must have shape [N, 3] (metres), got {tuple(points.shape)}")
-        if not points.is_floating_point():
-            raise TypeError(f"{name} must be a floating point tensor, got {points.dtype}")
-        points = points.to(self.device, self.dtype)
+        points = check_query_points(points, name).to(self.device, self.dtype)
         return mirror_points(points) if self.mirrored else points
 
     def evaluate(self, points: torch.Tensor, with_features: bool = False) -> HandFieldOutput:

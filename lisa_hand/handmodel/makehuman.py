@@ -13,11 +13,11 @@ incr target by ``max(0, x)``; joints are the means of their morphed joint vertic
 Population (:func:`sample_makehuman_shape`): an adult of either sex (50/50) whose hand length
 (wrist to the middle fingertip) and breadth (across the metacarpal heads) are drawn jointly from
 the published adult anthropometry of hand model v2 (:mod:`.anthropometry`: means, SDs and
-within-sex correlations by sex); age uniform over 18-80 years, muscle, weight and body
-proportions around MakeHuman's average, a random ethnic mix; the hand's scale and finger-length
-sliders are then solved so that the morphed hand has the drawn length and breadth
-(:func:`fit_hand_size`). Palm thickness and finger girth follow from the macros (weight, muscle,
-age) and a finger-diameter slider.
+within-sex correlations by sex); age uniform over 18-80 years (:data:`ADULT_AGES`), muscle,
+weight and body proportions around MakeHuman's average, an ethnic mix with one dominant
+ethnicity; the hand's scale and finger-length sliders are then solved so that the morphed hand
+has the drawn length and breadth (:func:`fit_hand_size`). Palm thickness and finger girth follow
+from the macros (weight, muscle, age) and a finger-diameter slider.
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ __all__ = [
     "measure_hand",
     "fit_hand_size",
     "sample_makehuman_shape",
+    "ADULT_AGES",
     "ETHNIC_SKIN_TONES",
     "skin_tone",
 ]
@@ -299,24 +300,36 @@ def _clipped(generator: torch.Generator, mean: float, std: float, low: float,
     return float(min(max(value, low), high))
 
 
-def sample_makehuman_shape(generator: torch.Generator) -> MakeHumanShape:
+ADULT_AGES = (18.0, 80.0)
+"""Ages (years) of the population :func:`sample_makehuman_shape` draws from by default."""
+
+
+def sample_makehuman_shape(generator: torch.Generator,
+                           ages: tuple[float, float] = ADULT_AGES) -> MakeHumanShape:
     """Draw an adult hand (see the module docstring): the anthropometric measurements first
     (:func:`~.anthropometry.sample_measurements`), then the macros, then the size sliders
     solved to the drawn length and breadth.
 
     generator: a seeded ``torch.Generator`` (CPU); the same seed gives the same hand.
+    ages: (youngest, oldest) years, uniform between (a narrower range holds the rest of the
+        population out of a dataset, e.g. ``(18, 65)`` to test on older hands).
     """
     if not isinstance(generator, torch.Generator):
         raise TypeError(f"generator must be a torch.Generator, got {type(generator).__name__}")
+    youngest, oldest = (float(age) for age in ages)
+    if not 1.0 <= youngest <= oldest <= 90.0:
+        raise ValueError(f"ages must be (youngest, oldest) years within 1-90, got {ages!r}")
     measured = sample_measurements(generator)
     uniform = torch.rand(2, generator=generator, dtype=torch.float64).tolist()
     gender_offset = 0.15 * uniform[0]
     gender = gender_offset if measured.female else 1.0 - gender_offset
-    years = 18.0 + 62.0 * uniform[1]
+    years = youngest + (oldest - youngest) * uniform[1]
     age = 0.1875 + (years - 10.0) / 48.0 if years < 25.0 else 0.5 + (years - 25.0) / 130.0
-    # A uniform ethnic mix: Dirichlet(1, 1, 1), normalised by the shape.
+    # One ethnicity dominant (3/4), the rest a uniform mix (a Dirichlet(1, 1, 1) quarter).
     gammas = -torch.log(torch.rand(3, generator=generator, dtype=torch.float64)) + 1e-3
-    ethnic = (gammas / gammas.sum()).tolist()
+    dominant = int(torch.randint(0, 3, (), generator=generator))
+    ethnic = (0.25 * gammas / gammas.sum() + 0.75 * torch.eye(3, dtype=torch.float64)[dominant])
+    ethnic = ethnic.tolist()
     shape = MakeHumanShape(
         gender=gender, age=min(age, 1.0),
         muscle=_clipped(generator, 0.5, 0.15, 0.1, 0.9),
@@ -340,7 +353,7 @@ range, so the african anchor is placed by the palette's dark end rather than by 
 
 def skin_tone(shape: MakeHumanShape, generator: torch.Generator) -> float:
     """A skin tone for a shape: its ethnic mix of :data:`ETHNIC_SKIN_TONES`, plus an individual
-    spread (SD 0.08), clipped to [0, 1]."""
+    spread (SD 0.1), clipped to [0, 1]."""
     total = shape.african + shape.asian + shape.caucasian
     mixed = sum(getattr(shape, name) * tone for name, tone in ETHNIC_SKIN_TONES.items()) / total
-    return _clipped(generator, mixed, 0.08, 0.0, 1.0)
+    return _clipped(generator, mixed, 0.1, 0.0, 1.0)

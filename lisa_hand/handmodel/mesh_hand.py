@@ -42,6 +42,7 @@ from ..skeleton.tree import (
     joints_to_keypoints,
 )
 from .appearance import albedo
+from .checks import check_query_points, check_vector
 from .mesh_rest import MeshRest, build_mesh_rest
 from .sdf import HandFieldOutput
 
@@ -57,20 +58,6 @@ that brings the bent named poses closest to the rest hand's volume with none abo
 
 _MIRROR = torch.diag(torch.tensor([-1.0, 1.0, 1.0, 1.0], dtype=torch.float64))
 _FEATURES = ("nail", "nail_along", "crease", "palmar", "knuckle")
-
-
-def _vector(value, size: int, name: str) -> torch.Tensor:
-    if value is None:
-        return torch.zeros(size, dtype=torch.float64)
-    if not isinstance(value, torch.Tensor):
-        raise TypeError(f"{name} must be a torch.Tensor, got {type(value).__name__}")
-    if value.shape not in ((size,), (1, size)):
-        raise ValueError(f"{name} must have shape [{size}] or [1, {size}], got "
-                         f"{tuple(value.shape)}")
-    value = value.reshape(size).detach().to(torch.float64).cpu()
-    if not torch.isfinite(value).all():
-        raise ValueError(f"{name} contains NaN or inf values")
-    return value
 
 
 def knuckle_corrective(rest: MeshRest, pose: torch.Tensor,
@@ -118,8 +105,10 @@ class PosedMeshHand:
         if skinning not in SKINNING_METHODS:
             raise ValueError(f"skinning must be one of {SKINNING_METHODS}, got {skinning!r}")
         self.hand = hand
-        self.pose = _vector(pose, POSE_DIM, "pose")
-        self.translation = _vector(translation, 3, "translation")
+        self.pose = (torch.zeros(POSE_DIM, dtype=torch.float64) if pose is None
+                     else check_vector(pose, POSE_DIM, "pose"))
+        self.translation = (torch.zeros(3, dtype=torch.float64) if translation is None
+                            else check_vector(translation, 3, "translation"))
         self.dtype = dtype
         self.device = torch.device(device) if device is not None else torch.device("cpu")
         self.mirrored = hand.side == "left"
@@ -157,13 +146,7 @@ class PosedMeshHand:
         return mesh_distance(points, self.vertices, self.faces)
 
     def _query(self, points: torch.Tensor, name: str = "points") -> np.ndarray:
-        if not isinstance(points, torch.Tensor):
-            raise TypeError(f"{name} must be a torch.Tensor, got {type(points).__name__}")
-        if points.dim() != 2 or points.shape[1] != 3:
-            raise ValueError(f"{name} must have shape [N, 3] (metres), got {tuple(points.shape)}")
-        if not points.is_floating_point():
-            raise TypeError(f"{name} must be a floating point tensor, got {points.dtype}")
-        return points.detach().double().cpu().numpy()
+        return check_query_points(points, name).detach().double().cpu().numpy()
 
     def _out(self, array: np.ndarray) -> torch.Tensor:
         return torch.as_tensor(array, dtype=self.dtype, device=self.device)

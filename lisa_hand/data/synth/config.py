@@ -29,8 +29,7 @@ _HAND_MODELS = ("v1", "v2", "v3")  # lisa_hand.handmodel.HAND_MODELS (checked eq
 
 @dataclass(frozen=True)
 class SynthConfig:
-    """What :func:`synthesize` writes (the defaults are the dataset of the issue, InterHand-like
-    1024x667 images)."""
+    """What :func:`synthesize` writes (the defaults: InterHand-like 1024x667 images)."""
 
     num_subjects: int = 20
     """Subjects (folders s000, s001, ...); subject k is the same whatever this number."""
@@ -93,6 +92,11 @@ class SynthConfig:
     padded palm, forearm stub, D-shaped fingers, anthropometric shape draws) or "v3"
     (MakeHuman's sculpted hand, anthropometric sizes, skin tones by ethnic mix)."""
 
+    ages: tuple[float, float] = (18.0, 80.0)
+    """Ages (years) of the v3 subjects, youngest and oldest (v1 and v2 hands have no age): a
+    narrower range holds the rest of the population out, e.g. (18, 65) to test on older
+    hands."""
+
     def __post_init__(self) -> None:
         for name in ("num_subjects", "num_poses", "num_views", "supersample"):
             check_integer(getattr(self, name), name, 1)
@@ -145,6 +149,11 @@ class SynthConfig:
         if self.hand_model not in _HAND_MODELS:
             raise ValueError(f"hand_model must be one of {', '.join(_HAND_MODELS)}, got "
                              f"{self.hand_model!r}")
+        ages = tuple(self.ages) if isinstance(self.ages, (tuple, list)) else ()
+        if len(ages) != 2 or not all(isinstance(a, (int, float)) for a in ages) or not (
+                1 <= ages[0] <= ages[1] <= 90):
+            raise ValueError(f"ages must be (youngest, oldest) years within 1-90, got "
+                             f"{self.ages!r}")
 
     @property
     def width(self) -> int:
@@ -168,11 +177,16 @@ class SynthConfig:
     def to_dict(self) -> dict[str, Any]:
         """The settings that define the dataset, JSON-able (``num_workers`` left out: it does not
         change what is written; ``hand_model`` only when it is not the default "v1", so that a v1
-        dataset's ``dataset.json`` is what it was before versions existed)."""
+        dataset's ``dataset.json`` matches one written by a version without the setting;
+        ``ages`` only for v3)."""
         data = dataclasses.asdict(self)
         del data["num_workers"]
         if data["hand_model"] == "v1":
             del data["hand_model"]
+        if self.hand_model == "v3":
+            data["ages"] = list(self.ages)
+        else:
+            del data["ages"]  # only v3 hands have an age
         return data
 
 

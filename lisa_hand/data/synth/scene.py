@@ -139,7 +139,7 @@ def split_subjects(num_subjects: int, fractions: Sequence[float] = (0.7, 0.1, 0.
 
 def make_subject(config: SynthConfig, index: int, fit_template: bool = True) -> SubjectRecord:
     """Subject ``index`` of the dataset ``config`` describes (depends on the seed, the index,
-    ``left_fraction`` and ``hand_model`` only).
+    ``left_fraction``, ``hand_model`` and, for v3, ``ages`` only).
 
     fit_template: fit the MANO-like template (``template_betas``, ``template_rest_joints``);
     False leaves them empty (previews).
@@ -150,7 +150,8 @@ def make_subject(config: SynthConfig, index: int, fit_template: bool = True) -> 
     index = check_integer(index, "index", 0)
     rng = _numpy_rng(config.seed, _STREAM_SUBJECT, index)
     side = "left" if rng.random() < config.left_fraction else "right"
-    hand = sample_hand(_torch_generator(rng), side=side, model=config.hand_model)
+    hand = sample_hand(_torch_generator(rng), side=side, model=config.hand_model,
+                       ages=tuple(config.ages))
     betas = np.zeros(0)
     template_joints = np.zeros((0, 3))
     if fit_template:
