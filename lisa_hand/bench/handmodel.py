@@ -125,8 +125,9 @@ def write_sheet(path: str | Path, photos: str | Path | None, columns: int = 6,
             tiles.append(render_preview(mesh.vertices, mesh.faces, mesh.colors, view=view,
                                         size=size))
     if photos is not None:
-        files = sorted(p for p in Path(photos).rglob("*")
-                       if p.suffix.lower() in (".jpg", ".jpeg", ".png"))[:columns]
+        files = sorted((p for p in Path(photos).rglob("*")  # the folder's own photos first
+                        if p.suffix.lower() in (".jpg", ".jpeg", ".png")),
+                       key=lambda p: (len(p.parts), str(p)))[:columns]
         tiles += [_square(iio.imread(file), size) for file in files]
         tiles += [np.full((size, size, 3), 255, np.uint8)] * (-len(tiles) % columns)
     path = Path(path)

@@ -37,6 +37,7 @@ import torch
 
 from ..fitting.priors import PRIOR_POSES, finger_pose_prior, joint_limit_excess
 from ..fitting.robust import robust_loss
+from ..geometry.meshing import sample_triangles
 from ..skeleton.params import HandParams
 from ..utils.config import check_int_fields
 
@@ -129,10 +130,7 @@ def _surface_samples(template: Any, count: int, generator: torch.Generator
     corners = vertices[template.faces]
     area = torch.linalg.cross(corners[:, 1] - corners[:, 0],
                               corners[:, 2] - corners[:, 0]).norm(dim=-1)
-    faces = torch.multinomial(area.double().cpu(), count, replacement=True, generator=generator)
-    u, v = torch.rand(2, count, generator=generator, dtype=torch.float64)
-    flip = u + v > 1
-    u, v = torch.where(flip, 1 - u, u), torch.where(flip, 1 - v, v)
+    faces, u, v = sample_triangles(area, count, generator)
     bary = torch.stack([1 - u - v, u, v], dim=-1)
     return faces.to(template.device), bary.to(device=template.device, dtype=template.dtype)
 

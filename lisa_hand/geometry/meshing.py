@@ -38,6 +38,7 @@ __all__ = [
     "extract_mesh_with_stats",
     "mesh_attributes",
     "colors_to_uint8",
+    "sample_triangles",
 ]
 
 # Blocks of this many cells a side end the hierarchy: their centre is a grid point (reused), and
@@ -562,3 +563,17 @@ def _check_int(value, name: str, minimum: int) -> int:
     if value < minimum:
         raise ValueError(f"{name} must be >= {minimum}, got {value}")
     return int(value)
+
+
+def sample_triangles(areas: torch.Tensor, num: int, generator: torch.Generator
+                     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Points spread uniformly over triangles: ``num`` faces drawn by area, then a uniform point
+    in each, as barycentric ``(1 - u - v, u, v)``.
+
+    areas: [F] (any positive multiple of the triangles' areas). generator: a seeded CPU
+    ``torch.Generator``. -> (face [num] int64, u [num], v [num] float64), CPU.
+    """
+    face = torch.multinomial(areas.double().cpu(), num, replacement=True, generator=generator)
+    u, v = torch.rand(2, num, generator=generator, dtype=torch.float64)
+    flip = (u + v) > 1.0
+    return face, torch.where(flip, 1.0 - u, u), torch.where(flip, 1.0 - v, v)

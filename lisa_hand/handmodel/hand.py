@@ -420,16 +420,15 @@ class PosedHand:
             raise ValueError(f"num must be a positive int, got {num!r}")
         if not isinstance(generator, torch.Generator):
             raise TypeError(f"generator must be a torch.Generator, got {type(generator).__name__}")
+        from ..geometry.meshing import sample_triangles
+
         mesh = self.mesh(voxel_size or 2.0 * self.default_voxel_size(), colors=False,
                          skin_weights=False)  # fmt: skip
         vertices = torch.from_numpy(mesh.vertices).double()
         corners = vertices[torch.from_numpy(mesh.faces)]  # [F, 3, 3]
         areas = torch.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0], dim=-1)
         areas = areas.norm(dim=-1)
-        face = torch.multinomial(areas, num, replacement=True, generator=generator)
-        u, v = torch.rand(2, num, generator=generator, dtype=torch.float64)
-        flip = (u + v) > 1.0
-        u, v = torch.where(flip, 1.0 - u, u), torch.where(flip, 1.0 - v, v)
+        face, u, v = sample_triangles(areas, num, generator)
         chosen = corners[face]
         points = chosen[:, 0] + u[:, None] * (chosen[:, 1] - chosen[:, 0])
         points = points + v[:, None] * (chosen[:, 2] - chosen[:, 0])

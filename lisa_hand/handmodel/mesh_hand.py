@@ -235,6 +235,7 @@ class PosedMeshHand:
                         voxel_size: float | None = None):
         """Points uniformly spread over the skin (faces drawn by area), with the faces' normals,
         weights and albedo. num: >= 1. generator: a seeded ``torch.Generator``."""
+        from ..geometry.meshing import sample_triangles
         from .hand import SurfaceSamples
 
         if not isinstance(num, int) or num < 1:
@@ -243,10 +244,7 @@ class PosedMeshHand:
             raise TypeError(f"generator must be a torch.Generator, got {type(generator).__name__}")
         corners = torch.from_numpy(self.vertices[self.faces])
         cross = torch.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0], dim=-1)
-        face = torch.multinomial(cross.norm(dim=-1), num, replacement=True, generator=generator)
-        u, v = torch.rand(2, num, generator=generator, dtype=torch.float64)
-        flip = (u + v) > 1.0
-        u, v = torch.where(flip, 1.0 - u, u), torch.where(flip, 1.0 - v, v)
+        face, u, v = sample_triangles(cross.norm(dim=-1), num, generator)
         chosen = corners[face]
         points = chosen[:, 0] + u[:, None] * (chosen[:, 1] - chosen[:, 0])
         points = points + v[:, None] * (chosen[:, 2] - chosen[:, 0])
