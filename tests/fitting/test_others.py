@@ -219,6 +219,6 @@ def test_the_fit_keeps_the_hand_held_out_before_a_body(hand_scan):
                               for fit in (held, alone, blind))
     # the arm's first 20 cm stay (HAND_REACH_M from the hand's nearest point), sticking out of
     # the toy hand's back, not its wrist, where the fit's wrist cut would leave them out: they
-    # cost the fit some (measured: 9.2 against 4.7 mm with the packages of 2026-12-05, numpy
-    # 2.4, scipy 1.17, trimesh 5.2; 12.8 against 8.8 before); with the body it is lost (330 mm)
+    # cost the fit some (measured: 9.2 against 4.7 mm with numpy 2.4, scipy 1.17, trimesh 5.2);
+    # with the body it is lost (330 mm)
     assert error < 2.5 * reference and lost > 10.0 * error

@@ -81,8 +81,7 @@ def test_the_benchmark_fingers_curl_in_their_own_plane():
     """The four fingers of the bent and fist poses curl as hinges in the plane of their rest
     direction and the knuckle plane's normal: their fingertips stay in that plane (measured
     0.05-0.84 mm off), and the bent index's distal phalanx turns 0.9 + 1.2 + 0.7 rad in all.
-    Before 2026-12-04 the fingers turned about axes of the thumb's plane, 45 degrees off: the
-    fingertips left their plane by 21-43 mm."""
+    Fingers turned about axes of the thumb's plane, 45 degrees off, would leave it by 21-43 mm."""
     joints = {name: value * 1e-3 for name, value in _joints_mm().items()}
     wrist = joints["wrist"]
     normal = np.cross(joints["index-finger-phalanx-proximal"] - wrist,
@@ -121,8 +120,7 @@ def test_the_benchmark_fingers_curl_in_their_own_plane():
 def test_the_benchmark_fist_closes_on_the_palm_side(hand):
     """Either hand's fist closes towards its palm: every fingertip (the vertices skinned to its
     distal phalanx) ends on the side of the knuckle plane where the thumb's proximal joint is
-    (the palm's side), 3-5 cm from that plane. Before 2026-12-04 the left hand's fingers
-    curled back over the back of the hand."""
+    (the palm's side), 3-5 cm from that plane, not back over the back of the hand."""
     from lisa_hand.bench._webxr import webxr_side
 
     path = WEBXR / f"{hand}_hand.npz"
@@ -237,15 +235,15 @@ def test_a_scan_running_on_into_a_forearm_is_cut_at_the_wrist():
 @pytest.mark.parametrize("name, bound_mm", [("geometry_v2", 1.5), ("geometry_mix", 1.15)])
 def test_the_shipped_geometric_prior_fits_the_webxr_hand(name, bound_mm):
     """The point fit's one-view default model (the shipped geometric prior of hand model v2,
-    203 subjects; the default for every scan until 2026-12-06) on the artist's hand in its
+    203 subjects) on the artist's hand in its
     rest pose, a full 5000-point scan with 0.3 mm noise in a random placement: the first row of
     ``python -m lisa_hand.bench fit --only-webxr``
     (measured here V2S 1.20 mm scan->recon, 1.22 mm recon->scan, with the weaker shape prior of
     a scan that covers the hand; 1.25 / 1.25 with the one-sided scans' prior; the v1 prior:
-    1.28 / 1.44; the shipped LISA-full: 2.10 / 2.62). Issue 14's target without ``--refine``:
-    1.5 mm. The prior of hand models v1 and v2 (``geometry_mix``, a wider shape space, the
-    default for a scan from all round since 2026-12-06) is closer: measured 1.01 / 1.02 mm,
-    within a bound the v2 prior does not meet."""
+    1.28 / 1.44; the shipped LISA-full: 2.10 / 2.62). The target without ``--refine``: 1.5 mm.
+    The prior of hand models v1 and v2 (``geometry_mix``, a wider shape space, the default for
+    a scan from all round) is closer: measured 1.01 / 1.02 mm, within a bound the v2 prior does
+    not meet."""
     import torch
 
     from lisa_hand.data.scans import ScanConfig, simulate_scan
@@ -275,7 +273,7 @@ def test_the_point_fit_curls_the_webxr_hands_bent_index():
     """The artist's hand with its index curled 160 degrees (MCP 52, PIP 69, DIP 40) about its
     knuckles' hinge axes, the full scan of ``python -m lisa_hand.bench fit --only-webxr`` (its
     placement: the second random turn), fitted with the default v2 prior: measured flexion 55 /
-    60 / 34 degrees, V2S 1.10 / 1.14 mm scan->recon / recon->scan (issue 14's target without
+    60 / 34 degrees, V2S 1.10 / 1.14 mm scan->recon / recon->scan (the target without
     ``--refine``: 1.5 mm; with the one-sided scans' shape prior 58 / 60 / 33 degrees, 1.27 /
     1.29 mm; the v1 prior: 51 / 64 / 31 degrees, 1.31 / 1.38 mm). (With the rig's former askew
     curl, the index bent sideways at its hinges: 1.72 / 1.68 mm.)"""
@@ -314,7 +312,7 @@ def test_a_full_scan_of_the_webxr_fist_fits_within_the_target():
     prior: the scan covers 76% of the fitted hand within 4 mm, so the surface stage uses the
     weaker shape prior of a scan from all sides (``FitPointsConfig.covered_shape_weight``).
     Measured V2S 1.44 / 1.30 mm scan->recon / recon->scan; with the one-sided scans' prior
-    1.51-1.56 / 1.36-1.49 over the bench's and three other placements, over issue 14's 1.5 mm
+    1.51-1.56 / 1.36-1.49 over the bench's and three other placements, over the 1.5 mm target
     target without ``--refine``."""
     import torch
 
@@ -349,10 +347,7 @@ def test_a_one_view_scan_fits_closer_with_its_sensor_position():
     the fit keeps the fingers out of the space it saw empty. Measured with the default v2 prior:
     the mesh's share of vertices in the free space falls from 31% to 0% and V2S scan->recon /
     recon->scan from 5.28 / 9.27 to 2.08 / 1.93 mm (without the sensor a finger pose fails
-    here; before the coverage of what the sensor could see, the half-curled restart and the
-    unseen fingers' coupling, 2026-12-04: 3.2%, 4.75 / 4.12 mm; the v1 prior: 7.2% -> 0.7%,
-    3.06 / 3.33 -> 2.95 / 2.75 mm; with the rig's former askew curl: 10% -> 2%, 3.26 -> 2.92
-    mm, recon->scan 4.68 -> 6.34)."""
+    here; the v1 prior: 7.2% -> 0.7%, 3.06 / 3.33 -> 2.95 / 2.75 mm)."""
     import torch
 
     from lisa_hand.data.scans import ScanConfig, simulate_scan
