@@ -275,8 +275,7 @@ def test_the_point_fit_curls_the_webxr_hands_bent_index():
     placement: the second random turn), fitted with the default v2 prior: measured flexion 55 /
     60 / 34 degrees, V2S 1.10 / 1.14 mm scan->recon / recon->scan (the target without
     ``--refine``: 1.5 mm; with the one-sided scans' shape prior 58 / 60 / 33 degrees, 1.27 /
-    1.29 mm; the v1 prior: 51 / 64 / 31 degrees, 1.31 / 1.38 mm). (With the rig's former askew
-    curl, the index bent sideways at its hinges: 1.72 / 1.68 mm.)"""
+    1.29 mm; the v1 prior: 51 / 64 / 31 degrees, 1.31 / 1.38 mm)."""
     import torch
 
     from lisa_hand.data.scans import ScanConfig, simulate_scan
@@ -313,7 +312,7 @@ def test_a_full_scan_of_the_webxr_fist_fits_within_the_target():
     weaker shape prior of a scan from all sides (``FitPointsConfig.covered_shape_weight``).
     Measured V2S 1.44 / 1.30 mm scan->recon / recon->scan; with the one-sided scans' prior
     1.51-1.56 / 1.36-1.49 over the bench's and three other placements, over the 1.5 mm target
-    target without ``--refine``."""
+    without ``--refine``."""
     import torch
 
     from lisa_hand.data.scans import ScanConfig, simulate_scan
