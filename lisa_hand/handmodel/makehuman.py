@@ -22,6 +22,7 @@ from the macros (weight, muscle, age) and a finger-diameter slider.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass, fields
@@ -271,7 +272,7 @@ def fit_hand_size(shape: MakeHumanShape, hand_length: float, hand_breadth: float
     (:func:`measure_hand`, metres) are the given ones; the nearest reachable hand when they are
     out of the sliders' range."""
     def measured(scale: float, fingers: float) -> np.ndarray:
-        trial = _with(shape, hand_scale=scale, finger_length=fingers)
+        trial = dataclasses.replace(shape, hand_scale=scale, finger_length=fingers)
         values = _measurements(trial)
         return np.array([values["hand_length"], values["hand_breadth"]])
 
@@ -285,13 +286,7 @@ def fit_hand_size(shape: MakeHumanShape, hand_length: float, hand_breadth: float
         jacobian = np.stack([(measured(*(sliders + step * e)) - current) / step
                              for e in np.eye(2)], axis=1)
         sliders = np.clip(sliders + np.linalg.solve(jacobian, goal - current), -0.98, 0.98)
-    return _with(shape, hand_scale=float(sliders[0]), finger_length=float(sliders[1]))
-
-
-def _with(shape: MakeHumanShape, **changes: float) -> MakeHumanShape:
-    values = {field.name: getattr(shape, field.name) for field in fields(shape)}
-    values.update(changes)
-    return MakeHumanShape(**values)
+    return dataclasses.replace(shape, hand_scale=float(sliders[0]), finger_length=float(sliders[1]))
 
 
 def _clipped(generator: torch.Generator, mean: float, std: float, low: float,

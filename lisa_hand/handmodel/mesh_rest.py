@@ -123,14 +123,20 @@ def _minimal_rotation(source: np.ndarray, target: np.ndarray) -> np.ndarray:
     return np.eye(3) + sin * skew + (1.0 - cos) * skew @ skew
 
 
-def _bone_directions(joints: np.ndarray, tips: np.ndarray) -> np.ndarray:
-    """[16, 3] unit directions of each finger bone (to its child joint or fingertip)."""
+def _bone_ends(joints: np.ndarray, tips: np.ndarray) -> np.ndarray:
+    """[16, 3] where each bone ends: its child joint, its fingertip (distal bones), the middle
+    MCP joint (the wrist bone)."""
     ends = joints.copy()
     for name, chain in FINGER_JOINTS.items():
         ends[chain[0]], ends[chain[1]] = joints[chain[1]], joints[chain[2]]
         ends[chain[2]] = tips[FINGER_NAMES.index(name)]
     ends[0] = joints[FINGER_JOINTS["middle"][0]]
-    return _unit(ends - joints)
+    return ends
+
+
+def _bone_directions(joints: np.ndarray, tips: np.ndarray) -> np.ndarray:
+    """[16, 3] unit directions of each bone (:func:`_bone_ends`)."""
+    return _unit(_bone_ends(joints, tips) - joints)
 
 
 def _straightening_pose(joints: np.ndarray, tips: np.ndarray) -> torch.Tensor:
@@ -174,7 +180,7 @@ def _features(vertices: np.ndarray, faces: np.ndarray, weights: np.ndarray,
                  * _smoothstep(0.75, 0.6, side / max(width, 1e-6)) * (owner == distal))
         nail = np.maximum(nail, plate)
         nail_along = np.where(plate > 0, np.clip((along - 0.4) / 0.6, 0.0, 1.0), nail_along)
-        for joint in chain[1:] if name != "thumb" else chain[1:]:
+        for joint in chain[1:]:
             distance = np.abs((vertices - joints[joint]) @ dirs[joint])
             crease = np.maximum(crease, np.exp(-0.5 * (distance / 0.0012) ** 2) * palmar)
             knuckle = np.maximum(knuckle, np.exp(-0.5 * (distance / 0.005) ** 2) * (1 - palmar))
@@ -196,14 +202,9 @@ def _skeleton(vertices: np.ndarray, weights: np.ndarray, joints: np.ndarray,
     """The rest skeleton: joints, fingertips on the skin, bone ends, flesh radii, bone axes."""
     from ..geometry.mesh_distance import mesh_distance
 
-    operator_faces = _topology()[1]
-    tips = mesh_distance(tips, vertices, operator_faces).closest
-    dirs = _bone_directions(joints, tips)
-    ends = joints + 0.0
-    for name, chain in FINGER_JOINTS.items():
-        ends[chain[0]], ends[chain[1]] = joints[chain[1]], joints[chain[2]]
-        ends[chain[2]] = tips[FINGER_NAMES.index(name)]
-    ends[0] = joints[FINGER_JOINTS["middle"][0]]
+    tips = mesh_distance(tips, vertices, _topology()[1]).closest
+    ends = _bone_ends(joints, tips)
+    dirs = _unit(ends - joints)
     up = np.array([0.0, 1.0, 0.0])
     dorsal = _unit(up - (dirs @ up)[:, None] * dirs)
     lateral = np.cross(dorsal, dirs)
