@@ -236,9 +236,13 @@ def _config(config_type, config, settings: dict):
     config = config_type() if config is None else config
     if not isinstance(config, config_type):
         raise TypeError(f"config must be a {config_type.__name__}, got {type(config).__name__}")
+    from .utils.config import renamed_field
+
     unknown = sorted(set(settings) - {field.name for field in dataclasses.fields(config_type)})
     if unknown:
-        raise TypeError(f"unknown {config_type.__name__} setting(s): {', '.join(unknown)}")
+        named = [name if renamed_field(config_type, name) is None
+                 else f"{name} (now {renamed_field(config_type, name)})" for name in unknown]
+        raise TypeError(f"unknown {config_type.__name__} setting(s): {', '.join(named)}")
     return dataclasses.replace(config, **settings) if settings else config
 
 
@@ -282,6 +286,7 @@ def fit_points(
     """
     import numpy as np
 
+    from .fitting.points.analysis import analyse_scan
     from .fitting.points.config import FitPointsConfig
     from .fitting.points.fit import fit_points as fit_cloud
     from .fitting.points.io import choose_point_model, prepare_point_cloud, read_point_cloud
@@ -299,12 +304,14 @@ def fit_points(
     view = viewpoint
     if viewpoint is not None and not isinstance(viewpoint, str):
         view = _numpy(viewpoint).astype(np.float64) * _metres_per(cloud.unit)
+    analysis = analyse_scan(cloud.points, viewpoint=view, support=support, others=others,
+                            config=config.analysis, seed=config.seed, tell_view=model is None)
     given = model
     if model is None:
-        given, _ = choose_point_model(cloud.points, view, config)
+        given, _ = choose_point_model(analysis)
     loaded = load_model(given, device)
-    fit = fit_cloud(loaded, cloud.points, cloud.normals, config, side=side, viewpoint=view,
-                    support=support, others=others, progress=progress)
+    fit = fit_cloud(loaded, cloud.points, cloud.normals, config, side=side, analysis=analysis,
+                    progress=progress)
     fit.params.model = _model_label(loaded, given)
     fit.params.extra["input"] = {"path": source, "unit": cloud.unit,
                                  "num_input_points": cloud.num_input, "notes": cloud.notes}

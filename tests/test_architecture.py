@@ -19,7 +19,7 @@ ALLOWED = {
     "geometry": {"utils"},
     "skeleton": {"utils", "geometry"},
     "handmodel": {"utils", "geometry", "skeleton"},
-    "data": {"utils", "geometry", "skeleton", "handmodel"},
+    "data": {"utils", "geometry", "skeleton", "handmodel", "render"},  # render.raycast
     "metrics": {"utils", "geometry", "data"},
     "fields": {"utils", "geometry", "skeleton"},
     "model": {"utils", "geometry", "skeleton", "fields", "render"},
@@ -34,8 +34,6 @@ ALLOWED = {
                    "model", "render", "inference", "training", "fitting"},
     "viewer": {"utils", "geometry", "skeleton", "handmodel", "data", "metrics", "fields",
                "model", "render", "inference", "training", "fitting", "evaluation"},
-    "bench": {"utils", "geometry", "skeleton", "handmodel", "data", "metrics", "fields",
-              "model", "render", "inference", "training", "fitting", "evaluation"},
     "cli": {"utils", "geometry", "skeleton", "handmodel", "data", "metrics", "fields", "model",
             "render", "inference", "training", "fitting", "evaluation", "viewer"},
 }
@@ -83,6 +81,20 @@ def test_imports_flow_one_way(path):
     wrong = [f"line {line}: {target}" for line, target in _imports(path)
              if _layer(target) not in (None, own) and _layer(target) not in ALLOWED[own]]
     assert not wrong, f"{own} may import only {sorted(ALLOWED[own])}; found " + "; ".join(wrong)
+
+
+def test_nothing_imports_the_benchmarks():
+    """``benchmarks/`` (at the repository's root) is not installed: no module of the package and
+    no test may import it."""
+    tests = Path(__file__).parent
+    wrong = []
+    for path in sorted(PACKAGE.rglob("*.py")) + sorted(tests.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = ([node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level
+                     else [a.name for a in node.names] if isinstance(node, ast.Import) else [])
+            wrong += [f"{path.name}:{node.lineno}" for name in names
+                      if name.split(".")[0] == "benchmarks"]
+    assert not wrong, "imports of benchmarks: " + ", ".join(wrong)
 
 
 MAX_FILE_LINES = 650

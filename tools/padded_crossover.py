@@ -1,10 +1,10 @@
 """Where padding the per-bone MLPs stops paying on a device: the SDF MLP of
-``python -m lisa_hand.bench field``'s hand on its culled (point, bone) pairs, with
+``python -m benchmarks field``'s hand on its culled (point, bone) pairs, with
 :meth:`~lisa_hand.fields.mlp.StackedMLP.forward_grouped`'s loop and padded, without gradients and
 forward + backward, at growing sizes; then (GPU) the whole render benchmark at three values of
 ``GPU_PADDED_ROWS``.
 
-``python tools/padded_crossover.py [--device cuda]``
+``python -m tools.padded_crossover [--device cuda]`` (from the repository root)
 """
 
 import argparse
@@ -12,9 +12,9 @@ import argparse
 import torch
 
 import lisa_hand.fields.mlp as mlp_module
-from lisa_hand.bench._pairs import PairStrategies
-from lisa_hand.bench._timing import interleaved_best
-from lisa_hand.bench.field import _bench_hand
+from benchmarks._pairs import PairStrategies
+from benchmarks._timing import interleaved_best
+from benchmarks.field import _bench_hand
 from lisa_hand.fields import FieldConfig
 from lisa_hand.utils.device import resolve_device
 
@@ -51,7 +51,7 @@ def main() -> None:
         print(f"{rows:8d}: {forward['loop'] * 1e3:7.2f} / {forward['padded'] * 1e3:7.2f}"
               f" | {both['loop'] * 1e3:7.2f} / {both['padded'] * 1e3:7.2f}", flush=True)
     if device.type == "cuda":
-        from lisa_hand.bench.render import run_render_benchmark
+        from benchmarks.render import run_render_benchmark
 
         default, seconds = mlp_module.GPU_PADDED_ROWS, {}
         try:

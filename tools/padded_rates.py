@@ -2,11 +2,12 @@
 :meth:`~lisa_hand.fields.mlp.StackedMLP.forward_grouped`'s loop over the groups
 (``GPU_PADDED_ROWS = 0``) against its padded batched product (the default on a GPU).
 
-``python tools/padded_rates.py DATA [--device cuda] [--held-out CAM]``: DATA is a dataset in the
-``lisa synth`` layout (``python -m lisa_hand.bench train``'s, say). Both configurations of the
-training benchmark (reference and fast), each with both ways, interleaved: 3 rounds of 5 steps,
-best round's median. On a CPU the padded way is never taken by default (padding costs more than
-the launches it saves there); this script times it there too.
+``python -m tools.padded_rates DATA [--device cuda] [--held-out CAM]`` (from the repository
+root): DATA is a dataset in the ``lisa synth`` layout (``python -m benchmarks train``'s, say).
+Both configurations of the training benchmark (reference and fast), each with both ways,
+interleaved: 3 rounds of 5 steps, best round's median. On a CPU the padded way is never taken
+by default (padding costs more than the launches it saves there); this script times it there
+too.
 """
 
 import argparse
@@ -15,7 +16,7 @@ import tempfile
 from pathlib import Path
 
 import lisa_hand.fields.mlp as mlp_module
-from lisa_hand.bench.train import held_out_copy, prior_from_trained, step_runs
+from benchmarks.train import held_out_copy, prior_from_trained, step_runs
 from lisa_hand.geometry.cameras import load_cameras
 from lisa_hand.utils.device import resolve_device
 

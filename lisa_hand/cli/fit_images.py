@@ -19,7 +19,12 @@ from .options import (
     Units,
     ViewCalibrationOpt,
     image_fit_overrides,
+    set_option,
+    with_settings,
 )
+
+SetOpt = set_option("FitImagesConfig (lisa_hand/fitting/images/config.py)",
+                    "--set keypoint_iters=1000 --set code_lr=0.02 --set render.num_samples=32")
 
 
 def fit_images(
@@ -61,6 +66,7 @@ def fit_images(
         "--psnr/--no-psnr", help="Re-render the input views for the PSNR in metrics.json.")
     ] = True,
     progress: Annotated[bool, typer.Option(help="Show progress bars.")] = True,
+    settings: SetOpt = None,
 ) -> None:
     """Fit the LISA hand to the calibrated views of DIR: the pose from the 2D keypoints and
     masks, then pose, shape and colour with volume rendering; write OUT/params.json,
@@ -77,7 +83,7 @@ def fit_images(
                                     guard=guard, keypoint_iters=keypoint_iters,
                                     color_iters=color_iters, rays=rays,
                                     view_calibration=view_calibration)
-    config = FitImagesConfig(**overrides)
+    config = with_settings(FitImagesConfig(**overrides), settings)
     report = fit_image_folder(frame, out, views=names, model_path=model, gt_path=gt,
                               units=units.value, resolution=res, config=config,
                               side=side.value, device=device, psnr=psnr, progress=progress,

@@ -17,7 +17,14 @@ from .options import (
     ThreadsOpt,
     ViewCalibrationOpt,
     image_fit_overrides,
+    set_option,
+    with_settings,
 )
+
+SetOpt = set_option("FitPhotoConfig (lisa_hand/fitting/photo/config.py; the image fit's "
+                    "FitImagesConfig under fit.)",
+                    "--set fit.keypoint_iters=600 --set fit.code_lr=0.02 "
+                    "--set view_max_side=480")
 
 
 def fit_photo(
@@ -76,6 +83,7 @@ def fit_photo(
     view_calibration: ViewCalibrationOpt = True,
     seed: Annotated[int, typer.Option(help="Seed of the restarts and of the rays.")] = 0,
     progress: Annotated[bool, typer.Option(help="Show progress bars.")] = True,
+    settings: SetOpt = None,
 ) -> None:
     """Fit the LISA hand to photos: detect the 21 keypoints (MediaPipe: pip install -e
     '.[photo]'; or give them with --keypoints), choose the camera (--camera, --focal-px,
@@ -88,7 +96,8 @@ def fit_photo(
                                     guard=guard, keypoint_iters=keypoint_iters,
                                     color_iters=color_iters, rays=rays,
                                     view_calibration=view_calibration)
-    config = FitPhotoConfig(fit=photo_fit_defaults(**overrides), mesh_resolution=res)
+    config = with_settings(FitPhotoConfig(fit=photo_fit_defaults(**overrides),
+                                          mesh_resolution=res), settings)
     reports = fit_photo_folder(
         photos, out, side=side.value, camera_json=camera or None, focal_px=focal_px,
         fov_deg=fov, keypoints_json=keypoints or None, mask_path=mask or None, hand=hand,

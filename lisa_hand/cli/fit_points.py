@@ -7,7 +7,10 @@ from typing import Annotated
 
 import typer
 
-from .options import AutoSide, DeviceOpt, PointModelOpt, Units
+from .options import AutoSide, DeviceOpt, PointModelOpt, Units, set_option, with_settings
+
+SetOpt = set_option("FitPointsConfig (lisa_hand/fitting/points/config.py)",
+                    "--set field_iters=300 --set shape_weight=3e-5 --set prior_pose=flat")
 
 TriesOpt = Annotated[int, typer.Option(
     "--tries", min=1,
@@ -127,6 +130,7 @@ def fit_points(
     rgb: ColourOpt = None,
     colours: ColoursOpt = "auto",
     progress: Annotated[bool, typer.Option(help="Show a progress bar.")] = True,
+    settings: SetOpt = None,
 ) -> None:
     """Fit the LISA hand to the point cloud POINTS (any position and orientation, partial or
     full, with noise and outliers; a mesh file; a depth image with --camera) and write
@@ -139,15 +143,15 @@ def fit_points(
     if iterations is not None:
         overrides["field_iters"] = iterations
     if restarts is not None:
-        overrides["num_restarts"] = restarts
-    config = FitPointsConfig(**overrides)
+        overrides["restarts"] = restarts
+    config = with_settings(FitPointsConfig(**overrides), settings)
     view, colour_mode = _viewpoint(viewpoint), _auto("--colours", colours) or "none"
     support_mode, others_mode = _auto("--support", support), _auto("--others", others)
     refine_config = None
     if refine:
         from ..fitting.points.refine import RefineConfig
 
-        refine_config = RefineConfig(seed=seed, **({} if refine_iters is None
+        refine_config = RefineConfig(seed=config.seed, **({} if refine_iters is None
                                                    else {"iters": refine_iters}))
     depth, side = _depth_frame(points, camera, depth_scale, mask, rgb, side)
     count = 1 if hand is not None else count_hands(points, units.value, config, depth,

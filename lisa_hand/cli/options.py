@@ -82,6 +82,25 @@ def image_fit_overrides(*, seed: int, threads: int, shape_fit: ShapeFit, guard: 
     return overrides
 
 
+def set_option(config: str, examples: str):
+    """The repeatable ``--set KEY=VALUE`` option of a fit verb, whose config is ``config`` (a
+    class name) and whose help shows ``examples`` (read by :func:`with_settings`)."""
+    return Annotated[list[str] | None, typer.Option(
+        "--set", metavar="KEY=VALUE",
+        help=f"Set any field of {config}, e.g. {examples} (repeatable; applied after the other "
+             "options; keys as in params.json's extra.config, nested ones with dots). A bad "
+             "key or value is an error naming it.")]
+
+
+def with_settings(config, settings: list[str] | None):
+    """``config`` with the ``--set KEY=VALUE`` settings applied
+    (:func:`lisa_hand.utils.config.apply_overrides`: a bad key or value is a ValueError naming
+    it, which the command prints in one line)."""
+    from ..utils.config import apply_overrides
+
+    return apply_overrides(config, list(settings or []))
+
+
 FitModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model: exported file, run folder or checkpoint, or a shipped "
                     "model's name: 'default' (LISA-full, hand model v1), 'full_8k' (the same "

@@ -4,7 +4,7 @@ Two ways to find the first surface point along each camera ray, with the same ou
 
 * :func:`render_views` casts the rays against a triangle mesh with Embree (through
   point-cloud-utils' ``RayMeshIntersector``, wrapped by
-  :class:`~lisa_hand.data.raycast.MeshRayCaster`) and shades with smooth normals (vertex normals
+  :class:`~lisa_hand.render.raycast.MeshRayCaster`) and shades with smooth normals (vertex normals
   interpolated with the hit's barycentric coordinates);
 * :func:`sphere_trace_views` sphere traces a signed distance callback on the rays that hit a
   bounding sphere (the package's one tracer, :func:`~lisa_hand.geometry.tracing.sphere_trace`),
@@ -48,8 +48,8 @@ from ..geometry.cameras import Camera, pixel_rays, project_points
 from ..geometry.fields import SdfFn
 from ..geometry.rays import ray_sphere_bounds
 from ..geometry.tracing import sdf_normals, sphere_trace
+from ..render.raycast import MeshRayCaster
 from .arrays import to_numpy
-from .raycast import MeshRayCaster
 from .shading import (
     GainBias,
     GainBiasConfig,

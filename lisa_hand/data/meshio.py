@@ -8,6 +8,10 @@ trimesh and Open3D write for triangle meshes. OBJ carries vertex colours as ``v 
 (floats in [0, 1]); GLB goes through trimesh (vertex colours as ``COLOR_0``). Neither stores
 skinning weights: saving a mesh with weights to them warns and drops the weights.
 
+The vertex tables alone, as stored (float64, no faces needed: point clouds saved as PLY or OBJ),
+come from :func:`read_ply_vertices` and :func:`read_obj_vertices` (with an OBJ's ``vn`` normals);
+:mod:`lisa_hand.data.pointio` reads point-cloud files through them.
+
 Every write is atomic (:func:`lisa_hand.utils.io.atomic_path`): an exception leaves the previous
 file, or none, never a partial one.
 """
@@ -17,6 +21,7 @@ from __future__ import annotations
 import os
 import re
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +29,8 @@ import numpy as np
 from ..geometry.meshing import Mesh, colors_to_uint8
 from ..utils.io import atomic_path, require_file
 
-__all__ = ["save_mesh", "load_mesh", "read_ply_vertices", "MESH_SUFFIXES"]
+__all__ = ["save_mesh", "load_mesh", "read_ply_vertices", "read_obj_vertices", "ObjVertices",
+           "MESH_SUFFIXES"]
 
 MESH_SUFFIXES = (".ply", ".obj", ".glb")
 """File extensions that :func:`save_mesh` and :func:`load_mesh` understand."""
@@ -335,27 +341,67 @@ def _write_obj(path: Path, mesh: Mesh) -> None:
         np.savetxt(handle, mesh.faces + 1, fmt="f %d %d %d")
 
 
-def _read_obj(path: Path) -> Mesh:
-    lines = path.read_text(encoding="utf-8").splitlines()
+@dataclass
+class ObjVertices:
+    """The vertices of an OBJ file as stored (:func:`read_obj_vertices`). V vertices."""
+
+    positions: np.ndarray
+    """[V, 3] float64, the first three numbers of each ``v`` line (V may be 0)."""
+    colors: np.ndarray | None
+    """[V, 3] float64 as stored (``v x y z r g b``: floats in [0, 1], or 0-255), when every
+    ``v`` line has six numbers; else None."""
+    normals: np.ndarray | None
+    """[V, 3] float64, the ``vn`` lines when there is one per vertex (point-cloud exports; a
+    mesh's ``vn`` lines belong to its face corners); else None."""
+
+
+def read_obj_vertices(path: str | os.PathLike) -> ObjVertices:
+    """The ``v`` (and ``vn``) lines of an OBJ file, faces not needed (a point cloud saved as OBJ
+    is read as well). Raises FileNotFoundError, IsADirectoryError, or ValueError naming the file
+    (a ``v`` line with fewer than 3 numbers, text where a number belongs)."""
+    path = require_file(path)
+    try:
+        return _obj_vertices(path, path.read_text(encoding="utf-8").splitlines(), normals=True)
+    except (ValueError, UnicodeDecodeError) as exc:
+        message = str(exc)
+        if message.startswith(str(path)):
+            raise
+        raise ValueError(f"{path}: not a valid OBJ file ({message})") from None
+
+
+def _obj_vertices(path: Path, lines: list[str], normals: bool = False) -> ObjVertices:
+    """The ``v`` lines (and with ``normals`` the ``vn`` lines) of an OBJ file's ``lines``."""
     vertex_rows = [line.split()[1:] for line in lines if line.startswith("v ")]
-    if not vertex_rows:
-        raise ValueError(f"{path}: OBJ has no vertices")
     widths = {len(row) for row in vertex_rows}
-    if min(widths) < 3:
+    if vertex_rows and min(widths) < 3:
         raise ValueError(f"{path}: OBJ vertex line with fewer than 3 coordinates")
     width = 6 if widths == {6} else 3
-    if len(widths) == 1:
+    if not vertex_rows:
+        table = np.zeros((0, 3))
+    elif len(widths) == 1:
         table = np.array([word for row in vertex_rows for word in row], dtype=np.float64)
         table = table.reshape(len(vertex_rows), -1)[:, :width]
     else:
         table = np.array([row[:width] for row in vertex_rows], dtype=np.float64)
+    normal_rows = [line.split()[1:4] for line in lines if normals and line.startswith("vn ")]
+    per_vertex = (normal_rows and len(normal_rows) == len(vertex_rows)
+                  and all(len(row) == 3 for row in normal_rows))
+    return ObjVertices(positions=table[:, :3], colors=table[:, 3:6] if width == 6 else None,
+                       normals=np.array(normal_rows, dtype=np.float64) if per_vertex else None)
+
+
+def _read_obj(path: Path) -> Mesh:
+    lines = path.read_text(encoding="utf-8").splitlines()
+    table = _obj_vertices(path, lines)
+    if len(table.positions) == 0:
+        raise ValueError(f"{path}: OBJ has no vertices")
     colors = None
-    if width == 6:
-        rgb = table[:, 3:6]
+    if table.colors is not None:
+        rgb = table.colors
         colors = rgb.round().astype(np.uint8) if rgb.max() > 1.0 else colors_to_uint8(rgb)
     return Mesh(
-        vertices=table[:, :3].astype(np.float32),
-        faces=_obj_faces(path, lines, len(vertex_rows)),
+        vertices=table.positions.astype(np.float32),
+        faces=_obj_faces(path, lines, len(table.positions)),
         colors=colors,
     )
 

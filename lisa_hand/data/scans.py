@@ -31,8 +31,8 @@ import torch
 from ..geometry.fields import SdfFn, call_sdf
 from ..geometry.mesh_distance import mesh_distance
 from ..handmodel.hand import SurfaceSamples
+from ..render.raycast import MeshRayCaster, check_mesh, vertex_normals
 from .arrays import to_numpy
-from .raycast import MeshRayCaster, check_mesh, vertex_normals
 
 __all__ = [
     "ScanConfig",

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from ..fitting.optim import adam, lr_schedule
 from ..fitting.priors import PRIOR_POSES, finger_pose_prior, joint_limit_excess
 from ..fitting.robust import robust_loss
 from ..geometry.meshing import sample_triangles
@@ -71,13 +72,13 @@ class TemplateFitConfig:
     """Scale of the Geman-McClure loss, millimetres."""
     coverage_weight: float = 0.5
     """Weight of the template-to-cloud term."""
-    lr_rotation: float = 0.03
+    rotation_lr: float = 0.03
     """Adam step of the global rotation (axis-angle), radians."""
-    lr_translation: float = 0.003
+    translation_lr: float = 0.003
     """Adam step of the translation, metres."""
-    lr_pose: float = 0.03
+    pose_lr: float = 0.03
     """Adam step of the finger pose (axis-angle), radians."""
-    lr_betas: float = 0.05
+    betas_lr: float = 0.05
     """Adam step of the shape coefficients."""
     final_lr_fraction: float = 0.1
     """Learning rates decay exponentially to this fraction of their start."""
@@ -209,16 +210,14 @@ def _initial_candidates(template: Any, dense: torch.Tensor, config: TemplateFitC
 def _optimise(energy: _TemplateEnergy, unknowns: dict[str, torch.Tensor],
               rates: dict[str, float], iterations: int, cloud: torch.Tensor, cloud_count: int,
               surface_count: int, generator: torch.Generator) -> None:
-    """Adam (exponential decay) on the unknowns named in ``rates``, in place; every iteration
-    on ``cloud_count`` random cloud points (with replacement) and ``surface_count`` surface
-    points."""
+    """Adam (:func:`lisa_hand.fitting.optim.lr_schedule`) on the unknowns named in ``rates``,
+    in place; every iteration on ``cloud_count`` random cloud points (with replacement) and
+    ``surface_count`` surface points."""
     names = list(rates)
     for name in names:
         unknowns[name].requires_grad_(True)
-    optimizer = torch.optim.Adam([{"params": [unknowns[name]], "lr": rates[name]}
-                                  for name in names])
-    gamma = energy.config.final_lr_fraction ** (1.0 / max(iterations, 1))
-    schedule = torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma)
+    optimizer = adam([(unknowns[name], rates[name]) for name in names])
+    schedule = lr_schedule(optimizer, iterations, energy.config.final_lr_fraction)
     for _ in range(iterations):
         pick = torch.randint(0, cloud.shape[0], (cloud_count,), generator=generator)
         optimizer.zero_grad(set_to_none=True)
@@ -267,17 +266,17 @@ def fit_template_points(
     unknowns = _initial_candidates(template, dense, config)
     pick = torch.randperm(cloud.shape[0], generator=generator)[: 2 * config.cloud_points]
     evaluation = cloud[pick]
-    _optimise(energy, unknowns, {"orient": config.lr_rotation,
-                                 "translation": config.lr_translation},
+    _optimise(energy, unknowns, {"orient": config.rotation_lr,
+                                 "translation": config.translation_lr},
               config.rigid_iters, cloud, config.rigid_cloud_points, config.rigid_surface_points,
               generator)
     with torch.no_grad():
         scores = energy(**unknowns, cloud_sample=evaluation, count=config.rigid_surface_points)
     keep = scores.argsort()[: config.keep]
     unknowns = {name: value[keep].clone() for name, value in unknowns.items()}
-    _optimise(energy, unknowns, {"orient": config.lr_rotation, "fingers": config.lr_pose,
-                                 "betas": config.lr_betas,
-                                 "translation": config.lr_translation},
+    _optimise(energy, unknowns, {"orient": config.rotation_lr, "fingers": config.pose_lr,
+                                 "betas": config.betas_lr,
+                                 "translation": config.translation_lr},
               config.full_iters, cloud, config.cloud_points, config.surface_points, generator)
     with torch.no_grad():
         scores = energy(**unknowns, cloud_sample=evaluation, count=config.surface_points)

@@ -229,7 +229,7 @@ class StackedMLP(nn.Module):
         On a CPU, a short Python loop over the groups, each group in row chunks through all
         layers: one padded bmm over the stacked weights pads every bone to the largest bone's
         count (the palm's), which multiplies the work, and ``torch.nn.functional.grouped_mm``
-        is slower and its backward fails on expanded gradients (``python -m lisa_hand.bench
+        is slower and its backward fails on expanded gradients (``python -m benchmarks
         field`` compares them). The loop also supports double backward (Eikonal loss). On a GPU
         (launch-bound) the padded bmm wins up to :data:`GPU_PADDED_ROWS` rows."""
         per_frame, sizes = self._check_grouped(points, group_sizes, first_bias, bias_per_row)

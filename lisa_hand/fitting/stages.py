@@ -1,27 +1,27 @@
-"""What every fitter's stages share: the diagnostics each stage returns beside its hand
-(:class:`StageReport`, with its per-iteration ``history``), the learning-rate decay, the
+"""What every fitter's stages share: one signature, :data:`Stage` (``stage(state, fit) ->
+(state, report)``), run in the order a fitter's config declares (:func:`run_stages`); the
+diagnostics each stage returns (:class:`StageReport`, with its per-iteration ``history``); the
 progress bar and the mesh template on the fit's device.
 
-Every stage takes and returns :class:`lisa_hand.skeleton.params.HandParams` (right hands,
-float32 CPU tensors); its optimised unknowns live inside the stage. The stages: the point fit's
-global-pose search ('align', :mod:`lisa_hand.fitting.points.global_pose`), articulated proxy
-('pose',
-:mod:`lisa_hand.fitting.points.proxy`) and surface stage ('field',
-:mod:`lisa_hand.fitting.points.surface_stage`); the image fit's keypoint stage ('keypoints',
-:mod:`lisa_hand.fitting.images.keypoint_stage`) and colour stage ('color',
-:mod:`lisa_hand.fitting.images.color_stage`).
+A fitter's state is an immutable dataclass of what one stage hands the next (its hands are
+:class:`lisa_hand.skeleton.params.HandParams`: right hands, float32 CPU tensors; the optimised
+unknowns live inside the stage); ``fit`` holds what stays fixed through a fit (the model, the
+settings). The point fit's stages: :mod:`lisa_hand.fitting.points.stages`; the image fit's:
+:mod:`lisa_hand.fitting.images.fit`.
 """
 
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import torch
 
-__all__ = ["HistoryRecord", "StageReport", "history_columns", "decay_schedule", "progress_bar",
-           "template_on"]
+__all__ = ["HistoryRecord", "StageReport", "Stage", "run_stages", "history_columns",
+           "progress_bar", "template_on"]
 
 HistoryRecord = dict[str, float | str]
 """One iteration of a stage: ``"stage"`` (str, the stage's name), ``"iteration"`` (int, within
@@ -73,6 +73,29 @@ class StageReport:
     notes: list[str] = field(default_factory=list)
 
 
+State = TypeVar("State")
+Fit = TypeVar("Fit")
+
+Stage = Callable[[State, Fit], "tuple[State, StageReport]"]
+"""A stage: (the state it starts from, what stays fixed through the fit) -> (the state it
+leaves, its :class:`StageReport`)."""
+
+
+def run_stages(stages: Mapping[str, Stage], order: tuple[str, ...], state: State, fit: Fit,
+               lap: Callable[[str, float], Any] | None = None
+               ) -> tuple[State, dict[str, StageReport]]:
+    """The stages ``order`` names (keys of ``stages``), in that order, each given the state
+    the one before left -> (the last state, {name: its report}). lap: called with each
+    stage's name and its start (``time.perf_counter()``) when it ends (a fit's timing)."""
+    reports: dict[str, StageReport] = {}
+    for name in order:
+        since = time.perf_counter()
+        state, reports[name] = stages[name](state, fit)
+        if lap is not None:
+            lap(name, since)
+    return state, reports
+
+
 def history_columns(history: list[HistoryRecord], stage: str | None = None
                     ) -> dict[str, list[float]]:
     """The numeric values of ``history`` (of the records of ``stage`` only, when given) as
@@ -86,14 +109,6 @@ def history_columns(history: list[HistoryRecord], stage: str | None = None
             if key != "stage":
                 columns.setdefault(key, []).append(float(value))
     return columns
-
-
-def decay_schedule(optimizer: torch.optim.Optimizer, iterations: int,
-                   final_fraction: float) -> torch.optim.lr_scheduler.ExponentialLR:
-    """Exponential decay of every learning rate to ``final_fraction`` over ``iterations``
-    steps."""
-    gamma = final_fraction ** (1.0 / max(iterations, 1))
-    return torch.optim.lr_scheduler.ExponentialLR(optimizer, gamma)
 
 
 def progress_bar(enabled: bool, total: int, desc: str) -> Any:

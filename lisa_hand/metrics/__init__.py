@@ -1,11 +1,12 @@
-"""Evaluation metrics: mesh distances (LISA, Table 1; :mod:`.mesh`) and image metrics (PSNR,
-SSIM, LPIPS; :mod:`.image`).
+"""Evaluation metrics: mesh distances (LISA, Table 1; :mod:`.mesh`), image metrics (PSNR,
+SSIM, LPIPS; :mod:`.image`) and a fitted mesh's colour errors (:mod:`.colours`).
 
 ``lisa metrics RECON GT`` prints :func:`compare_mesh_files` for two meshes (or point sets) and
 :func:`image_metrics` for two images. The length unit of a file is decided by
 :mod:`lisa_hand.data.units`, beside the readers it serves.
 """
 
+from .colours import colour_errors
 from .image import (
     ImageMetrics,
     image_metrics,
@@ -40,4 +41,5 @@ __all__ = [
     "mpjpe",
     "pa_mpjpe",
     "procrustes_align",
+    "colour_errors",
 ]

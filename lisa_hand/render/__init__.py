@@ -5,6 +5,8 @@ here); this package never imports the model. Pieces: the Laplace density (:mod:`
 sample placement (:mod:`.samplers`), the compositing quadrature (:mod:`.composite`), the chunked
 ray renderer plus colour calibration (:mod:`.renderer`), empty-space skipping (:mod:`.occupancy`),
 whole images (:mod:`.image`), saving them (:mod:`.saving`) and many views (:mod:`.turntable`).
+Meshes are ray cast by :mod:`.raycast` (not re-exported here; the ground-truth images and scans
+of :mod:`lisa_hand.data` use it).
 Ray bounds, the sphere tracer and SDF normals live one layer down, in
 :mod:`lisa_hand.geometry.rays` and :mod:`lisa_hand.geometry.tracing` (the data generator uses them
 too).

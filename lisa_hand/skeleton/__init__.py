@@ -19,6 +19,7 @@ from .mano import (
     mano_pose_features,
 )
 from .tree import (
+    AVERAGE_REST_JOINTS,
     FINGER_JOINTS,
     FINGER_NAMES,
     JOINT_NAMES,
@@ -47,6 +48,7 @@ __all__ = [
     "mano_forward",
     "mano_full_pose",
     "mano_pose_features",
+    "AVERAGE_REST_JOINTS",
     "FINGER_JOINTS",
     "FINGER_NAMES",
     "JOINT_NAMES",

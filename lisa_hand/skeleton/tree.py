@@ -39,6 +39,7 @@ __all__ = [
     "KEYPOINT_NAMES",
     "KEYPOINT_SOURCES",
     "MANO_FINGERTIP_VERTEX_IDS",
+    "AVERAGE_REST_JOINTS",
     "joints_to_keypoints",
 ]
 
@@ -89,6 +90,20 @@ KEYPOINT_SOURCES = (
 
 # Vertex indices of MANO's fingertips (thumb, index, middle, ring, pinky), as used by smplx.
 MANO_FINGERTIP_VERTEX_IDS = (744, 320, 443, 554, 671)
+
+AVERAGE_REST_JOINTS = (
+    (0.0, 0.0, 0.0),
+    (-0.0895, -0.0015, 0.021), (-0.1315, -0.0015, 0.0248), (-0.1555, -0.0015, 0.027),
+    (-0.0925, 0.0, -0.002), (-0.1378, 0.0, -0.0013), (-0.1646, 0.0, -0.0009),
+    (-0.0775, -0.005, -0.039), (-0.1099, -0.005, -0.0446), (-0.1298, -0.005, -0.048),
+    (-0.0885, -0.002, -0.0215), (-0.1312, -0.002, -0.0245), (-0.1575, -0.002, -0.0263),
+    (-0.026, -0.012, 0.02), (-0.0546, -0.0238, 0.0451), (-0.0793, -0.0285, 0.0606),
+)  # fmt: skip
+"""A fixed rest skeleton of an average adult right hand: [16, 3] metres in :data:`JOINT_NAMES`
+order (wrist, index 1-3, middle 1-3, pinky 1-3, ring 1-3, thumb 1-3), in MANO's rest convention
+(fingers along -x, palm facing -y, thumb on +z). A plausible skeleton that needs no template or
+trained model: for a model made from scratch, for tests and for the benchmarks' hand
+(``torch.tensor(AVERAGE_REST_JOINTS)`` -> [16, 3] float32)."""
 
 
 def joints_to_keypoints(joints: torch.Tensor, fingertips: torch.Tensor) -> torch.Tensor:

@@ -217,7 +217,7 @@ class ImageModel(nn.Module):
             without the gradient pass they do not need; False renders frame after frame (one
             stratified generator each, seeded by ``batch.seeds``) and runs the skinning points
             through the Eikonal gradient pass: the reference step of
-            ``python -m lisa_hand.bench train``. Both compute the same losses; the random jitter
+            ``python -m benchmarks train``. Both compute the same losses; the random jitter
             of the samples differs.
         -> {"col", "eik", "w", "surf", "reg", "mask"} scalar tensors.
         """

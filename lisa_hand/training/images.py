@@ -86,7 +86,7 @@ def _default_image_render() -> RenderConfig:
     # 12 samples in the band [-4 beta, +8 beta] around the traced surface (one per beta) and
     # 4 uniform ones; 12 marching steps, full steps after entering the band's shell and the
     # surface reached within 1 beta: full steps let most rays find their band within these few
-    # steps, and fewer steps start to cost held-out PSNR. ``python -m lisa_hand.bench train``
+    # steps, and fewer steps start to cost held-out PSNR. ``python -m benchmarks train``
     # compares this with a denser reference (48 + 16 samples in [-8 beta, +16 beta], 64 steps).
     return RenderConfig(sampler="sphere_traced", num_samples=12, num_samples_extra=4,
                         stratified=True, sphere_num_steps=12, sphere_band_outside=4.0,
@@ -129,7 +129,7 @@ class ImageTrainConfig:
     batched_step: bool = True
     """Render every frame of a step in one pass (one sphere trace and one field evaluation for
     all of them, grouped by frame) and skip the gradient pass for the skinning points. False:
-    frame after frame (``python -m lisa_hand.bench train``'s reference step). The same losses
+    frame after frame (``python -m benchmarks train``'s reference step). The same losses
     either way."""
     stream: bool = False
     """Read frames while training runs (:mod:`lisa_hand.training.streaming`: a DataLoader with
@@ -145,7 +145,7 @@ class ImageTrainConfig:
     eikonal_ray_points: int = 64
     """Per frame: samples of the rendered rays where L_Eik is evaluated (64 + 64 Eikonal and 128
     skinning points do as well in PSNR and surface error as twice as many, at less cost:
-    ``python -m lisa_hand.bench train`` compares them)."""
+    ``python -m benchmarks train`` compares them)."""
     eikonal_uniform_points: int = 64
     """Per frame: uniform points (in the box around the bones' regions) for L_Eik."""
     skinning_points: int = 128

@@ -12,6 +12,10 @@ all of them the same behaviour without a registry or metaprogramming:
   ``tuple``/``list``, ``X | None``, nested dataclasses, enums);
 - ``save_config(path, cfg)`` / ``load_config(cls, path)``: atomic JSON.
 
+A config class that renamed a field lists it in a class attribute ``RENAMED: ClassVar[dict[str,
+str]] = {"old_name": "new_name"}``: the old key is refused (by ``config_from_dict`` and
+``apply_overrides``) in one line naming the new one (``renamed_field``).
+
 A config may validate itself in ``__post_init__`` and/or a ``validate()`` method that raises
 ``ValueError`` naming the field; both helpers run them and prefix the message with the dotted
 path of the config (``training: lr must be > 0, got -1.0``).
@@ -38,6 +42,7 @@ __all__ = [
     "config_from_dict",
     "apply_overrides",
     "parse_override",
+    "renamed_field",
     "save_config",
     "load_config",
 ]
@@ -118,9 +123,32 @@ def _type_hints(cls: type) -> dict[str, Any]:
         raise TypeError(f"cannot resolve the field types of {cls.__name__}: {exc}") from exc
 
 
-def _unknown_key_message(key: str, name: str, known: Iterable[str]) -> str:
-    known = list(known)
-    close = difflib.get_close_matches(name, known, n=1)
+def renamed_field(cls: type, name: str) -> str | None:
+    """The field that ``cls``'s former field ``name`` is now (dotted for a nested config's
+    field), or None: a config class lists its renamed fields in a class attribute
+    ``RENAMED: ClassVar[dict[str, str]] = {"old_name": "new_name"}``."""
+    renamed = getattr(cls, "RENAMED", None)
+    if isinstance(renamed, Mapping):
+        new = renamed.get(name)
+        if isinstance(new, str):
+            return new
+    return None
+
+
+def _unknown_key_message(key: str, name: str, cls: type) -> str:
+    """One line for the unknown key ``key`` (its last part ``name``) of the config ``cls``: the
+    new name of a renamed field, else the nearest field (or a nested config's field of that
+    name) and the known ones."""
+    stem = key[: len(key) - len(name)]
+    new = renamed_field(cls, name)
+    if new is not None:
+        return f"unknown key {key!r}: it was renamed {stem + new!r}"
+    known = [f.name for f in dataclasses.fields(cls) if f.init]
+    hints = _type_hints(cls)
+    nested = [f"{stem}{f}.{name}" for f in known
+              if isinstance(hints.get(f), type) and dataclasses.is_dataclass(hints[f])
+              and name in {g.name for g in dataclasses.fields(hints[f]) if g.init}]
+    close = nested[:1] or difflib.get_close_matches(name, known, n=1)
     hint = f"; did you mean {close[0]!r}?" if close else ""
     return f"unknown key {key!r}{hint} (known keys here: {', '.join(known)})"
 
@@ -133,7 +161,7 @@ def _build(cls: type[T], data: Any, prefix: str) -> T:
     hints = _type_hints(cls)
     for name in data:
         if name not in fields:
-            raise _ConfigError(_unknown_key_message(_key(prefix, str(name)), str(name), fields))
+            raise _ConfigError(_unknown_key_message(_key(prefix, str(name)), str(name), cls))
     kwargs = {}
     for name, field in fields.items():
         key = _key(prefix, name)
@@ -403,7 +431,7 @@ def _apply(cfg: Any, tree: dict[str, Any], prefix: str) -> Any:
     for name, sub in tree.items():
         key = _key(prefix, name)
         if name not in fields:
-            raise _ConfigError(_unknown_key_message(key, name, fields))
+            raise _ConfigError(_unknown_key_message(key, name, cls))
         tp = hints[name]
         current = getattr(cfg, name)
         if isinstance(sub, tuple) and sub and sub[0] is _LEAF:

@@ -212,7 +212,7 @@ def _truncated_jpeg(files, tmp_path, monkeypatch):
 
 
 def _no_hand_found(files, tmp_path, monkeypatch):
-    from lisa_hand.fitting.photo import detect
+    from lisa_hand.data import detect
 
     monkeypatch.setattr(detect, "photo_extra_missing", lambda: None)
     monkeypatch.setattr(detect, "detect_hands", lambda image, max_hands=4: [])
@@ -220,7 +220,7 @@ def _no_hand_found(files, tmp_path, monkeypatch):
 
 
 def _photo_extra_missing(files, tmp_path, monkeypatch):
-    from lisa_hand.fitting.photo import detect
+    from lisa_hand.data import detect
 
     monkeypatch.setattr(detect, "photo_extra_missing", lambda: detect.PHOTO_EXTRA_HINT)
     return {"keypoints": None}, "pip install -e '.[photo]'; or give the 21 keypoints with " \

@@ -317,22 +317,22 @@ def test_the_default_model_follows_the_kind_of_scan(files):
     import trimesh
 
     from lisa_hand.data.scans import simulate_scan
-    from lisa_hand.fitting.points.config import FitPointsConfig
+    from lisa_hand.fitting.points.analysis import analyse_scan
     from lisa_hand.fitting.points.io import choose_point_model, default_point_model
 
+    def choose(points, viewpoint):
+        return choose_point_model(analyse_scan(points, viewpoint=viewpoint, tell_view=True))
+
     _, points = files
-    config = FitPointsConfig()
     for viewpoint in ("auto", None):
-        assert choose_point_model(points, viewpoint, config) == (
-            "geometry_mix", "the scan shows the hand all round")
-    assert choose_point_model(points, np.array([0.0, 0.0, 0.0]), config) == (
+        assert choose(points, viewpoint) == ("geometry_mix", "the scan shows the hand all round")
+    assert choose(points, np.array([0.0, 0.0, 0.0])) == (
         "geometry_v2", "a one-view scan, its sensor given")
     ball = trimesh.creation.icosphere(subdivisions=4, radius=0.04)
     seen = simulate_scan(np.asarray(ball.vertices) + [0.0, 0.0, 0.4], np.asarray(ball.faces),
                          ScanConfig(num_points=2000, partial=True), seed=0).points
     for viewpoint in ("auto", None):
-        assert choose_point_model(seen, viewpoint, config) == (
-            "geometry_v2", "the scan looks like one view")
+        assert choose(seen, viewpoint) == ("geometry_v2", "the scan looks like one view")
     assert default_point_model() == default_point_model(one_view=True) == "geometry_v2"
 
 
@@ -441,7 +441,7 @@ def _depth_camera_files(root):
     40 cm before the test hand (R = I) -> (depth [60, 80] metres, sensor [3] metres)."""
     import imageio.v3 as iio
 
-    from lisa_hand.data.raycast import MeshRayCaster
+    from lisa_hand.render.raycast import MeshRayCaster
 
     truth = load_mesh(root / "truth.ply")
     centre = np.asarray(truth.vertices, np.float64).mean(0)

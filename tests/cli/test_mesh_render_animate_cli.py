@@ -12,7 +12,6 @@ import torch
 import typer
 from typer.testing import CliRunner
 
-from lisa_hand.bench.field import BENCH_REST_JOINTS
 from lisa_hand.cli import animate, blend, main, mesh, render
 from lisa_hand.cli.options import parse_image_size, read_cameras
 from lisa_hand.data.meshio import load_mesh
@@ -20,6 +19,7 @@ from lisa_hand.fields import FieldConfig
 from lisa_hand.metrics import mesh_distances
 from lisa_hand.model.lisa import LisaModel
 from lisa_hand.model.trained import TrainedModel, export_trained
+from lisa_hand.skeleton import AVERAGE_REST_JOINTS
 from lisa_hand.skeleton.params import HandParams, read_params, write_params
 from lisa_hand.utils.threads import cpu_threads
 
@@ -27,7 +27,7 @@ VERBS = (mesh, render, animate, blend)
 TINY_FIELD = dict(sdf_hidden=32, sdf_depth=2, skinning_hidden=32, skinning_depth=1,
                   color_hidden=16, color_depth=1, pe_frequencies=4, shape_dim=8, color_dim=8,
                   palm_region_radius=0.07, finger_region_radius=0.035)
-REST = torch.tensor(BENCH_REST_JOINTS)
+REST = torch.tensor(AVERAGE_REST_JOINTS)
 PADDING = "0.08"  # metres: the untrained blob reaches 7 cm past the skeleton
 
 

@@ -10,9 +10,9 @@ import torch
 import trimesh
 
 from lisa_hand.data.images import project_keypoints, render_views, sphere_trace_views
-from lisa_hand.data.raycast import MeshRayCaster, vertex_normals
 from lisa_hand.data.shading import GainBias, GainBiasConfig, ShadingConfig
 from lisa_hand.geometry import Camera, intrinsics_from_fov, look_at, project_points
+from lisa_hand.render.raycast import MeshRayCaster
 
 RADIUS = 0.1
 WIDTH, HEIGHT = 64, 48
@@ -297,15 +297,6 @@ def test_sphere_tracing_on_cuda_matches_cpu():
     assert iou(cpu.mask, gpu.mask) > 0.99
     both = cpu.mask & gpu.mask
     assert np.abs(cpu.depth[both] - gpu.depth[both]).max() < 1e-4
-
-
-def test_vertex_normals_match_trimesh_and_the_sphere(sphere):
-    vertices, faces = sphere
-    normals = vertex_normals(vertices, faces)
-    np.testing.assert_allclose(normals, vertices / RADIUS, atol=3e-3)
-    capsule = trimesh.creation.capsule(height=0.1, radius=0.03)  # faces of very different shapes
-    np.testing.assert_allclose(vertex_normals(capsule.vertices, capsule.faces),
-                               capsule.vertex_normals, atol=1e-5)
 
 
 def test_project_keypoints():

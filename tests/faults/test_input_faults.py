@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 import torch
 
-from lisa_hand.bench.field import BENCH_REST_JOINTS
 from lisa_hand.cli.main import main
 from lisa_hand.evaluation.real_formats import SplitScores
 from lisa_hand.inference.sequences import MAX_POSES, read_pose_sequence
 from lisa_hand.model.trained import load_trained
+from lisa_hand.skeleton import AVERAGE_REST_JOINTS
 from lisa_hand.skeleton.params import HandParams, read_params, write_params
 from lisa_hand.utils.io import read_json
 
@@ -55,7 +55,7 @@ def hand_params(folder, name="params.json", **changes):
     """A valid params.json (the bench skeleton, 40 cm before the camera), changed in ``changes``
     (JSON values) -> its path."""
     params = HandParams(pose=torch.zeros(48), translation=torch.tensor([0.0, 0.0, 0.4]),
-                        rest_joints=torch.tensor(BENCH_REST_JOINTS), shape_code=torch.zeros(8))
+                        rest_joints=torch.tensor(AVERAGE_REST_JOINTS), shape_code=torch.zeros(8))
     path = write_params(folder / name, params)
     data = json.loads(path.read_text())
     data.update(changes)

@@ -17,7 +17,6 @@ import pytest
 import torch
 
 from lisa_hand.cli.main import error_line
-from lisa_hand.fitting import outputs
 from lisa_hand.fitting.outputs import (
     check_output_folder,
     lock_output_folder,
@@ -26,6 +25,7 @@ from lisa_hand.fitting.outputs import (
     unlock_output_folder,
     write_fit_outputs,
 )
+from lisa_hand.fitting.outputs import folder as outputs
 from lisa_hand.geometry.meshing import Mesh
 from lisa_hand.model.checkpoint import load_checkpoint
 from lisa_hand.skeleton.params import HandParams

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import torch
 
-from lisa_hand.bench.field import BENCH_REST_JOINTS
 from lisa_hand.fields import FieldConfig
+from lisa_hand.skeleton import AVERAGE_REST_JOINTS
 
 TINY = {
     "sdf_hidden": 16,
@@ -27,7 +27,7 @@ def tiny_config(**overrides) -> FieldConfig:
 
 def rest_joints(dtype: torch.dtype = torch.float64) -> torch.Tensor:
     """[16, 3] metres, an average adult right hand."""
-    return torch.tensor(BENCH_REST_JOINTS, dtype=dtype)
+    return torch.tensor(AVERAGE_REST_JOINTS, dtype=dtype)
 
 
 def frame_inputs(config: FieldConfig, batch: int, seed: int, dtype=torch.float64) -> dict:

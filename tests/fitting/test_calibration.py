@@ -90,7 +90,7 @@ def responded(tmp_path_factory):
 def test_fitted_responses_keep_the_colour_code(responded):
     scene, views = responded
     model, truth = scene["model"], scene["truth"]
-    config = FitImagesConfig(color_iters=60, num_rays=512, render=FAST_RENDER, latent_lr=0.05,
+    config = FitImagesConfig(color_iters=60, num_rays=512, render=FAST_RENDER, code_lr=0.05,
                              shape_fit="fixed", view_calibration_lr=0.1)
     template = load_float_template()
     with_calibration, report = fit_color(model, views, truth, config, template)

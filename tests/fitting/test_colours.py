@@ -206,7 +206,7 @@ def test_the_colour_code_is_fitted_to_the_scans_colours(side):
     colours = hand_field(model, truth).attributes(points, skin_weights=False)[0]
     before = hand_field(model, start).attributes(points, skin_weights=False)[0]
     code = fit_colour_code(model, start, points.numpy(), colours.numpy(), iters=200,
-                           latent_weight=0.0)
+                           code_weight=0.0)
     after = hand_field(model, dataclasses.replace(start, color_code=code)).attributes(
         points, skin_weights=False)[0]
     error_before = (before - colours).abs().mean()

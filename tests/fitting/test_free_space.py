@@ -246,7 +246,7 @@ def test_the_second_pass_weighs_the_unseen_fingers_of_the_hand_it_is_given(curle
     hand (not on the proxy stages' best candidate): the curled index of the truth is unseen,
     the straight hand's index is not."""
     from lisa_hand.fitting.points.config import FitPointsConfig
-    from lisa_hand.fitting.points.fit import second_finger_pass
+    from lisa_hand.fitting.points.stages import second_finger_pass
 
     # unseen_share 0.3: the curled index's knuckle shows (about 12% of it), the straight
     # index's back (about 40%); the proxy's random points move these by a few percent

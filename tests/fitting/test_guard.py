@@ -251,9 +251,9 @@ def wreck_start(scene):
 @pytest.mark.usefixtures("one_thread")
 def test_a_grown_colour_fit_is_shrunk_back(scene, wreck_start):
     model, views = code_sensitive_model(), scene["views"]
-    # A free shape code at a moderate rate grows the surface by ~21 %; a quarter of the change
+    # A free shape code at a moderate rate grows the surface by ~25 %; a quarter of the change
     # of pose and shape passes (the shrinking only meshes: no refit).
-    result = fit_images(model, views, FitImagesConfig(**FAST, shape_fit="free", latent_lr=0.03),
+    result = fit_images(model, views, FitImagesConfig(**FAST, shape_fit="free", code_lr=0.004),
                         start=wreck_start)
     attempts = result.guard_attempts
     assert list(attempts) == ["color", "shrink_0.5", "shrink_0.25"]
@@ -278,7 +278,7 @@ def test_a_wrecked_colour_fit_falls_back(scene, wreck_start):
     model, views, start = code_sensitive_model(), scene["views"], wreck_start
     # A free shape code at a high rate makes the surface vanish; shrinking does not save it
     # (guard_shrink=() skips it); the fallback fits pose and colour only, and passes.
-    wreck = FitImagesConfig(**FAST, shape_fit="free", latent_lr=0.3, guard_shrink=())
+    wreck = FitImagesConfig(**FAST, shape_fit="free", code_lr=0.3, guard_shrink=())
     result = fit_images(model, views, wreck, start=start)
     first = result.guard_attempts["color"]
     assert not first.passed and first.pieces == 0 and first.area_ratio == 0.0
@@ -296,7 +296,7 @@ def test_a_wrecked_colour_fit_falls_back(scene, wreck_start):
     assert surface_pieces(guard_mesh(model, result.params, 24))[1] > 0
     # No area change allowed at all: the fallback (its pose moved) fails too, and the start's
     # geometry is kept with the fallback's colour.
-    strict = fit_images(model, views, FitImagesConfig(**FAST, shape_fit="free", latent_lr=0.3,
+    strict = fit_images(model, views, FitImagesConfig(**FAST, shape_fit="free", code_lr=0.3,
                                                       max_area_change=0.0), start=start)
     assert list(strict.guard_attempts) == ["color", "shrink_0.5", "shrink_0.25", "fixed_shape"]
     assert strict.params.extra["guard"]["fallback"] == "start_geometry"

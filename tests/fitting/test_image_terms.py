@@ -11,13 +11,13 @@ import torch
 from lisa_hand.fitting.images.config import FitImagesConfig
 from lisa_hand.fitting.images.terms import (
     ViewData,
-    hand_priors,
     keypoint_l1,
     keypoint_px,
     sample_map,
 )
 from lisa_hand.fitting.images.views import ImageView
 from lisa_hand.fitting.priors import joint_limit_excess, prior_mean_fingers
+from lisa_hand.fitting.terms import HandTerms, hand_prior
 from lisa_hand.geometry.cameras import make_rig
 
 
@@ -54,7 +54,7 @@ def test_keypoint_losses_count_the_visible_keypoints_only():
 
 
 @pytest.mark.parametrize("prior_pose", ["relaxed", "flat"])
-def test_hand_priors_are_the_shared_prior_terms(prior_pose):
+def test_the_image_prior_is_the_shared_prior_terms(prior_pose):
     config = FitImagesConfig(prior_pose=prior_pose)
     mean = prior_mean_fingers(prior_pose)
     pose = torch.zeros(2, 48)
@@ -64,5 +64,6 @@ def test_hand_priors_are_the_shared_prior_terms(prior_pose):
     expected = (config.pose_weight * ((pose[:, 3:] - mean) ** 2).mean(-1)
                 + config.betas_weight * torch.tensor([0.0, 5.0])
                 + config.limit_weight * joint_limit_excess(pose))
-    assert torch.allclose(hand_priors(pose, betas, config, mean), expected)
+    got = hand_prior(config, mean)(HandTerms(pose=pose, betas=betas))
+    assert torch.allclose(got, expected)
     assert joint_limit_excess(pose)[1] > 1.0

@@ -8,7 +8,13 @@ import pytest
 
 from lisa_hand.data.scans import ScanConfig, simulate_scan
 from lisa_hand.fitting.points.fit import FitPointsConfig, fit_points
-from lisa_hand.fitting.points.others import HAND_REACH_M, find_others, nearest_part, split_hands
+from lisa_hand.fitting.points.others import (
+    HAND_REACH_M,
+    OthersConfig,
+    find_others,
+    nearest_part,
+    split_hands,
+)
 from tests.fitting.test_points import FAST, sdf_at, surface, tiny_model, true_hand
 
 
@@ -53,7 +59,7 @@ def test_near_or_small_pieces_stay(hand_scan):
     assert find_others(np.concatenate([points, near])) is None
     small = ball(centre + [0.2, 0.0, 0.0], 0.01, 100, seed=3)  # far, 3% of the hand's points
     assert find_others(np.concatenate([points, small])) is None
-    assert find_others(np.concatenate([points, small]), min_share=0.01).pieces == 1
+    assert find_others(np.concatenate([points, small]), OthersConfig(min_share=0.01)).pieces == 1
     # as many points as the hand, far: which is the hand is not clear, nothing left out
     twin = ball(centre + [0.2, 0.0, 0.0], 0.04, len(points), seed=5)
     unclear = find_others(np.concatenate([points, twin]))
@@ -66,9 +72,10 @@ def test_near_or_small_pieces_stay(hand_scan):
     behind = find_others(np.concatenate([points, wall]))
     assert behind.oversize == pytest.approx(np.sqrt(2.0), abs=0.02) and not behind.removed.any()
     assert behind.to_dict()["oversize_m"] == behind.oversize
-    assert find_others(np.concatenate([points, wall]), max_hand_m=2.0).removed[:len(points)].all()
+    roomy = find_others(np.concatenate([points, wall]), OthersConfig(max_hand_m=2.0))
+    assert roomy.removed[:len(points)].all()
     with pytest.raises(ValueError, match="link_m"):
-        find_others(points, link_m=0.0)
+        OthersConfig(link_m=0.0)
     with pytest.raises(ValueError, match=r"\[N, 3\]"):
         find_others(np.zeros((5, 2)))
 

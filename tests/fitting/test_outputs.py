@@ -146,3 +146,41 @@ def test_a_kill_during_the_write_keeps_the_previous_fit_and_the_next_fit_cleans_
     assert float(read_params(out / "params.json").translation[0]) == 1.0  # intact
     write_fit_outputs(out, hand(2.0), MESH)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fit"]
+
+
+def test_the_one_writer_writes_any_artefacts_in_their_folders(tmp_path):
+    """write_fit: artefacts in sub-folders, written in order, all or nothing; a fitter's own
+    rule of what a previous fit leaves; names are unique."""
+    import json
+
+    from lisa_hand.fitting.outputs import (
+        Artefact,
+        json_artefact,
+        mask_artefact,
+        text_artefact,
+        write_fit,
+    )
+
+    def photo_like(path):
+        return path.name in ("a.json", "note.html", "mask.png") or path.name == "hand0"
+
+    out = tmp_path / "fit"
+    artefacts = [json_artefact("a.json", {"x": float("nan")}),
+                 text_artefact("hand0/note.html", "<p>é</p>"),
+                 mask_artefact("hand0/mask.png", np.eye(4, dtype=bool))]
+    written = write_fit(out, artefacts, photo_like, "a.json and hand0/")
+    assert written == [out / "a.json", out / "hand0" / "note.html", out / "hand0" / "mask.png"]
+    assert json.loads((out / "a.json").read_text()) == {"x": None}
+    assert (out / "hand0" / "note.html").read_text(encoding="utf-8") == "<p>é</p>"
+
+    def broken(path):
+        raise RuntimeError("no picture")
+
+    with pytest.raises(RuntimeError, match="no picture"):
+        write_fit(out, [json_artefact("a.json", {"x": 2}), Artefact("hand0/mask.png", broken)],
+                  photo_like)
+    assert json.loads((out / "a.json").read_text()) == {"x": None}  # the folder as it was
+    with pytest.raises(ValueError, match="distinct names"):
+        write_fit(out, [json_artefact("a.json", {}), json_artefact("a.json", {})], photo_like)
+    with pytest.raises(FileExistsError, match="hand0"):
+        write_fit(out, [json_artefact("a.json", {})])  # the default rule: FIT_FILES only

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from lisa_hand.data.scans import ScanConfig
-from lisa_hand.fitting.points.candidates import CandidateBatch, point_prior
+from lisa_hand.fitting.points.candidates import CandidateBatch
 from lisa_hand.fitting.points.cloud import point_spacing, target_cloud
 from lisa_hand.fitting.points.config import FitPointsConfig
 from lisa_hand.fitting.points.fit import fit_points
@@ -23,6 +23,7 @@ from lisa_hand.fitting.points.surface_stage import fit_surface, surface_residual
 from lisa_hand.fitting.priors import prior_mean_fingers
 from lisa_hand.fitting.sides import mirror_hand
 from lisa_hand.fitting.stages import StageReport
+from lisa_hand.fitting.terms import hand_prior
 from lisa_hand.geometry import axis_angle_to_matrix
 from lisa_hand.inference import hand_field
 from lisa_hand.skeleton import mirror_points
@@ -57,14 +58,12 @@ def test_candidate_batch_round_trips_hand_params():
         assert back.extra == {} and back.extra is not hand.extra
 
 
-def test_the_point_prior_keeps_the_sum_of_squares_numbers():
-    # The old prior was 1e-5 * sum of the 45 squared finger values; the shared one is a mean,
-    # and the default weight is 45 times larger: the same numbers.
+def test_the_point_prior_is_the_weighted_mean_square_of_the_finger_values():
     hands = [_hand(2)]
     batch = CandidateBatch.from_hands(hands, torch.zeros(3))
     config = FitPointsConfig(limit_weight=0.0)
-    prior = point_prior(config, batch, prior_mean_fingers("flat"), None)
-    expected = 1e-5 * hands[0].pose[3:].square().sum()
+    prior = hand_prior(config, prior_mean_fingers("flat"))(batch.terms())
+    expected = config.pose_weight * hands[0].pose[3:].square().mean()
     assert float(prior[0].detach()) == pytest.approx(float(expected), rel=1e-5)
 
 
@@ -76,15 +75,15 @@ def test_the_point_prior_adds_the_unseen_fingers_terms_by_their_weights():
     batch = CandidateBatch.from_hands([_hand(3), _hand(4)], torch.zeros(3))
     config = FitPointsConfig(limit_weight=0.0, coupling_weight=2e-4, unseen_thumb_weight=5e-4)
     mean = prior_mean_fingers(config.prior_pose)
-    plain = point_prior(config, batch, mean, None)
+    plain = hand_prior(config, mean)(batch.terms())
     weights = torch.tensor([0.0, 0.5, 0.0, 1.0, 0.8])
-    both = point_prior(config, batch, mean, None, weights)
+    both = hand_prior(config, mean, coupling=weights)(batch.terms())
     expected = (2e-4 * finger_coupling(batch.finger_pose, weights[:4])
                 + 5e-4 * 0.8 * thumb_pose_prior(batch.finger_pose, mean))
     assert torch.allclose(both - plain, expected, rtol=1e-5)
     assert float(expected.detach().min()) > 0.0
     off = FitPointsConfig(limit_weight=0.0, coupling_weight=2e-4, unseen_thumb_weight=0.0)
-    thumbless = point_prior(off, batch, mean, None, weights)
+    thumbless = hand_prior(off, mean, coupling=weights)(batch.terms())
     assert torch.allclose(thumbless - plain,
                           2e-4 * finger_coupling(batch.finger_pose, weights[:4]), rtol=1e-5)
 
@@ -101,7 +100,7 @@ def test_stages_take_and_return_hand_params():
     assert proxy.num_points == config.proxy_points and proxy.weights.shape[1] == 16
     monitor = FitMonitor()
     candidates, search = search_global_pose(proxy, cloud, config, start, monitor=monitor)
-    assert 1 <= len(candidates) <= config.num_restarts
+    assert 1 <= len(candidates) <= config.restarts
     assert all(isinstance(hand, HandParams) for hand in candidates)
     assert len(search.screened_energies) == 24 and search.energies == sorted(search.energies)
     assert isinstance(search, StageReport) and search.stage == "align"
@@ -131,7 +130,8 @@ def test_a_left_hand_fits_as_well_as_the_right_one_it_mirrors():
     points, normals, _ = scan_of(model, truth, ScanConfig(num_points=1000), seed=0)
     config = FitPointsConfig(**FAST)
     right = fit_points(model, points, normals, config, rest_joints=truth.rest_joints)
-    assert list(right.reports) == ["align", "pose", "size", "fingers", "field", "second"]
+    assert list(right.reports) == ["align", "pose", "size", "unseen", "fingers", "coverage",
+                                   "field", "second"]
     assert right.energy == right.reports["second"].loss
     assert right.candidate_energies == right.reports["align"].screened_energies
     assert right.history == [record for report in right.reports.values()
@@ -261,7 +261,7 @@ def test_the_second_pass_curls_a_finger_the_field_stage_left_straight():
     """The shipped geometric prior's own hand with the index curled, fitted except for the
     index (left straight, as the field stage left the WebXR hand's): the second pass curls
     it."""
-    from lisa_hand.fitting.points.fit import second_finger_pass
+    from lisa_hand.fitting.points.stages import second_finger_pass
     from lisa_hand.model.trained import load_trained
 
     model = load_trained("geometry", "cpu")
@@ -281,7 +281,7 @@ def test_covered_fraction_counts_the_proxy_points_near_the_cloud():
     of two blobs of random points 8 cm apart, bound to the root and posed by a random hand: a
     cloud of all the posed points covers all of it, a cloud of one blob that blob's share, and
     the whole cloud moved 20 cm off none, at 4 mm (the cloud's distance grid is good to about a
-    2 mm cell); fit_points records the share in the field stage's notes."""
+    2 mm cell); fit_points records the share in the coverage stage's notes."""
     from lisa_hand.fitting.points.proxy import SurfaceProxy, covered_fraction
     from lisa_hand.skeleton import NUM_JOINTS
 
@@ -307,7 +307,7 @@ def test_covered_fraction_counts_the_proxy_points_near_the_cloud():
     result = fit_points(model, scan, normals, FitPointsConfig(**FAST))
     # within 4 mm, or twice the point spacing of this sparse 1000-point scan
     found = [re.search(r"of the hand within ([0-9.]+) mm: shape prior", note)
-             for note in result.reports["field"].notes]
+             for note in result.reports["coverage"].notes]
     within = [float(match.group(1)) for match in found if match]
     spacing = 2e3 * point_spacing(torch.as_tensor(scan))
     assert len(within) == 1 and within[0] >= 4.0
@@ -463,7 +463,7 @@ def test_tries_keep_the_fit_nearest_the_scan():
 def test_a_sparse_cloud_counts_coverage_within_its_point_spacing():
     """point_spacing of a square grid is its step (closed form); the coverage distance is
     ``covered_mm`` for a dense cloud and 2 steps for a sparse one."""
-    from lisa_hand.fitting.points.fit import _covered_distance
+    from lisa_hand.fitting.points.stages import _covered_distance
 
     def grid(step: float) -> torch.Tensor:  # 12 x 12 points in the z = 0 plane
         axis = torch.arange(12, dtype=torch.float64) * step

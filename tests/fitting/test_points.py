@@ -98,7 +98,7 @@ def sdf_at(model: TrainedModel, params: HandParams, points) -> torch.Tensor:
         return field.sdf_fn(state)(torch.as_tensor(points, dtype=torch.float32))
 
 
-FAST = dict(align_iters=20, align_keep=6, num_restarts=2, pose_iters=20,
+FAST = dict(align_iters=20, align_keep=6, restarts=2, pose_iters=20,
             field_iters=40, points_per_iteration=128, proxy_points=300, init_poses=("zero",),
             fit_betas=False)
 

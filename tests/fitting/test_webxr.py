@@ -5,8 +5,9 @@ A tiny untrained model (a blob hand on the template's skeleton) cannot fit its s
 tests check what does not depend on a trained model: the real file goes through ``lisa
 fit-points``' path (millimetres detected and converted, the three files, finite metrics against
 the artist's mesh) and the global pose estimate points the fingers the right way. The accuracy
-on this hand is measured with the trained model by ``python -m lisa_hand.bench fit --webxr
-.../right_hand.npz``.
+on this hand is measured with the trained model by ``python -m benchmarks fit --webxr
+tests/assets/webxr_hand/right_hand.npz`` (from the repository root). The rig itself (posing,
+its outer surface, other proportions) is tested in ``tests/data/test_webxr_hand.py``.
 """
 
 from __future__ import annotations
@@ -17,7 +18,7 @@ import math
 import numpy as np
 import pytest
 
-from lisa_hand.bench.fit import WEBXR_POSES, pose_webxr_hand
+from lisa_hand.data.webxr_hand import pose_webxr_hand
 from lisa_hand.fitting.points.fit import FitPointsConfig
 from lisa_hand.fitting.points.io import fit_point_file, prepare_point_cloud, read_point_cloud
 from lisa_hand.model.trained import export_trained
@@ -55,116 +56,6 @@ def test_the_obj_is_read_as_millimetres():
         prepare_point_cloud(points, units="m", name="right_hand.obj")
 
 
-def test_benchmark_poses_of_the_webxr_rig():
-    obj_points, _ = read_point_cloud(WEBXR / "right_hand.obj")
-    rest, faces = pose_webxr_hand(WEBXR / "right_hand.npz", "rest")
-    np.testing.assert_allclose(rest, obj_points * 1e-3, atol=1e-6)  # the OBJ is the bind pose
-    assert faces.shape == (2314, 3)
-    joints = _joints_mm()
-    wrist = joints["wrist"] * 1e-3
-    tip = joints["index-finger-tip"] * 1e-3
-    # The vertex nearest the index tip moves towards the wrist when the finger bends.
-    nearest = int(np.argmin(np.linalg.norm(rest - tip, axis=1)))
-    for pose in WEBXR_POSES:
-        posed, same_faces = pose_webxr_hand(WEBXR / "right_hand.npz", pose)
-        assert posed.shape == rest.shape and np.array_equal(same_faces, faces)
-        reach = np.linalg.norm(posed[nearest] - wrist)
-        if pose == "rest":
-            assert reach == pytest.approx(np.linalg.norm(rest[nearest] - wrist))
-        else:
-            assert reach < 0.8 * np.linalg.norm(rest[nearest] - wrist), pose
-    with pytest.raises(ValueError, match="unknown WebXR pose"):
-        pose_webxr_hand(WEBXR / "right_hand.npz", "wave")
-
-
-def test_the_benchmark_fingers_curl_in_their_own_plane():
-    """The four fingers of the bent and fist poses curl as hinges in the plane of their rest
-    direction and the knuckle plane's normal: their fingertips stay in that plane (measured
-    0.05-0.84 mm off), and the bent index's distal phalanx turns 0.9 + 1.2 + 0.7 rad in all.
-    Fingers turned about axes of the thumb's plane, 45 degrees off, would leave it by 21-43 mm."""
-    joints = {name: value * 1e-3 for name, value in _joints_mm().items()}
-    wrist = joints["wrist"]
-    normal = np.cross(joints["index-finger-phalanx-proximal"] - wrist,
-                      joints["pinky-finger-phalanx-proximal"] - wrist)
-    normal /= np.linalg.norm(normal)
-    with np.load(WEBXR / "right_hand.npz", allow_pickle=False) as data:
-        rest_vertices, weights = data["vertices"] * 1e-3, data["weights"]
-        names = [str(n) for n in data["joint_names"]]
-    for pose, curled in (("bent_index", ("index",)),
-                         ("fist", ("index", "middle", "ring", "pinky"))):
-        posed, _ = pose_webxr_hand(WEBXR / "right_hand.npz", pose)
-        for finger in curled:
-            base = joints[f"{finger}-finger-phalanx-proximal"]
-            # The plane of the finger's rest direction and the palm normal through its knuckle.
-            direction = joints[f"{finger}-finger-tip"] - base
-            plane = np.cross(direction, normal)
-            plane /= np.linalg.norm(plane)
-            # Vertices of the fingertip (skinned to its distal phalanx): their mean's
-            # offset from the plane, before and after posing, differs by under 2 mm.
-            distal = weights[:, names.index(f"{finger}-finger-phalanx-distal")] > 0.9
-            before = (rest_vertices[distal].mean(0) - base) @ plane
-            after = (posed[distal].mean(0) - base) @ plane
-            assert abs(after - before) < 0.002, (pose, finger, after - before)
-    # The bent index: the distal phalanx turned 0.9 + 1.2 + 0.7 rad about one axis.
-    posed, _ = pose_webxr_hand(WEBXR / "right_hand.npz", "bent_index")
-    distal = weights[:, names.index("index-finger-phalanx-distal")] > 0.9
-    before = rest_vertices[distal] - rest_vertices[distal].mean(0)
-    after = posed[distal] - posed[distal].mean(0)
-    u, _, vt = np.linalg.svd(after.T @ before)  # Kabsch: after = R before
-    turn = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
-    angle = math.degrees(math.acos((np.trace(turn) - 1.0) / 2.0))
-    assert angle == pytest.approx(math.degrees(0.9 + 1.2 + 0.7), abs=1.0)
-
-
-@pytest.mark.parametrize("hand", ["right", "left"])
-def test_the_benchmark_fist_closes_on_the_palm_side(hand):
-    """Either hand's fist closes towards its palm: every fingertip (the vertices skinned to its
-    distal phalanx) ends on the side of the knuckle plane where the thumb's proximal joint is
-    (the palm's side), 3-5 cm from that plane, not back over the back of the hand."""
-    from lisa_hand.bench._webxr import webxr_side
-
-    path = WEBXR / f"{hand}_hand.npz"
-    assert webxr_side(path) == hand  # what the bench fits it as (fit_points(side=...))
-    with np.load(path, allow_pickle=False) as data:
-        weights, names = data["weights"], [str(n) for n in data["joint_names"]]
-        joints = {name: joint * 1e-3 for name, joint in zip(names, data["joints"], strict=True)}
-    wrist = joints["wrist"]
-    normal = np.cross(joints["index-finger-phalanx-proximal"] - wrist,
-                      joints["pinky-finger-phalanx-proximal"] - wrist)
-    normal /= np.linalg.norm(normal)
-    palm_side = np.sign((joints["thumb-phalanx-proximal"] - wrist) @ normal)
-    posed, _ = pose_webxr_hand(path, "fist")
-    for finger in ("index", "middle", "ring", "pinky"):
-        tip = weights[:, names.index(f"{finger}-finger-phalanx-distal")] > 0.9
-        depth = palm_side * (posed[tip].mean(0) - wrist) @ normal
-        assert 0.01 < depth < 0.06, (hand, finger, depth)
-
-
-def test_outer_surface_drops_the_faces_inside_the_hand():
-    """A box with a smaller box wholly inside it (a fingertip sunk into the palm, in the small):
-    the inner box's 12 faces and 8 vertices go, the outer box is kept exactly; a box beside it
-    is kept whole. On the WebXR fist 2-3% of the area is inside, none in the rest pose."""
-    import trimesh
-
-    from lisa_hand.bench._webxr import outer_surface
-
-    big = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
-    small = trimesh.creation.box(extents=(0.02, 0.02, 0.02))
-    for shift, kept_faces in ((0.0, 12), (0.2, 24)):
-        vertices = np.concatenate([big.vertices, small.vertices + [shift, 0.0, 0.0]])
-        faces = np.concatenate([big.faces, small.faces + len(big.vertices)])
-        outer_vertices, outer_faces = outer_surface(vertices, faces)
-        assert len(outer_faces) == kept_faces
-        assert len(outer_vertices) == 8 * kept_faces // 12
-        np.testing.assert_array_equal(outer_vertices[outer_faces[:12]], big.vertices[big.faces])
-    for pose, low, high in (("rest", 0.0, 0.0), ("fist", 0.01, 0.05)):
-        posed, faces = pose_webxr_hand(WEBXR / "right_hand.npz", pose)
-        kept_vertices, kept = outer_surface(posed, faces)
-        area = trimesh.Trimesh(posed, faces, process=False).area
-        inside = 1.0 - trimesh.Trimesh(kept_vertices, kept, process=False).area / area
-        assert low <= inside <= high + 1e-12, (pose, inside)
-
-
 def test_fit_points_on_the_real_obj(tmp_path):
     model_path, _ = export_trained(tiny_model(), tmp_path / "tiny.pt")
     out = tmp_path / "fit"
@@ -198,10 +89,10 @@ def test_fit_points_on_the_real_obj(tmp_path):
 def test_a_scan_running_on_into_a_forearm_is_cut_at_the_wrist():
     """The shipped model on the WebXR hand whose scan runs 12 cm on into a forearm (about 30%
     of its points): the fit leaves the forearm out and fits the hand as without it; the mesh
-    ends at the fit's wrist cut, where the distances are taken (``python -m lisa_hand.bench fit
+    ends at the fit's wrist cut, where the distances are taken (``python -m benchmarks fit
     --webxr ... --webxr-wrists as-is,forearm,cut`` measures every pose)."""
-    from lisa_hand.bench._webxr import pose_webxr_hand, webxr_wrist, webxr_wrist_variant
     from lisa_hand.data.scans import ScanConfig, simulate_scan
+    from lisa_hand.data.webxr_hand import webxr_wrist, webxr_wrist_variant
     from lisa_hand.fitting.points.fit import fit_points
     from lisa_hand.inference import MeshConfig, mesh_hand
     from lisa_hand.metrics import mesh_distances
@@ -237,7 +128,7 @@ def test_the_shipped_geometric_prior_fits_the_webxr_hand(name, bound_mm):
     """The point fit's one-view default model (the shipped geometric prior of hand model v2,
     203 subjects) on the artist's hand in its
     rest pose, a full 5000-point scan with 0.3 mm noise in a random placement: the first row of
-    ``python -m lisa_hand.bench fit --only-webxr``
+    ``python -m benchmarks fit --only-webxr``
     (measured here V2S 1.20 mm scan->recon, 1.22 mm recon->scan, with the weaker shape prior of
     a scan that covers the hand; 1.25 / 1.25 with the one-sided scans' prior; the v1 prior:
     1.28 / 1.44; the shipped LISA-full: 2.10 / 2.62). The target without ``--refine``: 1.5 mm.
@@ -271,7 +162,7 @@ def test_the_shipped_geometric_prior_fits_the_webxr_hand(name, bound_mm):
 
 def test_the_point_fit_curls_the_webxr_hands_bent_index():
     """The artist's hand with its index curled 160 degrees (MCP 52, PIP 69, DIP 40) about its
-    knuckles' hinge axes, the full scan of ``python -m lisa_hand.bench fit --only-webxr`` (its
+    knuckles' hinge axes, the full scan of ``python -m benchmarks fit --only-webxr`` (its
     placement: the second random turn), fitted with the default v2 prior: measured flexion 55 /
     60 / 34 degrees, V2S 1.10 / 1.14 mm scan->recon / recon->scan (the target without
     ``--refine``: 1.5 mm; with the one-sided scans' shape prior 58 / 60 / 33 degrees, 1.27 /
@@ -307,7 +198,7 @@ def test_the_point_fit_curls_the_webxr_hands_bent_index():
 
 def test_a_full_scan_of_the_webxr_fist_fits_within_the_target():
     """The artist's fist, a full 5000-point scan with 0.3 mm noise in the third random
-    placement (as ``python -m lisa_hand.bench fit --only-webxr``), fitted with the default v2
+    placement (as ``python -m benchmarks fit --only-webxr``), fitted with the default v2
     prior: the scan covers 76% of the fitted hand within 4 mm, so the surface stage uses the
     weaker shape prior of a scan from all sides (``FitPointsConfig.covered_shape_weight``).
     Measured V2S 1.44 / 1.30 mm scan->recon / recon->scan; with the one-sided scans' prior
@@ -332,7 +223,7 @@ def test_a_full_scan_of_the_webxr_fist_fits_within_the_target():
     scan = simulate_scan(placed, faces, ScanConfig(num_points=5000, noise_normal_std=3e-4),
                          seed=0)
     fit = fit_points(model, scan.points, None, FitPointsConfig(num_threads=1, seed=0))
-    assert any("shape prior 3e-06" in note for note in fit.reports["field"].notes)
+    assert any("shape prior 3e-06" in note for note in fit.reports["coverage"].notes)
     mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False, skin_weights=False),
                      clip=fit.wrist_plane)
     distances = mesh_distances(mesh.vertices, mesh.faces, placed, faces, clip=fit.wrist_plane)
@@ -341,7 +232,7 @@ def test_a_full_scan_of_the_webxr_fist_fits_within_the_target():
 
 
 def test_a_one_view_scan_fits_closer_with_its_sensor_position():
-    """The one-view scan of the WebXR fist of ``python -m lisa_hand.bench fit --only-webxr``
+    """The one-view scan of the WebXR fist of ``python -m benchmarks fit --only-webxr``
     (third random turn, the sensor 0.5 m off in a random direction): given where the sensor was,
     the fit keeps the fingers out of the space it saw empty. Measured with the default v2 prior:
     the mesh's share of vertices in the free space falls from 31% to 0% and V2S scan->recon /
@@ -386,13 +277,14 @@ def test_a_one_view_scan_fits_closer_with_its_sensor_position():
     assert with_view[0] < 3.0 and with_view[1] < 3.0, results
 
 
-def test_the_bench_person_frame_is_one_piece_whose_nearest_part_is_the_hand():
-    """The bench's depth frame of a person holding the hand out (bench fit --webxr-person): hand,
-    arm and body are one piece too large for a hand, and what lies within HAND_REACH_M of the
-    nearest point along the surface is the hand and a stub of its forearm, not the body."""
+def test_the_person_frame_is_one_piece_whose_nearest_part_is_the_hand():
+    """A depth frame of a person holding the hand out (:func:`lisa_hand.data.webxr_scenes.
+    person_scan`, as ``benchmarks fit --webxr-person``): hand, arm and body are one piece too
+    large for a hand, and what lies within HAND_REACH_M of the nearest point along the surface is
+    the hand and a stub of its forearm, not the body."""
     import point_cloud_utils as pcu
 
-    from lisa_hand.bench._webxr_scenes import person_scan
+    from lisa_hand.data.webxr_scenes import person_scan
     from lisa_hand.fitting.points.others import _pieces, find_others
 
     for pose in ("rest", "fist"):
@@ -421,8 +313,8 @@ def test_a_larger_webxr_hand_fits_closer_with_the_size_search():
     mm, with it 1.97 / 1.63 mm (size 1.15 chosen)."""
     import torch
 
-    from lisa_hand.bench._webxr import outer_surface, webxr_wrist
     from lisa_hand.data.scans import ScanConfig, simulate_scan
+    from lisa_hand.data.webxr_hand import outer_surface, webxr_wrist
     from lisa_hand.fitting.points.fit import fit_points
     from lisa_hand.geometry import axis_angle_to_matrix
     from lisa_hand.inference import MeshConfig, mesh_hand

@@ -9,17 +9,16 @@ from __future__ import annotations
 
 import torch
 
-from lisa_hand.bench.field import BENCH_REST_JOINTS
 from lisa_hand.fields import FieldConfig
 from lisa_hand.model.lisa import LisaModel
 from lisa_hand.model.trained import TrainedModel
-from lisa_hand.skeleton import mirror_points, mirror_pose
+from lisa_hand.skeleton import AVERAGE_REST_JOINTS, mirror_points, mirror_pose
 from lisa_hand.skeleton.params import HandParams
 
 TINY_FIELD = dict(sdf_hidden=32, sdf_depth=2, skinning_hidden=32, skinning_depth=1,
                   color_hidden=16, color_depth=1, pe_frequencies=4, shape_dim=8, color_dim=8,
                   palm_region_radius=0.07, finger_region_radius=0.035)
-REST = torch.tensor(BENCH_REST_JOINTS)
+REST = torch.tensor(AVERAGE_REST_JOINTS)
 GAIN, BIAS = (1.1, 0.9, 1.0), (0.05, -0.02, 0.0)
 """The calibration of the shared ``model`` fixture."""
 

@@ -501,8 +501,8 @@ def test_input_validation():
     assert shared.rest_joints.shape == (2, 16, 3)
 
 
-def test_benchmark_reference_computes_the_same_field():
-    from lisa_hand.bench._reference import ReferenceField
+def test_the_straightforward_reference_computes_the_same_field():
+    from tests.model.reference_field import ReferenceField
 
     model = make_model("lisa", seed=49)
     inputs = frame_inputs(model.config, batch=1, seed=50)

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from dataclasses import field as dc_field
 from pathlib import Path
-from typing import Literal
+from typing import ClassVar, Literal
 
 import pytest
 
@@ -17,6 +18,7 @@ from lisa_hand.utils.config import (
     config_to_dict,
     load_config,
     parse_override,
+    renamed_field,
     save_config,
 )
 
@@ -221,3 +223,42 @@ def test_parse_override_and_type_errors():
         config_to_dict({"a": 1})
     with pytest.raises(TypeError, match="dataclass type"):
         config_from_dict(dict, {})
+
+
+@dataclass(frozen=True)
+class RenamedCfg:
+    """A config that renamed two fields (one into its nested config)."""
+
+    RENAMED: ClassVar[dict[str, str]] = {"width": "hidden_size", "field_width": "field.hidden"}
+    """Former names -> present ones."""
+
+    hidden_size: int = 8
+    """Width."""
+    field: FieldCfg = dc_field(default_factory=FieldCfg)
+    """Network."""
+
+
+@pytest.mark.parametrize(("key", "expected"), [
+    ("width", "unknown key 'width': it was renamed 'hidden_size'"),
+    ("field_width", "unknown key 'field_width': it was renamed 'field.hidden'"),
+    ("hidden", "unknown key 'hidden'; did you mean 'field.hidden'?"),
+])
+def test_a_renamed_or_nested_key_is_named(key, expected):
+    assert renamed_field(RenamedCfg, "width") == "hidden_size"
+    assert renamed_field(RenamedCfg, "hidden_size") is None and renamed_field(RunCfg, "x") is None
+    with pytest.raises(ValueError, match=re.escape(expected)):
+        config_from_dict(RenamedCfg, {key: 3})
+    with pytest.raises(ValueError, match=re.escape(expected)):
+        apply_overrides(RenamedCfg(), [f"{key}=3"])
+    # In a nested config, the renamed key's new name carries its prefix.
+    with pytest.raises(ValueError, match=re.escape("'outer.width': it was renamed "
+                                                   "'outer.hidden_size'")):
+        apply_overrides(OuterCfg(), ["outer.width=3"])
+
+
+@dataclass(frozen=True)
+class OuterCfg:
+    """A config holding :class:`RenamedCfg`."""
+
+    outer: RenamedCfg = dc_field(default_factory=RenamedCfg)
+    """The nested config."""

@@ -14,11 +14,11 @@ import numpy as np
 import torch
 
 from ...geometry.cameras import Camera, save_cameras
+from ...render.raycast import MeshRayCaster
 from ...utils.io import write_json
 from ..images import project_keypoints, render_views
 from ..keypoints import write_keypoints
 from ..layout import FramePaths, frame_id, write_depth, write_image, write_mask, write_npz
-from ..raycast import MeshRayCaster
 from ..scans import Scan, ScanConfig, sample_surface, sdf_samples, simulate_scan
 from ..shading import GainBias
 from .config import SynthConfig

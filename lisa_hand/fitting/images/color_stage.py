@@ -12,8 +12,8 @@ around the projected template), renders them with VolSDF
 fitted response, :class:`lisa_hand.fitting.images.calibration.ViewCalibration`, with
 ``view_calibration``) and minimises
 
-    L = rgb_weight L_col + latent_weight L_reg + joints_weight L_joints' + mask_weight L_mask
-        + shape_prior_weight L_shape + view_calibration_weight L_calibration
+    L = rgb_weight L_col + code_weight L_reg + joints_weight L_joints' + mask_weight L_mask
+        + shape_weight L_shape + view_calibration_weight L_calibration
 
 * ``L_col``: L1 colour loss of the rays (Eq. 13) against
   :func:`lisa_hand.fitting.images.views.fit_target` (black outside a mask).
@@ -54,12 +54,14 @@ from ...render import LaplaceDensity, render_rays
 from ...render.renderer import calibrate
 from ...render.shading import surface_normals
 from ...skeleton.params import HandParams
+from ..optim import lr_schedule
 from ..priors import prior_mean_fingers
-from ..stages import HistoryRecord, StageReport, decay_schedule, progress_bar, template_on
+from ..stages import HistoryRecord, StageReport, progress_bar, template_on
+from ..terms import HandTerms, hand_prior
 from .calibration import ViewCalibration
 from .config import FitImagesConfig
 from .shape_prior import HandSizePrior, ShapeSpace
-from .terms import ViewData, hand_priors, keypoint_l1, keypoint_px
+from .terms import ViewData, keypoint_l1, keypoint_px
 from .views import ImageView, background_colour, check_views, fit_target
 
 __all__ = ["RayPool", "ShapeCode", "template_boxes", "with_mean_codes", "fit_color"]
@@ -268,9 +270,9 @@ def _optimizer(unknowns: dict[str, torch.Tensor], shape: ShapeCode,
                calibration: ViewCalibration, config: FitImagesConfig) -> torch.optim.Optimizer:
     groups = [{"params": [unknowns["pose"]], "lr": config.color_pose_lr},
               {"params": [unknowns["translation"]], "lr": config.color_translation_lr},
-              {"params": [unknowns["color_code"]], "lr": config.latent_lr}]
+              {"params": [unknowns["color_code"]], "lr": config.code_lr}]
     if shape.parameters():
-        rate = config.shape_lr if shape.mode == "space" else config.latent_lr
+        rate = config.shape_lr if shape.mode == "space" else config.code_lr
         groups.append({"params": shape.parameters(), "lr": rate})
     if config.color_betas_lr > 0:
         groups.append({"params": [unknowns["betas"]], "lr": config.color_betas_lr})
@@ -334,9 +336,9 @@ class _Renderer:
                  "reg": latent_loss(shape_code[None], color_code[None])}
         posed = self.template.forward(pose[None], betas[None], translation[None])
         pixels, _ = self.data.project(posed.keypoints)
-        terms["joints"] = (keypoint_l1(pixels, self.data)
-                           + hand_priors(pose[None], betas[None], config, self.mean_fingers,
-                                         posed.joints, self.size_prior))[0]
+        prior = hand_prior(config, self.mean_fingers, size_prior=self.size_prior)
+        terms["joints"] = (keypoint_l1(pixels, self.data) + prior(
+            HandTerms(pose=pose[None], betas=betas[None], joints=posed.joints)))[0]
         has_mask = rays["has_mask"]
         if config.mask_weight > 0 and bool(has_mask.any()):
             opacity = out.opacity[has_mask].clamp(1e-5, 1.0 - 1e-5)
@@ -384,11 +386,11 @@ def fit_color(
     unknowns = _unknowns(start, device, config)
     shape = ShapeCode(model, start.shape_code, config, device)
     optimizer = _optimizer(unknowns, shape, renderer.calibration, config)
-    schedule = decay_schedule(optimizer, config.color_iters, config.final_lr_fraction)
+    schedule = lr_schedule(optimizer, config.color_iters, config.final_lr_fraction)
     history: list[HistoryRecord] = []
-    weights = {"col": config.rgb_weight, "reg": config.latent_weight,
+    weights = {"col": config.rgb_weight, "reg": config.code_weight,
                "joints": config.joints_weight, "mask": config.mask_weight,
-               "shape_prior": config.shape_prior_weight,
+               "shape_prior": config.shape_weight,
                "calibration": config.view_calibration_weight}
     bar = progress_bar(progress, config.color_iters, "colour")
     with _frozen(model.field):

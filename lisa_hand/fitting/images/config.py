@@ -1,21 +1,27 @@
 """Settings of the image fit (:class:`FitImagesConfig`), shared by its stages.
 
-Names follow the fitters' common scheme: ``<term>_weight`` for the weight of a loss term,
-``pose_weight`` / ``limit_weight`` / ``betas_weight`` for the priors of
-:mod:`lisa_hand.fitting.priors`, ``prior_pose`` for the finger prior's mean, ``<stage>_iters``
-for the iterations of a stage, ``num_threads``, ``device`` and ``seed``.
+Names follow the fitters' common scheme (:class:`lisa_hand.fitting.points.config.
+FitPointsConfig` and :class:`lisa_hand.fitting.photo.config.FitPhotoConfig` too):
+``<term>_weight`` for the weight of a loss term, ``pose_weight`` / ``limit_weight`` /
+``betas_weight`` for the priors of :mod:`lisa_hand.fitting.priors`, ``shape_weight`` for the
+shape code's Gaussian prior, ``prior_pose`` for the finger prior's mean, ``<stage>_iters`` for
+the iterations of a stage, ``<unknown>_lr`` for a learning rate (``<stage>_<unknown>_lr`` when
+a stage has its own), ``final_lr_fraction`` for where the rates' decay ends, ``restarts`` for
+the candidates optimised, ``num_threads``, ``device`` and ``seed``. Renamed fields are listed
+in :attr:`FitImagesConfig.RENAMED` (an old name is refused naming the new one).
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 from ...render import RenderConfig
 from ...utils.config import check_int_fields
 from ..priors import PRIOR_POSES
 
-__all__ = ["SHAPE_FITS", "FitImagesConfig", "default_render"]
+__all__ = ["IMAGE_STAGES", "SHAPE_FITS", "FitImagesConfig", "default_render"]
 
 SHAPE_FITS = ("space", "free", "fixed")
 """Values of :attr:`FitImagesConfig.shape_fit`."""
@@ -28,11 +34,22 @@ def default_render() -> RenderConfig:
                         sphere_num_steps=16, stratified=True)
 
 
+IMAGE_STAGES = ("keypoints", "color", "guard")
+"""The image fit's stages in the one order they may run."""
+
+
 @dataclass(frozen=True)
 class FitImagesConfig:
     """Settings of :func:`lisa_hand.fitting.images.fit.fit_images` (defaults: about 1-2 minutes on
     2 CPU cores)."""
 
+    RENAMED: ClassVar[dict[str, str]] = {"latent_lr": "code_lr", "latent_weight": "code_weight",
+                                         "shape_prior_weight": "shape_weight"}
+    """Former field names -> the present ones (:func:`lisa_hand.utils.config.renamed_field`)."""
+
+    stages: tuple[str, ...] = IMAGE_STAGES
+    """The stages that run, in order (:mod:`lisa_hand.fitting.images.fit`): 'keypoints', then
+    optionally 'color', then optionally 'guard' (which judges the colour stage's surface)."""
     keypoint_iters: int = 400
     """Keypoint stage iterations (pose from keypoints and masks; the paper uses 1000)."""
     color_iters: int = 300
@@ -94,14 +111,14 @@ class FitImagesConfig:
     """Colour stage: Adam learning rate of the betas (0, the default: the skeleton stays the
     keypoint stage's; the keypoints are its only evidence, and with the colour stage's small
     keypoint weight Adam lets it drift toward the priors)."""
-    latent_lr: float = 0.01
-    """Colour stage: Adam learning rate of the colour code (and of the shape code with
-    ``shape_fit="free"``)."""
+    code_lr: float = 0.01
+    """Colour stage: Adam learning rate of the codes: the colour code's, and the shape code's
+    with ``shape_fit="free"`` (with "space" the shape's is ``shape_lr``)."""
     shape_fit: str = "space"
     """Colour stage: how the shape code is fitted. "space": the coefficients of the top
     ``shape_dims`` principal directions of the model's training codes, in standard deviations,
     clamped to the training codes' range along each direction (widened by
-    ``shape_range_margin``), with the Gaussian prior ``shape_prior_weight * 0.5 |c|^2``
+    ``shape_range_margin``), with the Gaussian prior ``shape_weight * 0.5 |c|^2``
     (:class:`lisa_hand.fitting.images.shape_prior.ShapeSpace`); "free": every dimension (the
     paper; on real photos it can break the surface into lumps and floaters); "fixed": kept at
     the start (the mean code)."""
@@ -113,13 +130,15 @@ class FitImagesConfig:
     training codes' range along each direction (0: never beyond the most extreme training
     subject; the shipped model's first direction breaks into pieces at +3)."""
     shape_lr: float = 0.05
-    """Colour stage, ``shape_fit="space"``: Adam learning rate of the coefficients (standard
-    deviations)."""
-    shape_prior_weight: float = 1e-3
-    """Colour stage, ``shape_fit="space"``: weight of ``0.5 |c|^2`` (the squared Mahalanobis
-    distance of the code to the training codes' mean, halved)."""
+    """Colour stage, ``shape_fit="space"``: Adam learning rate of the shape code's coefficients
+    (standard deviations; with "free" the shape code's rate is ``code_lr``)."""
+    shape_weight: float = 1e-3
+    """Colour stage, ``shape_fit="space"``: weight of the shape code's Gaussian prior
+    ``0.5 |c|^2`` (the squared Mahalanobis distance of the code to the training codes' mean,
+    halved), beside ``code_weight``'s norm of both codes."""
     final_lr_fraction: float = 0.1
-    """Learning rates decay exponentially to this fraction over each stage."""
+    """The learning rates fall to this fraction of their value over each stage (a cosine,
+    :func:`lisa_hand.fitting.optim.lr_schedule`)."""
     silhouette_weight: float = 0.2
     """Keypoint stage: weight of the mean outside-mask distance of the projected template
     vertices (pixels)."""
@@ -151,8 +170,9 @@ class FitImagesConfig:
     b = 2 px."""
     rgb_weight: float = 1.0
     """Colour stage: weight of L_col (L1 over RGB per ray, Eq. 13)."""
-    latent_weight: float = 1e-3
-    """Colour stage: weight of L_reg = |beta+|_2 + |gamma|_2 (Eq. 16)."""
+    code_weight: float = 1e-3
+    """Colour stage: weight of the paper's latent term L_reg = |beta+|_2 + |gamma|_2 (Eq. 16),
+    the norms of the shape code and of the colour code."""
     joints_weight: float = 1e-2
     """Colour stage: weight of the keypoint loss (pixels) and its priors (the joint loss)."""
     mask_weight: float = 0.0
@@ -207,6 +227,9 @@ class FitImagesConfig:
     """Seed of every random choice (restarts, rays, stratified samples)."""
 
     def __post_init__(self) -> None:
+        if self.stages not in (IMAGE_STAGES[:1], IMAGE_STAGES[:2], IMAGE_STAGES):
+            raise ValueError(f"stages must be one of {IMAGE_STAGES[:1]}, {IMAGE_STAGES[:2]} or "
+                             f"{IMAGE_STAGES}, got {self.stages!r}")
         check_int_fields(self, ("keypoint_iters", "color_iters", "band_px", "coverage_pixels",
                                 "coverage_vertices", "seed"), 0)
         check_int_fields(self, ("num_rays", "rotation_pool", "restarts", "keep_restarts",
@@ -238,14 +261,14 @@ class FitImagesConfig:
             raise ValueError(f"shape_fit must be one of {', '.join(SHAPE_FITS)}, got "
                              f"{self.shape_fit!r}")
         for name in ("keypoint_pose_lr", "keypoint_translation_lr", "color_pose_lr",
-                     "color_translation_lr", "latent_lr", "shape_lr", "view_calibration_lr"):
+                     "color_translation_lr", "code_lr", "shape_lr", "view_calibration_lr"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
         for name in ("keypoint_betas_lr", "color_betas_lr", "no_mask_margin",
                      "restart_separation_deg", "finger_restart_px", "silhouette_weight",
                      "coverage_weight", "limit_weight", "pose_weight", "betas_weight",
-                     "size_weight", "rgb_weight", "latent_weight", "joints_weight", "mask_weight",
-                     "shape_prior_weight", "max_area_change", "shape_range_margin",
+                     "size_weight", "rgb_weight", "code_weight", "joints_weight", "mask_weight",
+                     "shape_weight", "max_area_change", "shape_range_margin",
                      "view_gain_std", "view_bias_std", "view_calibration_weight"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")

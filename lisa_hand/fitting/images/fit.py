@@ -1,12 +1,11 @@
-"""Fit LISA to one or more calibrated views (paper Section 4.3): :func:`fit_images` composes the
-stages.
+"""Fit LISA to one or more calibrated views (paper Section 4.3): :func:`fit_images` runs the
+stages ``FitImagesConfig.stages`` names (:data:`STAGES`, each ``stage(state, fit) -> (state,
+report)`` as every fitter's: :mod:`lisa_hand.fitting.stages`).
 
 Unknowns: the 48-D pose (global rotation and 15 finger joints, axis-angle), the translation,
 the mesh template's shape coefficients ``betas`` (LISA's skeleton is
 ``template.rest_joints(betas)``, as in training), the shape code ``beta+`` and the colour code
-``gamma`` (both start at the mean of the training subjects' codes). Each stage takes and
-returns a :class:`lisa_hand.skeleton.params.HandParams` and its
-:class:`lisa_hand.fitting.stages.StageReport`:
+``gamma`` (both start at the mean of the training subjects' codes). The stages:
 
 1. global-pose search and keypoint stage (:mod:`lisa_hand.fitting.images.pose_search`,
    :func:`lisa_hand.fitting.images.keypoint_stage.fit_keypoints`): pose, translation and betas from
@@ -15,7 +14,7 @@ returns a :class:`lisa_hand.skeleton.params.HandParams` and its
    colour codes by volume rendering LISA (L_col, Eq. 13; L_reg, Eq. 16; the joint loss), the
    shape code kept in the training subjects' shape space
    (:class:`lisa_hand.fitting.images.shape_prior.ShapeSpace`);
-3. the surface guard (:mod:`lisa_hand.fitting.images.guard`, ``config.guard``): the colour
+3. the surface guard ('guard', :mod:`lisa_hand.fitting.images.guard`, ``config.guard``): the colour
    stage's hand and its start (the keypoint stage's pose and skeleton, the mean shape code) are
    meshed at ``guard_resolution``; a result with floating pieces the start does not have, or an
    area more than ``max_area_change`` away, is replaced by the first that passes of: the result
@@ -56,7 +55,7 @@ from ...skeleton.params import HandParams
 from ...utils.device import resolve_device
 from ...utils.threads import cpu_threads
 from ..sides import mirror_hand
-from ..stages import HistoryRecord, StageReport, template_on
+from ..stages import HistoryRecord, StageReport, run_stages, template_on
 from .color_stage import fit_color, with_mean_codes
 from .config import FitImagesConfig
 from .guard import GuardReport, guard_mesh, surface_guard
@@ -72,8 +71,8 @@ class FitImagesResult:
 
     params: the fitted hand (pose, translation, rest joints, betas, codes, side); ``extra``
         holds the stage timings and errors.
-    reports: the stages' :class:`lisa_hand.fitting.stages.StageReport` ({"keypoints"} and,
-        when it ran, "color").
+    reports: the :class:`lisa_hand.fitting.stages.StageReport` of each stage that ran, by
+        name ("keypoints", "color", "guard"; "color_fixed_shape" when the guard refitted).
     history: the stages' per-iteration records in order (the keypoint stage's, then the colour
         stage's; each names its ``"stage"``; keys in
         :class:`lisa_hand.fitting.stages.StageReport`; columns:
@@ -179,19 +178,21 @@ def fit_images(
     views = [view.to(device) for view in views]
     if side == "left":
         views = [mirror_view(view) for view in views]
-    template = template_on(template, device)
+    fit = ImageFit(model=model, views=views, config=config,
+                   template=template_on(template, device), progress=progress, side=side,
+                   start=start)
     start_time = time.perf_counter()
+    laps: dict[str, float] = {}
     with cpu_threads(config.num_threads):
-        hand, report = _keypoint_hand(views, config, template, progress, start, side)
-        stage1 = time.perf_counter() - start_time
-        reports = {"keypoints": report}
-        hand = with_mean_codes(hand, model)
-        guarded = _Guarded(hand, start=hand)
-        if config.color_iters > 0:
-            fitted, reports["color"] = fit_color(model, views, hand, config, template, progress)
-            guarded = _guard(model, views, hand, fitted, config, template, progress, reports)
+        state, reports = run_stages(STAGES, _order(config), ImageState(), fit,
+                                    lambda name, since: laps.setdefault(
+                                        name, time.perf_counter() - since))
     seconds = time.perf_counter() - start_time
-    return _result(guarded, reports, views, template, config, seconds, stage1, side)
+    guarded = state.guarded
+    if guarded.fixed_shape is not None:
+        reports["color_fixed_shape"] = guarded.fixed_shape
+    return _result(guarded, reports, views, fit.template, config, seconds,
+                   laps.get("keypoints", 0.0), side)
 
 
 @dataclass
@@ -207,16 +208,81 @@ class _Guarded:
     seconds: float = 0.0
     meshes: dict[str, Any] = field(default_factory=dict)
     """{"start", "returned"}: the guard's meshes of ``start`` and ``hand`` (the fit's frame)."""
+    fixed_shape: StageReport | None = None
+    """The report of the refit with the shape code and skeleton fixed, when the guard ran it."""
+
+
+@dataclass(frozen=True)
+class ImageFit:
+    """What stays fixed through one image fit: the model, the (right hand's) views, the
+    settings, the template, whether to show progress, the side, a keypoint-stage hand to
+    reuse (``start`` of :func:`fit_images`) or None."""
+
+    model: Any
+    views: list[ImageView]
+    config: FitImagesConfig
+    template: Any
+    progress: bool
+    side: str
+    start: HandParams | None = None
+
+
+@dataclass(frozen=True)
+class ImageState:
+    """What one image-fit stage hands the next: ``guarded``, the hand so far with what the
+    guard said of it (None before 'keypoints'), and ``fitted``, the colour stage's hand
+    before the guard judged it (None before 'color')."""
+
+    guarded: _Guarded | None = None
+    fitted: HandParams | None = None
+
+
+def keypoints(state: ImageState, fit: ImageFit) -> tuple[ImageState, StageReport]:
+    """'keypoints': the template's pose, translation and betas from the 2D keypoints and the
+    masks (or ``fit.start`` reused), with the model's mean codes."""
+    hand, report = _keypoint_hand(fit.views, fit.config, fit.template, fit.progress, fit.start,
+                                  fit.side)
+    hand = with_mean_codes(hand, fit.model)
+    return replace(state, guarded=_Guarded(hand, start=hand)), report
+
+
+def color(state: ImageState, fit: ImageFit) -> tuple[ImageState, StageReport]:
+    """'color': pose, shape and colour codes on the LISA field by volume rendering."""
+    fitted, report = fit_color(fit.model, fit.views, state.guarded.hand, fit.config,
+                               fit.template, fit.progress)
+    return replace(state, guarded=_Guarded(fitted, start=state.guarded.start),
+                   fitted=fitted), report
+
+
+def guard(state: ImageState, fit: ImageFit) -> tuple[ImageState, StageReport]:
+    """'guard': the colour stage's surface judged against its start, and replaced when it
+    fails (:func:`_guard`)."""
+    guarded = _guard(fit.model, fit.views, state.guarded.start, state.fitted, fit.config,
+                     fit.template, fit.progress)
+    return replace(state, guarded=guarded), StageReport(
+        stage="guard", seconds=guarded.seconds, notes=list(guarded.notes),
+        loss=math.nan if guarded.guard is None else guarded.guard.area_ratio)
+
+
+STAGES = {"keypoints": keypoints, "color": color, "guard": guard}
+"""The image fit's stages by name (``FitImagesConfig.stages``)."""
+
+
+def _order(config: FitImagesConfig) -> tuple[str, ...]:
+    """The stages that run: ``config.stages``; without 'color' and 'guard' when
+    ``color_iters`` is 0 (the keypoint stage's geometry is the result)."""
+    if config.color_iters > 0:
+        return config.stages
+    return tuple(name for name in config.stages if name == "keypoints")
 
 
 def _guard(model: Any, views: list[ImageView], start: HandParams, fitted: HandParams,
-           config: FitImagesConfig, template: Any, progress: bool,
-           reports: dict[str, StageReport]) -> _Guarded:
+           config: FitImagesConfig, template: Any, progress: bool) -> _Guarded:
     """The surface guard after the colour stage (:attr:`FitImagesConfig.guard`), in order: the
     fitted hand; the fitted hand with its change of pose and shape shrunk to each fraction of
     ``config.guard_shrink`` (:func:`_shrunk`, colour kept); the colour stage again with the
     shape code and the skeleton fixed at the start (pose and colour only,
-    ``reports["color_fixed_shape"]``); the start's geometry with that fit's colour code. The
+    :attr:`_Guarded.fixed_shape`); the start's geometry with that fit's colour code. The
     first that passes is returned."""
     if not config.guard:
         return _Guarded(fitted, start=start, notes=["the surface guard is off (guard=False): "
@@ -246,7 +312,8 @@ def _guard(model: Any, views: list[ImageView], start: HandParams, fitted: HandPa
                                 f"{100 * fraction:g} %, which passed")
             break
     if not result.guard.passed:
-        fallback = _fixed_shape_fit(model, views, start, config, template, progress, reports)
+        fallback, result.fixed_shape = _fixed_shape_fit(model, views, start, config, template,
+                                                        progress)
         second = result.attempts["fixed_shape"] = judge("fixed_shape", fallback)
         if second.passed:
             result.hand, result.guard, result.fallback = fallback, second, "fixed_shape"
@@ -299,17 +366,16 @@ def _calibration_extra(hand: HandParams) -> dict[str, Any]:
 
 
 def _fixed_shape_fit(model: Any, views: list[ImageView], start: HandParams,
-                     config: FitImagesConfig, template: Any, progress: bool,
-                     reports: dict[str, StageReport]) -> HandParams:
-    """The colour stage with the shape code and skeleton fixed at the start's, its report in
-    ``reports["color_fixed_shape"]`` (history records of that stage name)."""
+                     config: FitImagesConfig, template: Any, progress: bool
+                     ) -> tuple[HandParams, StageReport]:
+    """The colour stage with the shape code and skeleton fixed at the start's -> (its hand,
+    its report, named "color_fixed_shape", as are its history records)."""
     fixed = replace(config, shape_fit="fixed", color_betas_lr=0.0)
     hand, report = fit_color(model, views, start, fixed, template, progress)
     report.stage = "color_fixed_shape"
     for record in report.history:
         record["stage"] = "color_fixed_shape"
-    reports["color_fixed_shape"] = report
-    return hand
+    return hand, report
 
 
 def _result(guarded: _Guarded, reports: dict[str, StageReport], views: list[ImageView],

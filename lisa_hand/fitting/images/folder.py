@@ -2,7 +2,9 @@
 and the fitted hand re-rendered into the input views (:func:`render_fitted_views`,
 :func:`view_psnrs`).
 
-Outputs of :func:`fit_image_folder`: ``params.json``, ``mesh.ply``
+Outputs of :func:`fit_image_folder`: ``params.json`` (the hand; under ``extra["config"]``
+the :class:`FitImagesConfig` that fitted it, as :func:`lisa_hand.utils.config.config_to_dict`
+writes it), ``mesh.ply``
 (:func:`lisa_hand.inference.mesh_hand`: vertex colours and skinning weights; the surface
 guard's mesh of the returned hand reused, :func:`fitted_mesh`) and
 ``metrics.json`` (keypoint errors, PSNR of the re-rendered input views, timings, the surface
@@ -151,6 +153,7 @@ def fit_image_folder(
     views for the PSNR. log: called with one line per note (fallbacks, unit guesses).
     """
     from ...model.trained import model_label
+    from ...utils.config import config_to_dict
     from ..outputs import prepare_fit
 
     log = log or (lambda line: None)
@@ -171,6 +174,7 @@ def fit_image_folder(
     params = fit.params
     params.model = model_label(model_path)
     params.extra["input"] = {"path": str(frame_dir), "notes": notes}
+    params.extra["config"] = config_to_dict(config)  # the settings that fitted it
     with cpu_threads(config.num_threads):
         return _finish_folder(model, fit, image_views, out_dir, truth, resolution, psnr, notes,
                               log)

@@ -8,7 +8,7 @@ view has a mask, the projected template vertices must fall inside it (the mask's
 distance transform at each vertex, pixels) and the mask's contour must be covered by them
 (distance from contour pixels to the nearest projected vertex;
 :func:`lisa_hand.fitting.images.terms.silhouette_terms`). Priors
-(:func:`lisa_hand.fitting.images.terms.hand_priors`): soft joint limits, a small L2 pull of the
+(:func:`lisa_hand.fitting.terms.hand_prior`): soft joint limits, a small L2 pull of the
 finger pose towards ``prior_pose`` ("relaxed") and of ``betas`` towards 0, and the training
 subjects' hand size (``size_weight``, :class:`lisa_hand.fitting.images.shape_prior.HandSizePrior`:
 with one view, it is what sets the depth). The hand is kept 5 cm in front of every camera.
@@ -45,8 +45,10 @@ import torch.nn.functional as F
 
 from ...skeleton import FINGER_JOINTS, FINGER_NAMES
 from ...skeleton.params import HandParams
+from ..optim import lr_schedule
 from ..priors import prior_mean_fingers
-from ..stages import HistoryRecord, StageReport, decay_schedule, progress_bar, template_on
+from ..stages import HistoryRecord, StageReport, progress_bar, template_on
+from ..terms import HandTerms, hand_prior
 from .config import FitImagesConfig
 from .pose_search import (
     solve_translation,
@@ -56,7 +58,6 @@ from .pose_search import (
 from .shape_prior import HandSizePrior
 from .terms import (
     ViewData,
-    hand_priors,
     keypoint_l1,
     keypoint_px,
     silhouette_terms,
@@ -111,8 +112,9 @@ def _objective(template: Any, state: _Candidates, data: ViewData, config: FitIma
     # Keep the hand in front of every camera (5 cm at least): pixels are meaningless behind.
     behind = (F.relu(_MIN_CAMERA_DISTANCE - vertex_depth).mean((1, 2))
               + F.relu(_MIN_CAMERA_DISTANCE - keypoint_depth).mean((1, 2)))
-    loss = loss + _BEHIND_WEIGHT * behind + hand_priors(pose, state.betas, config, mean_fingers,
-                                                         out.joints, size_prior)
+    prior = hand_prior(config, mean_fingers, size_prior=size_prior)
+    loss = loss + _BEHIND_WEIGHT * behind + prior(HandTerms(pose=pose, betas=state.betas,
+                                                            joints=out.joints))
     return loss, keypoint_px(keypoint_pixels.detach(), data)
 
 
@@ -205,7 +207,7 @@ class _Optimiser:
             if config.keypoint_betas_lr > 0:
                 groups.append({"params": [state.betas], "lr": config.keypoint_betas_lr})
         optimizer = torch.optim.Adam(groups)
-        schedule = decay_schedule(optimizer, iterations, config.final_lr_fraction)
+        schedule = lr_schedule(optimizer, iterations, config.final_lr_fraction)
         for _ in range(iterations):
             optimizer.zero_grad(set_to_none=True)
             loss, error = self.objective(state, rigid)

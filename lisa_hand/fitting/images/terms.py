@@ -1,8 +1,8 @@
 """The 2D terms of the image fit, shared by its stages: the views' cameras and keypoints stacked
 (:class:`ViewData`), the keypoint L1 (the paper's L_joints, in pixels), the silhouette terms
-of projected template vertices against the masks, and the pose and shape priors
-(:func:`hand_priors`, built on :mod:`lisa_hand.fitting.priors`, with the training subjects'
-hand size, :class:`lisa_hand.fitting.images.shape_prior.HandSizePrior`).
+of projected template vertices against the masks. The pose and shape priors are every fitter's
+(:func:`lisa_hand.fitting.terms.hand_prior`, with the training subjects' hand size,
+:class:`lisa_hand.fitting.images.shape_prior.HandSizePrior`).
 """
 
 from __future__ import annotations
@@ -15,9 +15,6 @@ import torch
 import torch.nn.functional as F
 
 from ...skeleton import NUM_KEYPOINTS
-from ..priors import finger_pose_prior, joint_limit_excess
-from .config import FitImagesConfig
-from .shape_prior import HandSizePrior
 from .views import ImageView
 
 __all__ = [
@@ -28,7 +25,6 @@ __all__ = [
     "keypoint_px",
     "sample_map",
     "silhouette_terms",
-    "hand_priors",
 ]
 
 PALM_KEYPOINTS = (0, 1, 5, 9, 13, 17)
@@ -185,25 +181,3 @@ def silhouette_terms(vertex_pixels: torch.Tensor, data: ViewData
             closest = torch.gather(pixels, 1, nearest[..., None].expand(-1, -1, 2))
             coverage = coverage + (closest - contour).norm(dim=-1).mean(-1)
     return outside / data.num_masks, coverage / data.num_masks
-
-
-def hand_priors(pose: torch.Tensor, betas: torch.Tensor, config: FitImagesConfig,
-                mean_fingers: torch.Tensor, joints: torch.Tensor | None = None,
-                size_prior: HandSizePrior | None = None) -> torch.Tensor:
-    """Pose and shape priors of the image fit: pose [B, 48] radians, betas [B, K],
-    mean_fingers [45] radians (:func:`lisa_hand.fitting.priors.prior_mean_fingers` of
-    ``config.prior_pose``), joints [B, 16, 3] metres (the template's, posed or not: only the
-    bone lengths count) and the training subjects' ``size_prior`` -> [B]
-
-    ``pose_weight * finger_pose_prior + betas_weight * mean(betas^2)
-    + limit_weight * joint_limit_excess + size_weight * ((size - mean) / std)^2`` (the last
-    term with ``joints`` and ``size_prior`` only;
-    :class:`lisa_hand.fitting.images.shape_prior.HandSizePrior`).
-    """
-    total = config.pose_weight * finger_pose_prior(pose, mean_fingers)
-    total = total + config.betas_weight * (betas**2).mean(-1)
-    if config.size_weight > 0 and joints is not None and size_prior is not None:
-        total = total + config.size_weight * size_prior.energy(joints)
-    if config.limit_weight > 0:
-        total = total + config.limit_weight * joint_limit_excess(pose)
-    return total

@@ -43,15 +43,15 @@ class FitPhotoConfig:
     side_confidence: float = 0.75
     """``--side auto``: a detected side less certain than this (the detector's score, 0.5-1) is
     not trusted: both sides are fitted and the better one kept. A side the detector's own
-    estimates disagree on (:attr:`lisa_hand.fitting.photo.detect.DetectedHand.side_votes`: it
+    estimates disagree on (:attr:`lisa_hand.data.detect.DetectedHand.side_votes`: it
     changed with the window or the mirroring) only gets a note: its keypoints still fit the
     side it chose better than the other."""
     detector_wrist_shift: float = 0.0
     """Detected hands: the detector's wrist is moved back towards the forearm by this fraction of
-    the wrist-to-middle-knuckle length (:func:`lisa_hand.fitting.photo.detect.to_skeleton_wrist`)
-    before the fit; 0 (default): as detected. :data:`~lisa_hand.fitting.photo.detect.
+    the wrist-to-middle-knuckle length (:func:`lisa_hand.data.detect.to_skeleton_wrist`)
+    before the fit; 0 (default): as detected. :data:`~lisa_hand.data.detect.
     MEDIAPIPE_WRIST_SHIFT` (0.17) matches photos of the open hand model's hands but not real
-    ones (:mod:`lisa_hand.fitting.photo.detect`, "Wrist"). ``--keypoints`` files are taken as
+    ones (:mod:`lisa_hand.data.detect`, "Wrist"). ``--keypoints`` files are taken as
     they are."""
     mesh_resolution: int = 128
     """Marching-cubes samples a side of ``mesh.ply``."""

@@ -4,7 +4,7 @@
 Per photo: read it upright (:func:`lisa_hand.data.photo.read_photo`: EXIF orientation,
 colours, downscaled to ``max_side``), choose its camera
 (:func:`lisa_hand.data.photo.photo_camera`: ``--camera``, ``--focal-px``, ``--fov``, EXIF,
-default), find the hands (:func:`lisa_hand.fitting.photo.detect.detect_hands`, or the
+default), find the hands (:func:`lisa_hand.data.detect.detect_hands`, or the
 ``--keypoints`` file: :func:`lisa_hand.fitting.photo.inputs.read_given_hands`), make a coarse
 mask (:func:`lisa_hand.fitting.photo.mask.coarse_mask`, or ``--mask``; without OpenCV the
 mask from the keypoints alone is no outline, so the fit then uses none: keypoints, and colours
@@ -19,7 +19,7 @@ geometry guard (:mod:`lisa_hand.fitting.images.guard`), the mesh (the guard's ow
 returned hand, with colours and skinning weights), the mesh ray cast into each photo
 (:func:`lisa_hand.inference.mesh_render.render_mesh`; its silhouette refines the mask:
 :func:`lisa_hand.fitting.photo.mask.refine_mask`),
-and the files (:mod:`lisa_hand.fitting.photo.outputs`, all hands at once, all or nothing).
+and the files (:mod:`lisa_hand.fitting.photo.artefacts`, all hands at once, all or nothing).
 
 **Side.** ``--side right|left``, or ``auto``: the detector's side (when its score reaches
 ``side_confidence``; a note when its estimates in plain and mirrored windows disagree), or the
@@ -62,10 +62,10 @@ import numpy as np
 import torch
 
 from ...skeleton.params import HandParams
-from ..outputs import lock_output_folder, releases_output_locks
+from ..outputs import releases_output_locks
+from .artefacts import PhotoOfHand, build_hand_outputs, photo_report_html
 from .config import FitPhotoConfig, photo_fit_defaults
 from .inputs import PhotoHand
-from .outputs import PhotoOfHand, build_hand_outputs, photo_report_html
 
 __all__ = ["photo_fit_defaults", "FitPhotoConfig", "PhotoFitReport", "fit_photo_folder"]
 
@@ -129,7 +129,7 @@ def _find_hands(photo: Any, keypoints_json: Any, config: FitPhotoConfig,
                 log: Callable[[str], None]) -> list[PhotoHand]:
     """The hands of a photo: from ``keypoints_json`` or detected (errors: no photo extra, no
     hand found)."""
-    from . import detect
+    from ...data import detect
     from .inputs import read_given_hands
 
     if keypoints_json is not None:
@@ -236,7 +236,7 @@ def fit_photo_folder(
     config: FitPhotoConfig | None = None,
 ) -> list[PhotoFitReport]:
     """Fit the hand(s) of photos and write them into ``out_dir`` (see the module docstring and
-    :mod:`lisa_hand.fitting.photo.outputs` for the files).
+    :mod:`lisa_hand.fitting.photo.artefacts` for the files).
 
     photos: one photo, or several of the same hand in the same pose. side: "auto", "right" or
     "left". camera_json: a calibration file (``cameras.json`` convention; one for all photos or
@@ -252,14 +252,14 @@ def fit_photo_folder(
     from ...model.trained import load_trained
     from ...model.trained import model_label as label_of
     from ...utils.device import resolve_device
+    from ..outputs import claim_output_folder, write_fit
+    from .artefacts import PHOTO_DESCRIBED, photo_artefacts, photo_entry
     from .inputs import check_hand_size
-    from .outputs import check_photo_folder, write_photo_outputs
 
     log = log or (lambda line: None)
     config = FitPhotoConfig() if config is None else config
     photos = _check_arguments(photos, side, hand)
-    out_dir = check_photo_folder(out_dir)
-    lock_output_folder(out_dir)  # freed when this returns or raises
+    out_dir = claim_output_folder(out_dir, photo_entry, PHOTO_DESCRIBED)  # freed at the end
     inputs = _read_inputs(photos, camera_json, focal_px, fov_deg, keypoints_json, mask_path,
                           config, log)
     targets = _targets(inputs, hand)
@@ -275,7 +275,8 @@ def fit_photo_folder(
             log(f"fitting {folder}")
         outcomes.append(_fit_hand(model, inputs, hands, folder, side, config, progress, log,
                                   model_label))
-    written = write_photo_outputs(out_dir, [outputs for outputs, _ in outcomes])
+    written = write_fit(out_dir, photo_artefacts([outputs for outputs, _ in outcomes]),
+                        photo_entry, PHOTO_DESCRIBED)
     for outputs, report in outcomes:
         report.folder = out_dir / outputs.folder if outputs.folder else out_dir
         report.written = [path for path in written
@@ -435,6 +436,7 @@ def _fit_hand(model: Any, inputs: list[_PhotoInput], hands: list[PhotoHand], fol
     """Fit one hand to its photos -> (what to write, the report)."""
     from ...geometry.pieces import drop_specks
     from ...skeleton.wrist import wrist_plane
+    from ...utils.config import config_to_dict
     from ...utils.threads import cpu_threads
     from ..images.fit import fit_images
     from ..images.folder import fitted_mesh, output_surface
@@ -479,6 +481,7 @@ def _fit_hand(model: Any, inputs: list[_PhotoInput], hands: list[PhotoHand], fol
                              "camera_sources": [item.camera_source for item in inputs],
                              "side_source": side_source, "mask": method,
                              "keypoints": [one.source for one in hands]}
+    params.extra["config"] = config_to_dict(config)  # the settings that fitted it
     outputs_began = time.perf_counter()
     with cpu_threads(config.fit.num_threads):
         guard = result.guard  # None when the colour stage did not run

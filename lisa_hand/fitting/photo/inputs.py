@@ -60,9 +60,9 @@ class PhotoHand:
     visible: [21] bool. side: "right", "left" or None (unknown). score: the detector's
     confidence, or None. source: "detected" or the ``--keypoints`` file. detector_keypoints:
     [21, 2] the detector's own keypoints, same pixels, when they differ from ``keypoints`` (the
-    wrist moved to the skeleton's: :func:`lisa_hand.fitting.photo.detect.to_skeleton_wrist`).
+    wrist moved to the skeleton's: :func:`lisa_hand.data.detect.to_skeleton_wrist`).
     side_votes: (right, left) of the detector's agreeing estimates
-    (:attr:`lisa_hand.fitting.photo.detect.DetectedHand.side_votes`), None when not detected.
+    (:attr:`lisa_hand.data.detect.DetectedHand.side_votes`), None when not detected.
     """
 
     keypoints: np.ndarray

@@ -1,5 +1,5 @@
 """The unknowns of the point fit's stages while they optimise: ``K`` candidate hands batched as
-tensors, and their regulariser.
+tensors.
 
 A stage takes and returns :class:`~lisa_hand.skeleton.params.HandParams`; inside, it optimises
 a :class:`CandidateBatch`, which moves the global rotation about a fixed pivot (the surface
@@ -16,9 +16,9 @@ import torch
 
 from ...geometry import axis_angle_to_matrix, matrix_to_axis_angle
 from ...skeleton.params import HandParams
-from ..priors import finger_coupling, finger_pose_prior, joint_limit_excess, thumb_pose_prior
+from ..terms import HandTerms
 
-__all__ = ["CandidateBatch", "point_prior"]
+__all__ = ["CandidateBatch"]
 
 
 class CandidateBatch:
@@ -41,10 +41,12 @@ class CandidateBatch:
         self.rest_joints = rest_joints
         self.base_rotation = base_rotation  # fixed within a stage
         self.delta = torch.zeros_like(position).requires_grad_(True)
-        self.position = position.clone().requires_grad_(True)
-        self.finger_pose = finger_pose.clone().requires_grad_(True)
-        self.shape_code = shape_code.clone().requires_grad_(True)
-        self.betas = None if betas is None else betas.clone().requires_grad_(True)
+        # leaves of their own (a batch selected from another must not stay in its graph: the
+        # optimiser steps leaves only)
+        self.position = position.detach().clone().requires_grad_(True)
+        self.finger_pose = finger_pose.detach().clone().requires_grad_(True)
+        self.shape_code = shape_code.detach().clone().requires_grad_(True)
+        self.betas = None if betas is None else betas.detach().clone().requires_grad_(True)
         self.pivot = pivot
 
     @classmethod
@@ -124,6 +126,11 @@ class CandidateBatch:
         self.delta.zero_()
 
     @torch.no_grad()
+    def terms(self) -> HandTerms:
+        """What the prior terms read of the batch (:class:`lisa_hand.fitting.terms.HandTerms`):
+        the finger pose, the shape code and the betas (None when not carried)."""
+        return HandTerms(pose=self.finger_pose, shape_code=self.shape_code, betas=self.betas)
+
     def select(self, index: torch.Tensor) -> CandidateBatch:
         """A new batch of the candidates ``index`` [K'] (``delta`` folded first)."""
         self.fold()
@@ -133,34 +140,3 @@ class CandidateBatch:
                               None if self.tag is None else self.tag[index], pivot=self.pivot,
                               rest_joints=None if self.rest_joints is None
                               else self.rest_joints[index])
-
-
-def point_prior(config, batch: CandidateBatch, mean_fingers: torch.Tensor,
-                shape_scale: float | None, coupling: torch.Tensor | None = None
-                ) -> torch.Tensor:
-    """[K] the point fit's regulariser: ``pose_weight`` times the finger-pose prior toward
-    ``mean_fingers`` [45] (:func:`~lisa_hand.fitting.priors.finger_pose_prior`),
-    ``limit_weight`` times the joint-limit excess, the shape code's term (with its scale, when
-    given: ``shape_weight * mean (code / scale)^2``) and ``betas_weight * |betas|^2`` (when the
-    batch has betas); with ``coupling`` ([5] weights of the unseen fingers of
-    :data:`~lisa_hand.fitting.priors.UNSEEN_FINGERS`, :func:`~lisa_hand.fitting.points.proxy.
-    unseen_fingers`), ``coupling_weight`` times :func:`~lisa_hand.fitting.priors.finger_coupling`
-    of the first four and ``unseen_thumb_weight`` times the thumb's weight times
-    :func:`~lisa_hand.fitting.priors.thumb_pose_prior`. config: a
-    :class:`~lisa_hand.fitting.points.config.FitPointsConfig`.
-    """
-    finger = batch.finger_pose
-    prior = config.pose_weight * finger_pose_prior(finger, mean_fingers)
-    if coupling is not None and config.coupling_weight > 0:
-        prior = prior + config.coupling_weight * finger_coupling(finger, coupling[:4])
-    if coupling is not None and config.unseen_thumb_weight > 0:
-        prior = prior + (config.unseen_thumb_weight * coupling[4]
-                         * thumb_pose_prior(finger, mean_fingers))
-    if config.limit_weight > 0:
-        prior = prior + config.limit_weight * joint_limit_excess(finger)
-    if shape_scale is not None:
-        code = batch.shape_code / shape_scale
-        prior = prior + config.shape_weight * (code * code).mean(-1)
-    if batch.betas is not None:
-        prior = prior + config.betas_weight * (batch.betas * batch.betas).sum(-1)
-    return prior

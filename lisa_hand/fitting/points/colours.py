@@ -289,10 +289,10 @@ def transfer_colours(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray
 
 def fit_colour_code(model: Any, params: Any, points: np.ndarray, colours: np.ndarray, *,
                     iters: int = 100, lr: float = 0.05, batch: int = 2048,
-                    latent_weight: float = 1e-3, seed: int = 0) -> torch.Tensor:
+                    code_weight: float = 1e-3, seed: int = 0) -> torch.Tensor:
     """LISA's colour code ``gamma`` of a fitted hand, fitted to a scan's colours: the L1 of the
     model's calibrated colour (its mean gain and bias, as meshes and renders use) at the scan
-    points against their colours, plus ``latent_weight |gamma|`` (the paper's Eq. 13 and 16 with
+    points against their colours, plus ``code_weight |gamma|`` (the paper's Eq. 13 and 16 with
     the points in place of rays), Adam from the hand's code (or the training codes' mean), on
     ``batch`` random points a step.
 
@@ -322,7 +322,7 @@ def fit_colour_code(model: Any, params: Any, points: np.ndarray, colours: np.nda
             pick = pick.to(at.device)
             rgb = field.field(field.prepare(*inputs, code), at[pick][None], with_color=True).rgb
             loss = ((apply_gain_bias(rgb[0], gain, bias) - target[pick]).abs().mean()
-                    + latent_weight * code.norm())
+                    + code_weight * code.norm())
             optimiser.zero_grad()
             loss.backward()
             optimiser.step()

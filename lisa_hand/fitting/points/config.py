@@ -5,13 +5,18 @@ stages: one frozen dataclass, named as the image fitter's (``*_weight``, ``*_ite
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import ClassVar
 
 from ...utils.config import check_int_fields
 from ..priors import PRIOR_POSES
 from ..robust import ROBUST_LOSSES
+from .analysis import AnalysisConfig
 
-__all__ = ["FitPointsConfig"]
+__all__ = ["POINT_STAGES", "FitPointsConfig"]
+
+POINT_STAGES = ("align", "pose", "size", "unseen", "fingers", "coverage", "field", "second")
+"""The point fit's stages in the one order they may run (:mod:`.stages`)."""
 
 
 @dataclass(frozen=True)
@@ -19,11 +24,23 @@ class FitPointsConfig:
     """Settings of :func:`lisa_hand.fitting.points.fit.fit_points` (defaults: a few seconds on a
     CPU for a full hand)."""
 
+    RENAMED: ClassVar[dict[str, str]] = {
+        "lr_rotation": "rotation_lr", "lr_translation": "translation_lr", "lr_pose": "pose_lr",
+        "lr_shape": "shape_lr", "lr_betas": "betas_lr", "num_restarts": "restarts",
+        "lr_decay": "final_lr_fraction"}
+    """Settings by their former names (refused, naming the new one)."""
+
+    stages: tuple[str, ...] = POINT_STAGES
+    """The stages that run, in order (:mod:`.stages`): a subsequence of
+    :data:`POINT_STAGES` holding 'align' and 'field' (e.g. without 'size' and 'fingers')."""
+    analysis: AnalysisConfig = field(default_factory=AnalysisConfig)
+    """How the scan is analysed before the stages (:mod:`.analysis`: the support plane, the
+    sensor position, other pieces)."""
     align_iters: int = 40
     """Adam steps of the rigid alignment of the 24 candidate orientations (proxy, no network)."""
     align_keep: int = 16
     """Distinct candidates that finish the alignment (all of them run its first third)."""
-    num_restarts: int = 8
+    restarts: int = 8
     """Distinct candidates (best alignment energies) that go on to the pose and field stages."""
     pose_iters: int = 60
     """Adam steps of the articulated proxy stage (pose and translation; no network)."""
@@ -74,16 +91,16 @@ class FitPointsConfig:
     """For a one-view scan whose sensor position is known: ask coverage only of the proxy
     points the sensor could have returned (facing it, not behind the scan's nearest return:
     :meth:`.free_space.DepthImage.could_see`); False: of every proxy point."""
-    lr_rotation: float = 0.02
+    rotation_lr: float = 0.02
     """Adam step of the global rotation, radians."""
-    lr_translation: float = 0.002
+    translation_lr: float = 0.002
     """Adam step of the translation, metres."""
-    lr_pose: float = 0.03
+    pose_lr: float = 0.03
     """Adam step of the finger pose (axis-angle), radians."""
-    lr_shape: float = 0.3
+    shape_lr: float = 0.3
     """Adam step of the shape code, in units of the training codes' scale (their root mean
     square entry), so that it suits any model."""
-    lr_betas: float = 0.05
+    betas_lr: float = 0.05
     """Adam step of the template's shape coefficients (betas ~ N(0, 1) over subjects)."""
     robust_loss: str = "geman_mcclure"
     """Penalty of a residual: 'geman_mcclure' (robust to outliers), 'huber' or 'l1' (the
@@ -134,8 +151,8 @@ class FitPointsConfig:
     limit_weight: float = 1e-2
     """Weight of the squared excess of the finger joints' anatomical angles over their limits
     (:func:`lisa_hand.fitting.priors.joint_limit_excess`), radians^2."""
-    betas_weight: float = 1e-5
-    """Weight of ``|betas|^2`` (the template's shape coefficients)."""
+    betas_weight: float = 1e-4
+    """Weight of the mean square of the template's shape coefficients (betas)."""
     normal_weight: float = 0.5
     """Weight of the offset-point term when the cloud has normals (0 turns it off)."""
     free_space_weight: float = 1.0
@@ -176,7 +193,7 @@ class FitPointsConfig:
     """A larger cloud is randomly subsampled to this many points first."""
     min_points: int = 20
     """Fewer points than this is an error."""
-    lr_decay: float = 0.1
+    final_lr_fraction: float = 0.1
     """The learning rates fall (cosine) to this fraction of their value over each stage."""
     device: str | None = None
     """Where to fit ('cpu', 'cuda', ...); None: the model's device."""
@@ -193,6 +210,13 @@ class FitPointsConfig:
     def __post_init__(self) -> None:
         from .global_pose import initial_finger_pose
 
+        stages = self.stages
+        if (not isinstance(stages, tuple) or "align" not in stages or "field" not in stages
+                or any(name not in POINT_STAGES for name in stages)
+                or [POINT_STAGES.index(name) for name in stages]
+                != sorted({POINT_STAGES.index(name) for name in stages})):
+            raise ValueError(f"stages must name, in the order {', '.join(POINT_STAGES)}, "
+                             f"each at most once, a set holding align and field; got {stages!r}")
         check_int_fields(self, ("align_iters", "pose_iters", "finger_iters", "field_iters",
                                 "second_pass_iters", "size_iters"), 0)
         sizes = self.sizes
@@ -202,7 +226,7 @@ class FitPointsConfig:
             raise ValueError(f"sizes must be a non-empty tuple of hand sizes in [0.5, 2], got "
                              f"{sizes!r}")
         check_int_fields(self, ("free_space_points", "free_near_every", "align_keep",
-                                "num_restarts", "points_per_iteration", "proxy_points",
+                                "restarts", "points_per_iteration", "proxy_points",
                                 "max_points", "min_points", "tries"), 1)
         if not self.init_poses:
             raise ValueError("init_poses must name at least one pose")
@@ -213,7 +237,7 @@ class FitPointsConfig:
                              f"{self.robust_loss!r}")
         if self.prior_pose not in PRIOR_POSES:
             raise ValueError(f"prior_pose must be one of {PRIOR_POSES}, got {self.prior_pose!r}")
-        for name in ("lr_rotation", "lr_translation", "lr_pose", "lr_shape", "lr_betas",
+        for name in ("rotation_lr", "translation_lr", "pose_lr", "shape_lr", "betas_lr",
                      "robust_scale_mm", "robust_scale_start_mm", "normal_offset_mm",
                      "coverage_scale_mm", "unseen_share"):
             value = getattr(self, name)
@@ -240,5 +264,5 @@ class FitPointsConfig:
         if threads is not None and (isinstance(threads, bool) or not isinstance(threads, int)
                                     or threads < 1):
             raise ValueError(f"num_threads must be a positive int or None, got {threads!r}")
-        if not 0.0 < self.lr_decay <= 1.0:
-            raise ValueError(f"lr_decay must be in (0, 1], got {self.lr_decay!r}")
+        if not 0.0 < self.final_lr_fraction <= 1.0:
+            raise ValueError(f"final_lr_fraction must be in (0, 1], got {self.final_lr_fraction!r}")

@@ -26,7 +26,8 @@ from ...skeleton import FINGER_JOINTS, FINGER_NAMES
 from ...skeleton.params import HandParams
 from ..priors import prior_mean_fingers
 from ..stages import StageReport
-from .candidates import CandidateBatch, point_prior
+from ..terms import hand_prior
+from .candidates import CandidateBatch
 from .cloud import TargetCloud
 from .monitor import FitMonitor
 from .proxy import SurfaceProxy, optimise_on_proxy, proxy_energy
@@ -37,7 +38,7 @@ FINGER_STARTS = ("flat", "relaxed", "pinch", "fist")
 """Named poses (:func:`lisa_hand.handmodel.poses.named_pose`) each finger restarts from.
 "pinch" (the fingers half curled, about 0.6 / 0.95 / 0.8 rad) covers the bend between "relaxed"
 and "fist", which neither of them reaches on the proxy from one side (checked by
-:mod:`lisa_hand.bench.fit`)."""
+``python -m benchmarks fit``)."""
 THUMB_STARTS = FINGER_STARTS + ("ok",)
 """The thumb's starts."""
 _MM = 1e-3
@@ -73,7 +74,7 @@ def _scores(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, conf
     mean_fingers = prior_mean_fingers(config.prior_pose, batch.pivot.device, batch.pivot.dtype)
     energy = proxy_energy(proxy, cloud, batch, config, config.robust_scale_mm * _MM,
                           num_points=_SCORE_POINTS)
-    return energy + point_prior(config, batch, mean_fingers, None, cloud.coupling)
+    return energy + hand_prior(config, mean_fingers, coupling=cloud.coupling)(batch.terms())
 
 
 def restart_fingers(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequence[HandParams],

@@ -8,7 +8,7 @@ fist): the rotations that map the proxy's principal axes onto the cloud's, up to
 the signs of the axes (the 24 rotations of a cube). The cloud's centroid and axes come from its
 dense part (scattered outliers dropped). All candidates are refined at once by a rigid alignment
 of the proxy energy; after a third of the iterations only the ``align_keep`` best distinct ones
-go on, and the ``num_restarts`` best distinct ones are the result.
+go on, and the ``restarts`` best distinct ones are the result.
 """
 
 from __future__ import annotations
@@ -150,10 +150,10 @@ def search_global_pose(proxy: SurfaceProxy, cloud: TargetCloud, config, like: Ha
 
     proxy: the model's :class:`SurfaceProxy`; cloud: the target (its generator draws the
     subsets). config: a :class:`~lisa_hand.fitting.points.config.FitPointsConfig`
-    (``init_poses``, ``align_iters``, ``align_keep``, ``num_restarts``, the proxy energy's
+    (``init_poses``, ``align_iters``, ``align_keep``, ``restarts``, the proxy energy's
     settings). like: a right hand at rest on the proxy's skeleton whose skeleton, codes, side
     and model the candidates share (its shape code is the proxies').
-    -> (the ``num_restarts`` best distinct candidates, best first; the :class:`StageReport`
+    -> (the ``restarts`` best distinct candidates, best first; the :class:`StageReport`
     ('align') with their proxy energies, metres, and every initial candidate's after the first
     part, ``screened_energies``).
     """
@@ -171,7 +171,7 @@ def search_global_pose(proxy: SurfaceProxy, cloud: TargetCloud, config, like: Ha
     batch = batch.select(distinct_best(batch, screened, config.align_keep))
     energy = align(batch, config.align_iters - first, step_offset=first,
                    total=config.align_iters)
-    index = distinct_best(batch, energy, config.num_restarts)
+    index = distinct_best(batch, energy, config.restarts)
     picked = batch.select(index)
     hands = [picked.hand(number, like) for number in range(picked.count)]
     history = monitor.history[began:] if monitor is not None else []

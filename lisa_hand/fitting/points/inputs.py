@@ -7,20 +7,12 @@ says in plain words what it changed, so that the command line can print it;
 :func:`read_cloud_file` does both for ``lisa fit-points`` (a depth image with its camera, the
 other hands of a scan of several left out: :func:`count_hands`).
 
-Formats (normals are optional everywhere):
-
-* ``.ply``: the vertex element's ``x y z`` and, when present, ``nx ny nz`` (ASCII or binary);
-  faces and other properties are ignored (a mesh's vertices are its points); colours are read
-  by :mod:`.colours`, as for the other formats that hold them.
-* ``.obj``: the ``v`` lines (first three numbers); the ``vn`` lines are the normals when there
-  is one per vertex (point-cloud exports), else they are ignored.
-* ``.xyz``: text, one point a line, ``x y z`` or ``x y z nx ny nz``; ``#`` starts a comment.
-* ``.npy``: an ``[N, 3]`` or ``[N, 6]`` (points, normals) array.
-* ``.npz``: ``points`` (or ``vertices``) ``[N, 3]`` and optional ``normals`` ``[N, 3]`` (the
-  ``scan.npz`` files of ``lisa synth``).
-* ``.stl``, ``.off``, ``.glb``, ``.gltf``: a mesh's distinct vertices, through trimesh
-  (:func:`lisa_hand.metrics.load_mesh`: vertices repeated at the same position, as STL repeats
-  them for every triangle, are merged; a scene's meshes are placed and joined); no normals.
+Formats: the point files of :func:`lisa_hand.data.pointio.read_points` (PLY, OBJ, XYZ, NPY,
+NPZ: points and optional normals; PLY and OBJ parsed by :mod:`lisa_hand.data.meshio`), and
+``.stl``, ``.off``, ``.glb``, ``.gltf``: a mesh's distinct vertices, through trimesh
+(:func:`lisa_hand.metrics.load_mesh`: vertices repeated at the same position, as STL repeats
+them for every triangle, are merged; a scene's meshes are placed and joined); no normals.
+Colours are read by :mod:`.colours`, as for the other formats that hold them.
 """
 
 from __future__ import annotations
@@ -32,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from ...data.meshio import read_ply_vertices
+from ...data.pointio import POINT_FILE_SUFFIXES, named_read_errors, read_points
 from ...data.units import UNIT_CHOICES, decide_length_unit
 from ...skeleton.params import MAX_TRANSLATION_M
-from ...utils.io import read_numpy, require_file
+from ...utils.io import require_file
 
 __all__ = [
     "POINT_CLOUD_SUFFIXES",
@@ -48,8 +40,8 @@ __all__ = [
 ]
 
 
-POINT_CLOUD_SUFFIXES = (".ply", ".obj", ".xyz", ".npy", ".npz", ".stl", ".off", ".glb", ".gltf")
-"""File extensions :func:`read_point_cloud` understands."""
+POINT_CLOUD_SUFFIXES = POINT_FILE_SUFFIXES + (".stl", ".off", ".glb", ".gltf")
+"""File extensions :func:`read_point_cloud` understands: point files, and meshes read by trimesh."""
 
 UNITS = UNIT_CHOICES
 """Length units of an input cloud: metres, centimetres, millimetres, or guessed from its size
@@ -70,17 +62,11 @@ def read_point_cloud(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray | 
         raise ValueError(f"{path}: unsupported point-cloud file type {path.suffix!r} (expected "
                          f"one of {', '.join(POINT_CLOUD_SUFFIXES)})")
     require_file(path)
-    reader = {".ply": _read_ply, ".obj": _read_obj, ".xyz": _read_xyz, ".npy": _read_npy,
-              ".npz": _read_npz}.get(suffix, _read_mesh_vertices)
-    try:
-        points, normals = reader(path)
-    except (OSError, EOFError, ValueError, TypeError, IndexError, KeyError,
-            UnicodeDecodeError) as exc:
-        message = str(exc)
-        if message.startswith(str(path)):
-            raise ValueError(message) from None
-        raise ValueError(f"{path}: cannot read this {suffix[1:].upper()} file "
-                         f"({type(exc).__name__}: {message})") from None
+    if suffix in POINT_FILE_SUFFIXES:
+        points, normals = read_points(path)
+    else:
+        with named_read_errors(path):
+            points, normals = _read_mesh_vertices(path), None
     points, normals = _checked_cloud(points, normals, str(path))
     return np.ascontiguousarray(points), (None if normals is None
                                           else np.ascontiguousarray(normals))
@@ -106,76 +92,11 @@ def _checked_cloud(points, normals, name: str) -> tuple[np.ndarray, np.ndarray |
     return points, normals
 
 
-def _columns(array: np.ndarray, path: Path, what: str) -> tuple[np.ndarray, np.ndarray | None]:
-    """[N, 3] points or [N, 6] points and normals from one array."""
-    array = np.asarray(array)
-    if array.ndim != 2 or array.shape[1] not in (3, 6):
-        raise ValueError(f"{path}: {what} must have shape [N, 3] or [N, 6] (points, normals), "
-                         f"got {list(array.shape)}")
-    if array.dtype.kind not in "iuf":
-        raise ValueError(f"{path}: {what} must be real numbers, got dtype {array.dtype}")
-    return array[:, :3], (array[:, 3:6] if array.shape[1] == 6 else None)
-
-
-def _read_npy(path: Path):
-    array = read_numpy(path)
-    if isinstance(array, dict):
-        raise ValueError(f"{path}: an .npz archive, not a .npy array: name it .npz")
-    return _columns(array, path, "the array")
-
-
-def _read_xyz(path: Path):
-    table = np.loadtxt(path, ndmin=2, comments="#")
-    if table.size == 0:
-        return np.zeros((0, 3)), None
-    return _columns(table, path, "the table")
-
-
-def _read_npz(path: Path):
-    archive = read_numpy(path)
-    if not isinstance(archive, dict):
-        raise ValueError(f"{path}: a .npy array, not an .npz archive: name it .npy")
-    key = next((k for k in ("points", "vertices") if k in archive), None)
-    if key is None:
-        raise ValueError(f"{path}: expected an array named 'points' or 'vertices', found "
-                         f"{list(archive)}")
-    points = archive[key]
-    if points.ndim != 2 or points.shape[1] != 3:
-        raise ValueError(f"{path}: '{key}' must have shape [N, 3], got {list(points.shape)}")
-    return points, archive.get("normals")
-
-
-def _read_obj(path: Path):
-    vertices, normals = [], []
-    with open(path, encoding="utf-8") as handle:
-        for line in handle:
-            if line.startswith("v "):
-                vertices.append(line.split()[1:4])
-            elif line.startswith("vn "):
-                normals.append(line.split()[1:4])
-    if any(len(row) < 3 for row in vertices):
-        raise ValueError(f"{path}: a 'v' line has fewer than 3 coordinates")
-    points = np.array(vertices, dtype=np.float64).reshape(-1, 3)
-    if normals and len(normals) == len(vertices) and all(len(row) == 3 for row in normals):
-        return points, np.array(normals, dtype=np.float64)
-    return points, None
-
-
-def _read_mesh_vertices(path: Path):
+def _read_mesh_vertices(path: Path) -> np.ndarray:
+    """A mesh file's distinct vertices (:func:`lisa_hand.metrics.load_mesh`)."""
     from ...metrics import load_mesh
 
-    return load_mesh(path).vertices, None
-
-
-def _read_ply(path: Path):
-    # The vertex element only (the mesh reader's parser; faces and other elements are skipped).
-    vertex = read_ply_vertices(path)
-    columns = vertex.dtype.names
-    points = np.stack([vertex[axis] for axis in "xyz"], axis=1)
-    normals = None
-    if all(name in columns for name in ("nx", "ny", "nz")):
-        normals = np.stack([vertex[name] for name in ("nx", "ny", "nz")], axis=1)
-    return points, normals
+    return load_mesh(path).vertices
 
 
 @dataclass

@@ -1,5 +1,6 @@
 """From a point-cloud file to a fitted hand on disk (``lisa fit-points``): :func:`fit_point_file`
-reads the file (:mod:`.inputs`), fits it and writes the fit's files, all or nothing.
+reads the file (:mod:`.inputs`), fits it, makes the mesh and the picture (:mod:`.preview`) and
+hands them to the one writer (:func:`lisa_hand.fitting.outputs.write_fit`, all or nothing).
 """
 
 from __future__ import annotations
@@ -85,26 +86,22 @@ def default_point_model(one_view: bool = True) -> str:
     return "default"
 
 
-def choose_point_model(points: np.ndarray, viewpoint: Any, config) -> tuple[str, str]:
+def choose_point_model(analysis) -> tuple[str, str]:
     """The model of a point fit without ``--model`` (:func:`default_point_model`) for this scan
     -> (its name, why, for the log).
 
-    points: [N, 3] metres, the scan as the fit gets it. viewpoint: the fit's (a sensor position
-    or "auto" or None): a position means one view; otherwise the scan is one view when
-    :func:`.viewpoint.estimate_viewpoint` takes it for one (whatever ``--viewpoint`` says, since
-    "none" only keeps the sensor out of the fit). config: the fit's ``FitPointsConfig`` (its
-    seed).
+    analysis: the scan's :class:`.analysis.ScanAnalysis`, made with ``tell_view=True``: a given
+    sensor position means one view; otherwise the scan is one view when it looks like one
+    (whatever ``--viewpoint`` says, since "none" only keeps the sensor out of the fit).
     """
-    from .viewpoint import estimate_viewpoint
-
-    if viewpoint is not None and not isinstance(viewpoint, str):
-        one_view, why = True, "a one-view scan, its sensor given"
-    elif len(points) < 20:
-        one_view, why = True, "too few points to tell one view from all round"
+    if analysis.sensor is not None and analysis.viewpoint is None:
+        why = "a one-view scan, its sensor given"
+    elif analysis.hand_points < 20:
+        why = "too few points to tell one view from all round"
     else:
-        one_view = estimate_viewpoint(points, seed=config.seed).one_view
-        why = "the scan looks like one view" if one_view else "the scan shows the hand all round"
-    return default_point_model(one_view), why
+        why = ("the scan looks like one view" if analysis.one_view
+               else "the scan shows the hand all round")
+    return default_point_model(analysis.one_view), why
 
 
 @releases_output_locks
@@ -138,7 +135,7 @@ def fit_point_file(
 
     Every input is checked before the fit (the cloud, the ground truth, the model, the output
     folder: new, empty or holding only a previous fit's files), and the files are written all or
-    nothing (:func:`lisa_hand.fitting.outputs.write_fit_outputs`): a failure leaves nothing
+    nothing (:func:`lisa_hand.fitting.outputs.write_fit`): a failure leaves nothing
     half-written, and a previous fit in ``out_dir`` is replaced as a whole.
 
     points_path: the cloud (:func:`read_point_cloud`); units: of the cloud and the ground truth
@@ -162,7 +159,7 @@ def fit_point_file(
     colours: "auto": a scan's colours colour ``mesh.ply`` (:mod:`.colours`; logged); "none".
     """
     from ...model.trained import model_label
-    from ..outputs import ground_truth_metrics, prepare_fit, write_fit_outputs
+    from ..outputs import fit_artefacts, ground_truth_metrics, prepare_fit, write_fit
     from .fit import FitPointsConfig, fit_points
 
     log = log or (lambda line: None)
@@ -171,12 +168,10 @@ def fit_point_file(
     config = FitPointsConfig() if config is None else config
     cloud, sensor = read_cloud_file(points_path, units, config, hand, log, depth, support)
     view = _fit_viewpoint(viewpoint, sensor, cloud.unit)
-    if model_path is None:
-        model_path, why = choose_point_model(cloud.points, view, config)
-        log(f"model: {model_path} ({why}; --model to choose another)")
+    analysis, model_path = _analysed(cloud, view, support, others, config, model_path, log)
     truth, model = prepare_fit(out_dir, gt_path, units, model_path, device, log)
-    fit = fit_points(model, cloud.points, cloud.normals, config, side=side, viewpoint=view,
-                     support=support, others=others, progress=progress)
+    fit = fit_points(model, cloud.points, cloud.normals, config, side=side, analysis=analysis,
+                     progress=progress)
     params = fit.params
     params.model = model_label(model_path)
     params.extra["input"] = {"path": str(points_path), "unit": cloud.unit,
@@ -191,11 +186,25 @@ def fit_point_file(
     if colours == "auto" and cloud.colors is not None:
         _scan_coloured(mesh, cloud, fit, model, params, config.seed, out_dir, log)
     metrics = None if truth is None else ground_truth_metrics(mesh, truth, fit.wrist_plane)
-    written = write_fit_outputs(out_dir, params, mesh, metrics,
-                                model=None if refined is None else model,
-                                preview=_preview(mesh, cloud, fit, params.extra["input"], log))
+    artefacts = fit_artefacts(params, mesh, metrics, model=None if refined is None else model,
+                              preview=_preview(mesh, cloud, fit, params.extra["input"], log))
+    written = write_fit(out_dir, artefacts)
     return FitPointsReport(cloud=cloud, fit=fit, mesh=mesh, metrics=metrics, written=written,
                            refine=refined)
+
+
+def _analysed(cloud: PointCloud, view, support, others, config, model_path, log):
+    """The scan analysed once (:func:`.analysis.analyse_scan`) and the model: ``model_path``, or
+    the one :func:`choose_point_model` chooses for it (logged) -> (analysis, model path)."""
+    from .analysis import analyse_scan
+
+    analysis = analyse_scan(cloud.points, viewpoint=view, support=support, others=others,
+                            config=config.analysis, seed=config.seed,
+                            tell_view=model_path is None)
+    if model_path is None:
+        model_path, why = choose_point_model(analysis)
+        log(f"model: {model_path} ({why}; --model to choose another)")
+    return analysis, model_path
 
 
 def _fit_viewpoint(viewpoint, sensor, unit: str):
@@ -232,9 +241,7 @@ def hand_points(cloud: PointCloud, fit) -> np.ndarray:
     """[N] bool: the cloud's points the fit took as the hand's (not a support's, another
     piece's, or beyond the fitted wrist's cut)."""
     points = np.asarray(cloud.points, np.float64)
-    kept = np.ones(len(points), bool) if fit.support is None else ~fit.support.removed
-    if fit.others is not None:
-        kept[np.flatnonzero(kept)[fit.others.removed]] = False
+    kept = fit.analysis.keep.copy()
     if fit.wrist_plane is not None:
         kept &= fit.wrist_plane.keeps(points)
     return kept

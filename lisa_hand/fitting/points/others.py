@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["HAND_REACH_M", "Others", "find_others", "nearest_part", "split_hands"]
+__all__ = ["HAND_REACH_M", "Others", "OthersConfig", "find_others", "nearest_part", "split_hands"]
 
 HAND_REACH_M = 0.3
 """How far along the scan's surface from its point nearest the sensor a hand is taken to reach
@@ -104,27 +104,47 @@ def _extent(points: np.ndarray) -> float:
     return float(np.linalg.norm(points.max(0) - points.min(0)))
 
 
-def find_others(points, link_m: float = 0.01, reach_m: float = 0.03, min_share: float = 0.05,
-                max_share: float = 0.6, max_hand_m: float = 0.6, sensor=None,
-                hand_reach_m: float = HAND_REACH_M) -> Others | None:
+@dataclass(frozen=True)
+class OthersConfig:
+    """How :func:`find_others` tells the hand's piece of a scan from the rest."""
+
+    link_m: float = 0.01
+    """Voxel size, metres: points in touching voxels are one piece (gaps under about a
+    centimetre are bridged)."""
+    reach_m: float = 0.03
+    """Pieces nearer the largest than this stay, metres."""
+    min_share: float = 0.05
+    """Pieces with fewer points than this share of the largest's stay."""
+    max_share: float = 0.6
+    """So do those with more (counted as unclear: maybe the other hand)."""
+    max_hand_m: float = 0.6
+    """The largest piece is taken for the hand only when its bounding box's diagonal is at most
+    this, metres (a hand and a forearm in a crop: under half a metre)."""
+    hand_reach_m: float = HAND_REACH_M
+    """With a sensor, how far the part nearest it may reach along its surface, metres
+    (:func:`nearest_part`)."""
+
+    def __post_init__(self) -> None:
+        if not (self.link_m > 0 and self.reach_m >= 0):
+            raise ValueError(f"link_m must be > 0 and reach_m >= 0, got {self.link_m!r}, "
+                             f"{self.reach_m!r}")
+
+
+def find_others(points, config: OthersConfig | None = None, sensor=None) -> Others | None:
     """The pieces of a scan apart from its largest one (see the module docstring), or None when
     none is.
 
-    points: [N, 3] metres (numpy or torch). link_m: voxel size, metres (points in touching
-    voxels are one piece: gaps under about a centimetre are bridged). reach_m: pieces nearer
-    the largest than this stay, metres. min_share: pieces with fewer points than this share of
-    the largest's stay; max_share: so do those with more (counted as unclear). max_hand_m: the
-    largest piece is taken for the hand only when its bounding box's diagonal is at most this,
-    metres (a hand and a forearm in a crop: under half a metre). sensor: [3] metres, the
-    sensor's position, or None; with it a scan whose largest piece is larger than a hand, or
-    whose piece nearest the sensor reaches on along its surface further than ``max_hand_m``
-    from its nearest point (an arm leading to a body), keeps only the part nearest the sensor
-    (:func:`nearest_part` with ``hand_reach_m``, metres).
+    points: [N, 3] metres (numpy or torch). config: :class:`OthersConfig` (defaults: None).
+    sensor: [3] metres, the sensor's position, or None; with it a scan whose largest piece is
+    larger than a hand, or whose piece nearest the sensor reaches on along its surface further
+    than ``config.max_hand_m`` from its nearest point (an arm leading to a body), keeps only the
+    part nearest the sensor (:func:`nearest_part` with ``config.hand_reach_m``).
     """
     from scipy.spatial import cKDTree
 
-    if not (link_m > 0 and reach_m >= 0):
-        raise ValueError(f"link_m must be > 0 and reach_m >= 0, got {link_m!r}, {reach_m!r}")
+    config = OthersConfig() if config is None else config
+    link_m, reach_m, max_hand_m = config.link_m, config.reach_m, config.max_hand_m
+    min_share, max_share, hand_reach_m = config.min_share, config.max_share, config.hand_reach_m
     points = _as_points(points)
     pieces = _pieces(points, link_m)
     if pieces is None:

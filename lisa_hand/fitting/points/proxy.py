@@ -2,23 +2,11 @@
 
 The proxy is a cheap stand-in for the LISA field: points on the model's zero level set at rest
 (mean shape code, or a fitted hand's) with their normals and the field's skinning weights, posed
-by linear blend skinning. Its energy (per candidate): the robust distance from each of 256 random
-cloud points to the nearest proxy point (mostly along that point's normal,
-``FitPointsConfig.proxy_tangent_weight``: the proxy's spacing does not set a floor under the
-distance), plus ``coverage_weight`` times a robust distance from each proxy point to the cloud
-(the cloud's distance grid). The first term alone lets extra model surface go unpunished (a flat
-finger beside the curled finger of a fist scan); the second is a bounded Geman-McClure term
-(scale ``coverage_scale_mm``), so the unseen side of a partial scan costs little and pulls
-weakly; with a one-view scan's sensor position it is asked only of the proxy points the sensor
-could have returned (``coverage_seen_only``). ``sigma`` goes down geometrically from
-``robust_scale_start_mm`` to ``robust_scale_mm`` over each stage (coarse to fine). For a
-one-view scan whose sensor position is known, a third term, ``free_space_weight`` times the
-bounded penalty (same scale) of how far each proxy point lies in the space the sensor saw to be
-empty (:class:`~.free_space.DepthImage`; points beyond the wrist joint are not asked, a scan may
-stop there), in every stage but the global search ('align', where a hand still turned the wrong way
-would be pushed sideways rather than turned). For a hand resting on a surface found in the scan
-(:mod:`.support`), ``support_weight`` times the bounded penalty of how far each proxy point lies
-beyond it (2 mm allowed), in every stage.
+by linear blend skinning. Its energy (:func:`proxy_energy`) is the sum of the terms of
+:mod:`.proxy_terms`: the robust distance from random cloud points to the proxy, the proxy's
+coverage by the cloud, and for a one-view scan or a hand on a desk, the free space the sensor
+saw and the support plane. The robust scale goes down geometrically from
+``robust_scale_start_mm`` to ``robust_scale_mm`` over each stage (coarse to fine).
 """
 
 from __future__ import annotations
@@ -31,20 +19,21 @@ import torch
 
 from ...skeleton import NUM_JOINTS, POSE_DIM, forward_kinematics, linear_blend_skinning
 from ...skeleton.params import HandParams
+from ..optim import adam, lr_schedule
 from ..priors import prior_mean_fingers
-from ..robust import annealed_scale, robust_loss
+from ..robust import annealed_scale
 from ..stages import StageReport
-from .adam import Adam, cosine_factor
-from .candidates import CandidateBatch, point_prior
-from .cloud import TargetCloud, nearest_distance
+from ..terms import hand_prior
+from .candidates import CandidateBatch
+from .cloud import TargetCloud
 from .monitor import FitMonitor
+from .proxy_terms import ProxySample, proxy_terms
 
 __all__ = ["SurfaceProxy", "build_surface_proxy", "covered_fraction", "unseen_fingers",
            "proxy_energy", "optimise_on_proxy", "fit_proxy_pose"]
 
 _MM = 1e-3
 _PROXY_STAGE_POINTS = 256  # cloud points per iteration of the proxy stages
-_SUPPORT_MARGIN_M = 0.002  # proxy points may sink this far into a support (noise, flesh)
 
 
 @dataclass
@@ -210,42 +199,20 @@ def proxy_energy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch,
                  scale: float, subset: torch.Tensor | None = None,
                  num_points: int = _PROXY_STAGE_POINTS, free_space: bool = True
                  ) -> torch.Tensor:
-    """[K] the proxy energy of the module docstring at robust scale ``scale`` (metres), on
-    ``num_points`` random cloud points (drawn from ``cloud.generator``; 256 by default, the
-    same for every candidate) and the proxy points ``subset`` (all: None). config: a
-    :class:`~lisa_hand.fitting.points.config.FitPointsConfig`. free_space: add the free-space
-    term (when the cloud has a depth image)."""
-    proxy_points = proxy.world(batch, subset)
-    points = cloud.points[cloud.sample(num_points)]
-    tangent = config.proxy_tangent_weight
+    """[K] the proxy energy (:func:`.proxy_terms.proxy_terms`) at robust scale ``scale``
+    (metres), on ``num_points`` random cloud points (drawn from ``cloud.generator``; 256 by
+    default, the same for every candidate) and the proxy points ``subset`` (all: None). config:
+    a :class:`~lisa_hand.fitting.points.config.FitPointsConfig`. free_space: with the
+    free-space term (when the cloud has a depth image)."""
     seen_only = cloud.depth is not None and config.coverage_seen_only
-    normals = proxy.world_normals(batch, subset) if tangent != 1.0 or seen_only else None
-    distance = nearest_distance(points.expand(batch.count, -1, -1), proxy_points,
-                                normals if tangent != 1.0 else None, tangent)
-    energy = robust_loss(distance, config.robust_loss, scale).mean(-1)
-    if config.coverage_weight > 0:
-        uncovered = cloud.distance_grid(proxy_points)
-        coverage = robust_loss(uncovered, "geman_mcclure", config.coverage_scale_mm * _MM)
-        if cloud.depth is not None and config.coverage_seen_only:
-            # a one-view scan shows only what faces its sensor and is not hidden behind
-            # what it returned: the rest of the hand need not be near a scan point
-            coverage = coverage * cloud.depth.could_see(proxy_points.detach(), None if normals
-                                                        is None else normals.detach())
-        energy = energy + config.coverage_weight * coverage.mean(-1)
-    if free_space and cloud.depth is not None and config.free_space_weight > 0:
-        # no proxy point where the sensor saw nothing (beyond the wrist joint it may stop)
-        rest = proxy.points_rest if subset is None else proxy.points_rest[subset]
-        hand_side = (rest[:, 0] <= proxy.rest_joints[0, 0]).to(proxy_points.dtype)
-        seen = robust_loss(cloud.depth.violation(proxy_points), "geman_mcclure",
-                           config.coverage_scale_mm * _MM)
-        energy = energy + config.free_space_weight * (seen * hand_side).mean(-1)
-    if cloud.support is not None and config.support_weight > 0:
-        # the hand stays on its side of the surface it rests on (a small margin for noise)
-        origin, normal = cloud.support
-        beyond = (-((proxy_points - origin) @ normal) - _SUPPORT_MARGIN_M).clamp(min=0.0)
-        energy = energy + config.support_weight * robust_loss(
-            beyond, "geman_mcclure", config.coverage_scale_mm * _MM).mean(-1)
-    return energy
+    normals = (proxy.world_normals(batch, subset)
+               if config.proxy_tangent_weight != 1.0 or seen_only else None)
+    sample = ProxySample(proxy=proxy, cloud=cloud, points=proxy.world(batch, subset),
+                         normals=normals,
+                         rest=proxy.points_rest if subset is None else proxy.points_rest[subset],
+                         targets=cloud.points[cloud.sample(num_points)], scale=scale,
+                         config=config)
+    return proxy_terms(config, free_space)(sample)
 
 
 def optimise_on_proxy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, config,
@@ -260,22 +227,24 @@ def optimise_on_proxy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateB
     fixed skeletons make the monitor's hands (:meth:`CandidateBatch.hand`). -> [K] the final
     proxy energies."""
     total = iterations if total is None else total
-    rates = (config.lr_rotation, config.lr_translation, config.lr_pose)
+    rates = (config.rotation_lr, config.translation_lr, config.pose_lr)
     tensors = batch.unknowns(with_shape=False)[: 2 if stage == "align" else 3]
-    optimizer = Adam(list(zip(tensors, rates[: len(tensors)], strict=True)))
+    optimizer = adam(list(zip(tensors, rates[: len(tensors)], strict=True)))
+    schedule = lr_schedule(optimizer, total, config.final_lr_fraction, start=step_offset)
     mean_fingers = prior_mean_fingers(config.prior_pose, batch.pivot.device, batch.pivot.dtype)
+    prior = hand_prior(config, mean_fingers, coupling=cloud.coupling)
     start, end = config.robust_scale_start_mm * _MM, config.robust_scale_mm * _MM
     energy = None
     for step in range(step_offset, step_offset + iterations):
-        optimizer.factor = cosine_factor(step, total, config.lr_decay)
         energy = proxy_energy(proxy, cloud, batch, config, annealed_scale(start, end, step, total),
                               proxy_subset, free_space=stage != "align")
         loss = energy
         if stage != "align":
-            loss = loss + point_prior(config, batch, mean_fingers, None, cloud.coupling)
+            loss = loss + prior(batch.terms())
         batch.clear_grads()
         loss.sum().backward()
         optimizer.step()
+        schedule.step()
         if monitor is not None:
             monitor.record(stage, step, total, energy, lambda index: batch.hand(index, like))
     if energy is None:  # no iteration: score the starting points

@@ -31,6 +31,7 @@ import torch
 
 from ...skeleton.params import HandParams
 from ...utils.config import check_int_fields
+from ..optim import lr_schedule
 from ..robust import robust_loss
 from ..stages import StageReport, progress_bar
 
@@ -110,8 +111,7 @@ def refine_surface(model, hand: HandParams, points: torch.Tensor,
     for weight in weights:
         weight.requires_grad_(True)
     optimizer = torch.optim.Adam(weights, lr=config.lr)
-    schedule = torch.optim.lr_scheduler.LambdaLR(
-        optimizer, lambda step: 0.1 + 0.45 * (1 + math.cos(math.pi * step / config.iters)))
+    schedule = lr_schedule(optimizer, config.iters, 0.1)
     generator = torch.Generator().manual_seed(config.seed)
     before = _mean_abs_sdf(field, hand, points)
     history = []

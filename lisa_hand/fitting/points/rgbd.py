@@ -3,7 +3,7 @@
 Depth cameras (RealSense, Azure Kinect, a phone's LiDAR) write a colour image beside the depth.
 Aligned to the depth camera (RealSense's ``rs.align(rs.stream.depth)``, Azure Kinect's
 ``transformed color``), its pixels are the depth image's. MediaPipe finds the hand in it (the
-photo extra, :mod:`lisa_hand.fitting.photo.detect`), which gives what the depth alone cannot:
+photo extra, :mod:`lisa_hand.data.detect`), which gives what the depth alone cannot:
 which pixels are the hand's when something else is nearer the sensor or touches it, and which
 hand it is. The mask is the detected skeleton drawn with bones a hand size wide
 (:func:`~lisa_hand.fitting.photo.mask.keypoint_mask`), grown by :data:`HAND_MARGIN` hand sizes:
@@ -25,8 +25,8 @@ import numpy as np
 from scipy.ndimage import distance_transform_edt
 
 from ...data.depth import DepthFrame, read_depth_image
+from ...data.detect import detect_hands, photo_extra_missing
 from ...data.photo import read_photo
-from ..photo.detect import detect_hands, photo_extra_missing
 from ..photo.mask import hand_scale_px, keypoint_mask
 from .others import HAND_REACH_M
 
@@ -61,7 +61,7 @@ def find_colour_hand(colour: str | os.PathLike, size: tuple[int, int], *,
 
     size: (width, height) of the depth image; side: "right" or "left" to take only a hand of
     that side, None: any; detect: what finds the hands in an [H, W, 3] float RGB image (default:
-    :func:`~lisa_hand.fitting.photo.detect.detect_hands`). With several hands, the largest is
+    :func:`~lisa_hand.data.detect.detect_hands`). With several hands, the largest is
     taken. Errors are one line naming the file: another size, no hand, the photo extra missing.
     """
     path = Path(colour)

@@ -3,7 +3,7 @@ of it and kept as a bound.
 
 A depth camera looking at a hand on a desk returns the desk too: in a 30 cm crop around the hand
 most of the points. Fitted as they are, the hand is pulled into the desk (``python -m
-lisa_hand.bench fit --webxr-table none`` shows it).
+benchmarks fit --webxr-table none`` shows it).
 Such a surface is the largest plane of the cloud, and it is not part of a hand:
 
 * **found** by RANSAC (:func:`find_support`: planes through three random points, the one with

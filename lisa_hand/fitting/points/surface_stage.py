@@ -1,11 +1,13 @@
 """The surface stage of the point fit ('field'): every unknown on the LISA field.
 
-Field energy (lengths in metres), per candidate::
+Field energy (lengths in metres), per candidate: the data terms of :mod:`.field_terms` and the
+prior terms of :func:`lisa_hand.fitting.terms.hand_prior`::
 
     E = mean_i rho(G(x_i))
         + w_n mean_i [rho(G(x_i + eps n_i) - eps) + rho(G(x_i - eps n_i) + eps)] / 2
         + w_f mean_j rho(min(G(f_j), 0))
-        + w_s mean (beta+ / s)^2 + w_p prior(theta_fingers) + w_l limits(theta) + w_b |betas|^2
+        + w_s mean (beta+ / s)^2 + w_p prior(theta_fingers) + w_l limits(theta)
+        + w_b mean betas^2
 
 ``rho`` is :func:`lisa_hand.fitting.robust.robust_loss` at scale ``robust_scale_mm`` (the paper's
 ``|G|`` with 'l1'). The free-space term (only for a one-view scan whose sensor position is known,
@@ -41,12 +43,13 @@ from dataclasses import replace
 import torch
 
 from ...skeleton.params import HandParams
+from ..optim import adam, keep_rows, lr_schedule
 from ..priors import prior_mean_fingers
-from ..robust import robust_loss
 from ..stages import StageReport
-from .adam import Adam, cosine_factor
-from .candidates import CandidateBatch, point_prior
+from ..terms import hand_prior
+from .candidates import CandidateBatch
 from .cloud import TargetCloud
+from .field_terms import FieldSample, field_energy, field_terms
 from .monitor import FitMonitor
 
 __all__ = ["frozen_field", "shape_code_scale", "fit_surface", "surface_residuals"]
@@ -96,6 +99,9 @@ class _FieldEnergy:
         self.code_scale = shape_code_scale(model)
         self.shape_scale = self.code_scale if config.fit_shape else None
         self.mean_fingers = prior_mean_fingers(config.prior_pose, **like)
+        self.prior = hand_prior(config, self.mean_fingers, shape_scale=self.shape_scale,
+                                coupling=cloud.coupling)
+        self.terms = field_terms(config)
         self.cuts: tuple[torch.Tensor, torch.Tensor] | None = None  # see place_cuts
 
     def rest_joints(self, batch: CandidateBatch) -> torch.Tensor:
@@ -141,37 +147,25 @@ class _FieldEnergy:
 
     def data(self, batch: CandidateBatch, index: torch.Tensor, scale: float,
              free_index: torch.Tensor | None = None) -> torch.Tensor:
-        """[K] mean robust penalty of the field at the cloud points ``index`` (and offsets),
-        plus the free-space term at the cloud's free points ``free_index`` (when it has any).
-        With a wrist cut, each candidate counts only the points on its own hand's side of it
-        (the means over those: :meth:`hand_side`), so that a scan's forearm, or the model's
-        stub where a scan stops short, weighs on no candidate."""
+        """[K] the data terms (:mod:`.field_terms`) at the cloud points ``index`` and its free
+        points ``free_index`` (when it has any), one field evaluation for all. With a wrist
+        cut, each candidate counts only the points on its own hand's side of it (the means
+        over those: :meth:`hand_side`), so that a scan's forearm, or the model's stub where a
+        scan stops short, weighs on no candidate."""
         config, cloud = self.config, self.cloud
-        points = cloud.points[index]
-        num = points.shape[0]
-        keep = self.hand_side(batch, points, config.wrist_clip_m or 0.0)
-        use_normals = cloud.normals is not None and config.normal_weight > 0
-        if use_normals:
-            offset = config.normal_offset_mm * _MM * cloud.normals[index]
-            points = torch.cat([points, points + offset, points - offset])
-        use_free = free_index is not None and free_index.numel() > 0
-        if use_free:
-            points = torch.cat([points, cloud.free[free_index]])
-        sdf = self.field.field(self.state(batch), points.expand(batch.count, -1, -1).contiguous(),
-                               with_color=False).sdf
-        data = _mean(robust_loss(sdf[:, :num], config.robust_loss, scale), keep)
-        if use_normals:
-            eps = config.normal_offset_mm * _MM
-            outside = robust_loss(sdf[:, num:2 * num] - eps, config.robust_loss, scale)
-            inside = robust_loss(sdf[:, 2 * num:3 * num] + eps, config.robust_loss, scale)
-            data = data + config.normal_weight * 0.5 * (_mean(outside, keep) +
-                                                        _mean(inside, keep))
-        if use_free:  # the field must be outside (>= 0) where the sensor saw nothing
-            inside = sdf[:, sdf.shape[1] - free_index.numel():].clamp(max=0.0)
-            free_keep = self.hand_side(batch, cloud.free[free_index], 0.0)
-            data = data + config.free_space_weight * _mean(
-                robust_loss(inside, config.robust_loss, scale), free_keep)
-        return data
+        has_free = free_index is not None and free_index.numel() > 0
+        sample = FieldSample(
+            cloud=cloud, index=index, free_index=free_index,
+            keep=self.hand_side(batch, cloud.points[index], config.wrist_clip_m or 0.0),
+            free_keep=self.hand_side(batch, cloud.free[free_index], 0.0) if has_free else None,
+            scale=scale, robust=config.robust_loss, count=batch.count)
+        state = self.state(batch)
+
+        def evaluate(points: torch.Tensor) -> torch.Tensor:
+            return self.field.field(state, points.expand(batch.count, -1, -1).contiguous(),
+                                    with_color=False).sdf
+
+        return field_energy(self.terms, sample, evaluate)
 
     def free_sample(self, count: int) -> torch.Tensor | None:
         """[min(M, count)] random indices of the cloud's free points, or None without any."""
@@ -187,8 +181,7 @@ class _FieldEnergy:
               free_index: torch.Tensor | None = None) -> torch.Tensor:
         """[K] data term at the final robust scale plus the prior."""
         data = self.data(batch, index, self.config.robust_scale_mm * _MM, free_index)
-        return data + point_prior(self.config, batch, self.mean_fingers, self.shape_scale,
-                                  self.cloud.coupling)
+        return data + self.prior(batch.terms())
 
     @torch.no_grad()
     def evaluate(self, batch: CandidateBatch) -> torch.Tensor:
@@ -203,13 +196,6 @@ class _FieldEnergy:
             free = torch.arange(min(self.cloud.free.shape[0], _EVALUATION_POINTS),
                                 device=self.cloud.free.device)
         return self.total(batch, index.to(self.cloud.points.device), free)
-
-
-def _mean(values: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
-    """[K] the mean of values [K, N] over the entries ``keep`` [K, N] (0/1; None: all)."""
-    if keep is None:
-        return values.mean(-1)
-    return (values * keep).sum(-1) / keep.sum(-1).clamp(min=1.0)
 
 
 def _prune_schedule(config, count: int) -> dict[int, int]:
@@ -280,11 +266,12 @@ def _optimise(energy: _FieldEnergy, batch: CandidateBatch, like: HandParams,
     config, base = energy.config, energy.cloud
     iterations = config.field_iters
     prunes = _prune_schedule(config, batch.count)
-    rates = (config.lr_rotation, config.lr_translation, config.lr_pose,
-             config.lr_shape * energy.code_scale, config.lr_betas)
+    rates = (config.rotation_lr, config.translation_lr, config.pose_lr,
+             config.shape_lr * energy.code_scale, config.betas_lr)
     groups = [(t, lr) for t, lr in zip(batch.unknowns(config.fit_shape), rates, strict=True)
               if t is not None]
-    optimizer = Adam(groups)
+    optimizer = adam(groups)
+    schedule = lr_schedule(optimizer, iterations, config.final_lr_fraction)
     for step in range(iterations):
         if free_near is not None and (step in prunes or step % config.free_near_every == 0):
             near = free_near(batch)
@@ -296,14 +283,14 @@ def _optimise(energy: _FieldEnergy, batch: CandidateBatch, like: HandParams,
         if step in prunes and batch.count > prunes[step]:
             best = torch.argsort(energy.evaluate(batch))[: prunes[step]]
             batch = batch.select(best)
-            optimizer.select(best, [t for t in batch.unknowns(config.fit_shape)
-                                    if t is not None])
-        optimizer.factor = cosine_factor(step, iterations, config.lr_decay)
+            keep_rows(optimizer, best, [t for t in batch.unknowns(config.fit_shape)
+                                        if t is not None])
         total = energy.total(batch, cloud.sample(config.points_per_iteration),
                              energy.free_sample(config.points_per_iteration))
         batch.clear_grads()
         total.sum().backward()
         optimizer.step()
+        schedule.step()
         if monitor is not None:
             monitor.record("field", step, iterations, total, lambda index, batch=batch:
                            batch.hand(index, like, energy.rest_joints(batch)))

@@ -270,7 +270,7 @@ def test_unknown_side_is_chosen_by_fitting_both(model_file, tmp_path):
 
 
 def test_detected_hands_and_an_unsure_side(model_file, tmp_path, monkeypatch):
-    from lisa_hand.fitting.photo import detect
+    from lisa_hand.data import detect
 
     model, path = model_file
     photo = render_photo(model, [photo_hand(model)])

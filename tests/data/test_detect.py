@@ -1,0 +1,416 @@
+"""Hand detection in photos (lisa_hand.data.detect).
+
+The search (windows, zoom, crops, refinement, mapping back to pixels, mirroring, merging) is
+checked without MediaPipe, with a stand-in detector that finds coloured rectangles of a known
+size range; MediaPipe itself (the photo extra) on the two real photos of ``tests/assets/photos``."""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+from scipy import ndimage
+
+from lisa_hand.data.detect import (
+    MEDIAPIPE_LABEL_TO_SIDE,
+    MEDIAPIPE_WRIST_SHIFT,
+    PHOTO_EXTRA_HINT,
+    DetectConfig,
+    DetectedHand,
+    detect_hands,
+    photo_extra_missing,
+    to_skeleton_wrist,
+)
+from lisa_hand.skeleton import KEYPOINT_NAMES
+from tests.assets import PHOTOS
+
+MAGENTA, GREEN, GREY = (1.0, 0.0, 1.0), (0.0, 1.0, 0.0), (0.45, 0.45, 0.45)
+
+# --- a stand-in for MediaPipe: "hands" are magenta rectangles, a green patch on the thumb side --
+
+
+class FakeHands:
+    """MediaPipe's ``Hands`` interface on marker rectangles (see :func:`marker`).
+
+    A marker is found when its long side is 10-70% of the input's long side (like the palm
+    detector, which misses hands that are too small or fill the input). Its 21 landmarks spread
+    over its box on a 3 x 7 grid; its label follows MediaPipe's mirrored convention: "Left" when
+    the green part is on the left of the marker (a right hand in a plain photo).
+    """
+
+    calls: list[dict] = []
+
+    def __init__(self, square_only_fails: bool = False, **kwargs):
+        FakeHands.calls.append(kwargs)
+        self.square_only_fails = square_only_fails
+        self.inputs: list[tuple[int, int]] = []
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def process(self, rgb: np.ndarray):
+        assert rgb.dtype == np.uint8 and rgb.flags["C_CONTIGUOUS"] and rgb.shape[2] == 3
+        height, width = rgb.shape[:2]
+        self.inputs.append((width, height))
+        red, green, blue = (rgb[..., c].astype(int) for c in range(3))
+        magenta = (red > 150) & (green < 110) & (blue > 150)
+        greenish = (green > 150) & (red < 110) & (blue < 110)
+        labels, count = ndimage.label(magenta)
+        landmarks, handedness = [], []
+        grid = np.stack(np.meshgrid(np.linspace(0, 1, 3), np.linspace(0, 1, 7)), -1).reshape(-1, 2)
+        for index in range(1, count + 1):
+            rows, cols = np.nonzero(labels == index)
+            x0, x1, y0, y1 = cols.min(), cols.max() + 1, rows.min(), rows.max() + 1
+            if not 0.1 <= max(x1 - x0, y1 - y0) / max(width, height) <= 0.7:
+                continue
+            if self.square_only_fails and width != height:
+                pass  # found in crops (the image's aspect ratio)...
+            elif self.square_only_fails:
+                continue  # ...never in square refinement windows: a false detection
+            green_cols = np.nonzero(greenish[y0:y1, x0:x1])[1] + x0
+            label = "Left" if green_cols.size and green_cols.mean() < 0.5 * (x0 + x1) else "Right"
+            points = [SimpleNamespace(x=(x0 + u * (x1 - x0)) / width,
+                                      y=(y0 + v * (y1 - y0)) / height) for u, v in grid]
+            landmarks.append(SimpleNamespace(landmark=points))
+            handedness.append(SimpleNamespace(
+                classification=[SimpleNamespace(label=label, score=0.9)]))
+        return SimpleNamespace(multi_hand_landmarks=landmarks or None,
+                               multi_handedness=handedness or None)
+
+
+def marker(image: np.ndarray, x0: int, y0: int, width: int, height: int,
+           thumb: str = "left") -> None:
+    """Paint a marker hand: a magenta rectangle with a green patch inside, near its thumb side
+    (left or right), magenta all around it."""
+    image[y0:y0 + height, x0:x0 + width] = MAGENTA
+    rows = slice(y0 + height // 4, y0 + 3 * height // 4)
+    inset, patch = max(2, width // 10), max(2, width // 6)
+    if thumb == "left":
+        image[rows, x0 + inset:x0 + inset + patch] = GREEN
+    else:
+        image[rows, x0 + width - inset - patch:x0 + width - inset] = GREEN
+
+
+def canvas(width: int = 1000, height: int = 800) -> np.ndarray:
+    return np.full((height, width, 3), GREY, np.float32)
+
+
+def fake(**kwargs):
+    return lambda **options: FakeHands(**kwargs, **options)
+
+
+def test_keypoint_order_is_the_package_order():
+    # MediaPipe's HandLandmark names (0.10.14), copied here so that the check runs without it;
+    # test_mediapipe_landmark_names checks the copy against MediaPipe when it is installed.
+    assert [name.lower().replace("_finger", "") for name in MEDIAPIPE_LANDMARKS] == \
+        list(KEYPOINT_NAMES)
+
+
+MEDIAPIPE_LANDMARKS = (
+    "WRIST", "THUMB_CMC", "THUMB_MCP", "THUMB_IP", "THUMB_TIP",
+    "INDEX_FINGER_MCP", "INDEX_FINGER_PIP", "INDEX_FINGER_DIP", "INDEX_FINGER_TIP",
+    "MIDDLE_FINGER_MCP", "MIDDLE_FINGER_PIP", "MIDDLE_FINGER_DIP", "MIDDLE_FINGER_TIP",
+    "RING_FINGER_MCP", "RING_FINGER_PIP", "RING_FINGER_DIP", "RING_FINGER_TIP",
+    "PINKY_MCP", "PINKY_PIP", "PINKY_DIP", "PINKY_TIP",
+)  # fmt: skip
+
+
+def test_extra_missing_hint(monkeypatch):
+    monkeypatch.setitem(sys.modules, "mediapipe", None)  # `import mediapipe` raises ImportError
+    assert photo_extra_missing() == PHOTO_EXTRA_HINT
+    assert "pip install -e '.[photo]'" in PHOTO_EXTRA_HINT and "--keypoints" in PHOTO_EXTRA_HINT
+    assert "\n" not in PHOTO_EXTRA_HINT
+    with pytest.raises(ImportError, match=r"pip install -e '\.\[photo\]'"):
+        detect_hands(canvas())
+
+
+def test_to_skeleton_wrist_undoes_the_detectors_wrist():
+    """A wrist a fraction f of the way to the middle knuckle, projected by a pinhole camera, is
+    moved back to the projection of the true wrist (exact along a line parallel to the image;
+    within 3% of the wrist-to-knuckle length in the image for a hand tilted 40 degrees in depth
+    at 0.4 m: measured 2.9 px of 125); the other rows stay."""
+    rng = np.random.default_rng(0)
+    keypoints = rng.uniform(100.0, 300.0, size=(21, 2))
+    wrist, knuckle = np.array([0.0, 0.0, 0.4]), np.array([0.0, 0.09, 0.4])
+    tilted = np.array([0.0, 0.09 * np.cos(0.7), 0.4 + 0.09 * np.sin(0.7)])
+    focal, centre = 800.0, np.array([320.0, 240.0])
+
+    def project(point):
+        return focal * point[:2] / point[2] + centre
+
+    for end, tolerance in ((knuckle, 1e-9), (tilted, 0.03)):
+        detected = keypoints.copy()
+        detected[9] = project(end)
+        detected[0] = project(wrist + MEDIAPIPE_WRIST_SHIFT * (end - wrist))
+        moved = to_skeleton_wrist(detected)
+        length = np.linalg.norm(detected[9] - project(wrist))
+        assert np.linalg.norm(moved[0] - project(wrist)) < tolerance * length
+        np.testing.assert_array_equal(moved[1:], detected[1:])
+        assert np.linalg.norm(detected[0] - project(wrist)) > 10.0  # the shift is not small
+    np.testing.assert_array_equal(to_skeleton_wrist(keypoints, 0.0), keypoints)
+    for bad in (-0.1, 1.0):
+        with pytest.raises(ValueError, match="wrist shift"):
+            to_skeleton_wrist(keypoints, bad)
+
+
+def test_label_mapping():
+    assert MEDIAPIPE_LABEL_TO_SIDE == {"Left": "right", "Right": "left"}
+
+
+def test_big_hand_found_in_whole_image():
+    image = canvas()
+    marker(image, 300, 200, 200, 150, thumb="left")
+    FakeHands.calls.clear()
+    hands = detect_hands(image, max_hands=3, hands_factory=fake())
+    assert FakeHands.calls[0] == {"static_image_mode": True, "max_num_hands": 3,
+                                  "model_complexity": 1, "min_detection_confidence": 0.3}
+    assert len(hands) == 1
+    hand = hands[0]
+    assert isinstance(hand, DetectedHand) and hand.found_by == "whole image"
+    assert hand.side == "right" and hand.score == pytest.approx(0.9)
+    assert hand.keypoints.shape == (21, 2) and np.isfinite(hand.keypoints).all()
+    # The box comes back in the image's pixels through every resize (640 px windows, 512 px
+    # refinement windows, their mirrors): within 2 px of the marker's edges.
+    np.testing.assert_allclose(hand.box, (300, 200, 500, 350), atol=2.0)
+    np.testing.assert_allclose(hand.keypoints[0], (300, 200), atol=2.0)
+    np.testing.assert_allclose(hand.keypoints[-1], (500, 350), atol=2.0)
+    # The agreeing estimates (found, then again around it) all call it a right hand.
+    assert hand.side_votes == (3, 0) and not hand.side_split
+
+
+def test_a_side_that_changes_between_estimates_is_a_split_vote():
+    from lisa_hand.data.detect import _consensus, _Found
+
+    keypoints = np.stack(np.meshgrid(np.linspace(0, 100, 3), np.linspace(0, 140, 7)),
+                         -1).reshape(-1, 2)
+    far = keypoints + 60.0  # another place: not among the agreeing estimates
+    estimates = [_Found(keypoints, 0.9), _Found(keypoints + 1.0, 0.8),
+                 _Found(keypoints - 1.0, 0.3), _Found(far, 0.1)]
+    found, support = _consensus(estimates, 0.1)
+    assert support == 3 and found.votes == (2, 1)
+    assert found.p_right == pytest.approx((0.9 + 0.8 + 0.3) / 3)
+    np.testing.assert_allclose(found.keypoints, keypoints)
+    alone, _ = _consensus([_Found(keypoints, 0.2)], 0.1)
+    assert alone.votes == (0, 1)
+    hand = DetectedHand(keypoints=keypoints, score=0.67, side="right", box=(0, 0, 100, 140),
+                        side_votes=found.votes)
+    assert hand.side_split and not DetectedHand(keypoints=keypoints, score=0.9, side="right",
+                                                box=(0, 0, 100, 140), side_votes=(3, 0)).side_split
+
+
+def test_mirrored_photo_other_side():
+    image = canvas()
+    marker(image, 300, 200, 200, 150, thumb="left")
+    (hand,) = detect_hands(image[:, ::-1], hands_factory=fake())
+    assert hand.side == "left"
+    np.testing.assert_allclose(hand.box, (500, 200, 700, 350), atol=2.0)
+
+
+def test_two_hands_sorted_left_to_right():
+    image = canvas(1200, 600)
+    marker(image, 800, 100, 220, 160, thumb="left")   # right hand, on the right
+    marker(image, 100, 300, 200, 150, thumb="right")  # left hand, on the left
+    hands = detect_hands(image, hands_factory=fake())
+    assert [hand.side for hand in hands] == ["left", "right"]
+    np.testing.assert_allclose(hands[0].box, (100, 300, 300, 450), atol=2.0)
+    np.testing.assert_allclose(hands[1].box, (800, 100, 1020, 260), atol=2.0)
+    (largest,) = detect_hands(image, max_hands=1, hands_factory=fake())
+    assert largest.side == "right"
+
+
+def test_small_hand_found_in_crops():
+    """55 px in a 1000 px image is 5.5% of the long side: too small for the whole image and the
+    2x2 crops (667 px), found in the 3x3 crops (500 px) and mapped back to image pixels."""
+    image = canvas()
+    marker(image, 610, 420, 55, 40, thumb="right")
+    (hand,) = detect_hands(image, hands_factory=fake())
+    assert hand.found_by == "3x3 crops" and hand.side == "left"
+    np.testing.assert_allclose(hand.box, (610, 420, 665, 460), atol=1.5)
+
+
+def test_hand_cut_by_crop_edges():
+    """A hand across the right edge of the left 2x2 crops (x = 667): those crops see a part of
+    it, the right ones all of it; the parts merge into the whole, found once."""
+    image = canvas()
+    marker(image, 642, 300, 50, 90, thumb="left")
+    hands = detect_hands(image, hands_factory=fake())
+    assert len(hands) == 1 and hands[0].side == "right" and hands[0].found_by == "2x2 crops"
+    np.testing.assert_allclose(hands[0].box, (642, 300, 692, 390), atol=1.5)
+
+
+def test_hand_filling_the_photo_found_zoomed_out():
+    image = canvas()
+    marker(image, 40, 30, 920, 740, thumb="left")  # 92% of the long side
+    (hand,) = detect_hands(image, hands_factory=fake())
+    assert hand.found_by == "whole image" and hand.side == "right"
+    np.testing.assert_allclose(hand.box, (40, 30, 960, 770), atol=3.0)
+
+
+def test_unconfirmed_crop_detection_dropped():
+    """Seen in a crop, never again in the refinement windows around it: not a hand."""
+    image = canvas()
+    marker(image, 610, 420, 55, 40)
+    assert detect_hands(image, hands_factory=fake(square_only_fails=True)) == []
+
+
+def test_blank_searches_every_level():
+    detector = FakeHands()
+    coloured = canvas() * np.array([1.0, 1.05, 0.95], np.float32)  # not greyscale
+    assert detect_hands(coloured, hands_factory=lambda **_: detector) == []
+    # whole + zoomed out, then 2x2, 3x3, 4x4 crops; each window resized to a 640 px long side.
+    assert len(detector.inputs) == 2 + 4 + 9 + 16
+    assert {max(size) for size in detector.inputs} == {640}
+    # a greyscale photo with no hand is searched twice: as it is, then tinted skin-coloured
+    grey = FakeHands()
+    assert detect_hands(canvas(), hands_factory=lambda **_: grey) == []
+    assert len(grey.inputs) == 2 * (2 + 4 + 9 + 16)
+
+
+class SkinHands(FakeHands):
+    """A stand-in that, like MediaPipe, needs skin colour: a "hand" is a region whose red
+    exceeds its blue by 40 levels (none in a greyscale image), found as :class:`FakeHands`
+    finds a marker without a thumb patch (label "Right": a left hand)."""
+
+    def process(self, rgb: np.ndarray):
+        skin = rgb[..., 0].astype(int) - rgb[..., 2].astype(int) > 40
+        painted = np.where(skin[..., None], np.uint8([255, 0, 255]), np.uint8([115, 115, 115]))
+        return super().process(np.ascontiguousarray(painted, dtype=np.uint8))
+
+
+def test_a_greyscale_photo_is_searched_again_tinted_with_its_side_unknown():
+    image = np.full((800, 1000, 3), 0.2, np.float32)
+    image[200:500, 300:550] = 0.9  # a bright grey "hand" on a dark grey background
+    (hand,) = detect_hands(image, hands_factory=lambda **options: SkinHands(**options))
+    assert hand.score == 0.5 and hand.side_votes == (0, 0)
+    assert hand.found_by.endswith("greyscale photo tinted skin-coloured, side unknown")
+    assert np.allclose(hand.box, (300, 200, 550, 500), atol=2)
+    coloured = image * np.array([1.0, 0.78, 0.66], np.float32)  # the same hand, in colour
+    (plain,) = detect_hands(coloured, hands_factory=lambda **options: SkinHands(**options))
+    assert plain.side == "left" and plain.score > 0.8 and "tinted" not in plain.found_by
+    # a "hand" 4% of the photo's long side, found tinted (in crops) only, is not reported; in
+    # colour the same one is (its side is MediaPipe's there)
+    small = np.full((800, 1000, 3), 0.2, np.float32)
+    small[300:330, 400:440] = 0.9
+    assert detect_hands(small, hands_factory=lambda **options: SkinHands(**options)) == []
+    (found,) = detect_hands(small * np.array([1.0, 0.78, 0.66], np.float32),
+                            hands_factory=lambda **options: SkinHands(**options))
+    assert "crops" in found.found_by
+
+
+def test_uint8_input_and_bad_input():
+    image = (canvas() * 255).astype(np.uint8)
+    image[200:350, 300:500] = (255, 0, 255)
+    image[240:310, 320:350] = (0, 255, 0)
+    (hand,) = detect_hands(image, hands_factory=fake())
+    assert hand.side == "right"
+    with pytest.raises(ValueError, match=r"image must have shape \[H, W, 3\]"):
+        detect_hands(np.zeros((10, 10), np.float32), hands_factory=fake())
+    with pytest.raises(ValueError, match="max_hands"):
+        detect_hands(canvas(), max_hands=0, hands_factory=fake())
+    with pytest.raises(ValueError, match="min_detection_confidence"):
+        DetectConfig(min_detection_confidence=1.5)
+
+
+# --- MediaPipe (the photo extra) ------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def mediapipe():
+    """MediaPipe, or a skip when the photo extra is missing (or its import fails)."""
+    try:
+        import mediapipe
+    except ImportError as exc:
+        pytest.skip(f"the photo extra (pip install -e '.[photo]') is not installed: {exc}")
+    return mediapipe
+
+
+def test_mediapipe_landmark_names(mediapipe):
+    assert tuple(mediapipe.solutions.hands.HandLandmark._member_names_) == MEDIAPIPE_LANDMARKS
+    assert photo_extra_missing() is None
+
+
+def read_rgb(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    with Image.open(path) as image:
+        return np.asarray(image.convert("RGB"), np.float32) / 255.0
+
+
+# (photo, the true side: see the module docstring of detect.py, region the hand lies in)
+REAL_PHOTOS = [
+    ("hand_thumb_up.jpg", "left", (120, 40, 460, 470)),
+    ("thumbs-up.png", "right", (700, 250, 1300, 1000)),  # at full size, 1920 x 1280
+]
+
+
+@pytest.mark.parametrize("name, side, region", REAL_PHOTOS)
+def test_real_photo_one_hand(mediapipe, name, side, region):
+    image = read_rgb(PHOTOS / name)
+    start = time.perf_counter()
+    hands = detect_hands(image)
+    seconds = time.perf_counter() - start
+    assert len(hands) == 1
+    hand = hands[0]
+    assert hand.side == side and hand.score > 0.9
+    height, width = image.shape[:2]
+    assert np.isfinite(hand.keypoints).all()
+    assert (hand.keypoints >= 0).all() and (hand.keypoints[:, 0] < width).all()
+    assert (hand.keypoints[:, 1] < height).all()
+    x0, y0, x1, y1 = hand.box
+    assert region[0] <= x0 < x1 <= region[2] and region[1] <= y0 < y1 <= region[3]
+    assert 0.02 < (x1 - x0) * (y1 - y0) / (width * height) < 0.5
+    assert seconds < 20.0  # about 0.3-0.6 s on one core
+
+
+@pytest.mark.filterwarnings("ignore::UserWarning")  # protobuf deprecations inside mediapipe
+@pytest.mark.parametrize("name, side, region", REAL_PHOTOS)
+def test_real_photo_agrees_with_plain_mediapipe(mediapipe, name, side, region):
+    """The refined keypoints stay within 5% of the hand's size of MediaPipe's on the whole
+    photo: the windows map back to the right pixels."""
+    image = read_rgb(PHOTOS / name)
+    (hand,) = detect_hands(image)
+    pixels = (image * 255 + 0.5).astype(np.uint8)
+    with mediapipe.solutions.hands.Hands(static_image_mode=True, max_num_hands=1) as plain:
+        result = plain.process(pixels)
+    landmarks = result.multi_hand_landmarks[0].landmark
+    reference = np.array([[p.x * image.shape[1], p.y * image.shape[0]] for p in landmarks])
+    size = np.hypot(hand.box[2] - hand.box[0], hand.box[3] - hand.box[1])
+    assert np.linalg.norm(hand.keypoints - reference, axis=-1).mean() < 0.05 * size
+    label = result.multi_handedness[0].classification[0].label
+    assert MEDIAPIPE_LABEL_TO_SIDE[label] == side
+
+
+def test_two_mirrored_hands(mediapipe):
+    """The photo beside its mirror image: two hands of opposite sides, left to right, whose
+    keypoints mirror each other."""
+    image = read_rgb(PHOTOS / "hand_thumb_up.jpg")
+    both = np.concatenate([image, image[:, ::-1]], axis=1)
+    hands = detect_hands(both)
+    assert [hand.side for hand in hands] == ["left", "right"]
+    width = both.shape[1]
+    mirrored = np.stack([width - hands[1].keypoints[:, 0], hands[1].keypoints[:, 1]], -1)
+    size = np.hypot(hands[0].box[2] - hands[0].box[0], hands[0].box[3] - hands[0].box[1])
+    assert np.linalg.norm(hands[0].keypoints - mirrored, axis=-1).mean() < 0.03 * size
+
+
+def test_blank_photo_no_hand(mediapipe):
+    assert detect_hands(np.full((480, 640, 3), 0.5, np.float32)) == []
+
+
+def test_a_greyscale_real_photo_is_found_tinted(mediapipe):
+    """thumbs-up.png in greyscale: MediaPipe finds no hand as it is, and the hand once tinted
+    (its keypoints near the colour photo's), its side left unknown."""
+    image = read_rgb(PHOTOS / "thumbs-up.png")
+    grey = np.repeat(image.mean(axis=2, keepdims=True), 3, axis=2)
+    (colour,) = detect_hands(image)
+    (hand,) = detect_hands(grey)
+    assert hand.score == 0.5 and "tinted" in hand.found_by and "tinted" not in colour.found_by
+    size = np.linalg.norm(np.subtract(colour.box[2:], colour.box[:2]))
+    assert np.linalg.norm(hand.keypoints - colour.keypoints, axis=1).mean() < 0.1 * size
