@@ -262,9 +262,42 @@ def _rows_table(data: dict, key: str = "rows") -> list[str]:
     return _table(header, [[row.get(name) for name in header] for row in rows])
 
 
+def _fit(data: dict) -> list[str]:
+    """The WebXR hand's fits: one row a pose and scan (mm; the model by file name), and the
+    time-to-1-mm numbers when the run had them."""
+    lines = _scalars({key: value for key, value in data.items() if key != "webxr"})
+    rows = [[row["pose"], row["scan"], row.get("wrist"), row.get("scale"),
+             Path(str(row.get("model", ""))).stem, row["v2s_scan_to_recon_mm"],
+             row["v2s_recon_to_scan_mm"], row.get("scan_points_to_recon_mm"), row["seconds"]]
+            for row in data.get("webxr", [])]
+    if rows:
+        lines += ["", "The WebXR hand (MIT; `tests/assets/webxr_hand/`), a 5000-point scan with "
+                  "0.3 mm noise: from all round (full) or one side with its sensor (partial).",
+                  ""]
+        lines += _table(["pose", "scan", "wrist", "scale", "model", "V2S scan->recon mm",
+                         "V2S recon->scan mm", "scan points -> recon mm", "s"], rows)
+    return lines
+
+
+def _photo(data: dict) -> list[str]:
+    """The synthetic photos' numbers, then one row a real photo."""
+    lines = _scalars({key: value for key, value in data.items()
+                      if key not in ("synthetic", "shared", "targets", "notes", "overrides")})
+    rows = [[row.get("photo", name), row.get("side"), row.get("seconds"), row.get("pieces"),
+             row.get("area_ratio"), row.get("keypoint_error_px"), row.get("guard_passed"),
+             row.get("error")] for name, row in (data.get("shared") or {}).items()]
+    if rows:
+        lines += ["", "The real photos (`tests/assets/photos/`): the fitted keypoints' distance "
+                  "from the detected ones in the photo's pixels, the surface's pieces and its "
+                  "area against the keypoint stage's.", ""]
+        lines += _table(["photo", "side", "s", "pieces", "area ratio", "keypoint error px",
+                         "guard passed", "error"], rows)
+    return lines
+
+
 RENDERERS: dict[str, Callable[[dict], list[str]]] = {
-    "field": _field, "mesh": _mesh, "render": _render, "handmodel": _handmodel,
-    "oneview": _oneview, "rgbd": _rgbd, "colours": _colours,
+    "fit": _fit, "photo": _photo, "field": _field, "mesh": _mesh, "render": _render,
+    "handmodel": _handmodel, "oneview": _oneview, "rgbd": _rgbd, "colours": _colours,
 }
 
 

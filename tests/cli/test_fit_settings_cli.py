@@ -99,10 +99,13 @@ def test_fit_points_set_is_applied_after_the_options(files, tmp_path, monkeypatc
     code, _, err = run(["fit-points", str(tmp_path / "scan.ply"), "--out", str(tmp_path / "o"),
                         "--hand", "0", "--field-iters", "15", "--restarts", "1", "--seed", "4",
                         "--refine", "--set", "field_iters=5", "--set", "seed=7",
-                        "--set", "prior_pose=flat"], capsys)
+                        "--set", "prior_pose=flat", "--set", "stages=align,pose,field",
+                        "--set", "analysis.support.threshold_m=0.004"], capsys)
     assert code == 0, err
     config = seen["config"]
     assert (config.field_iters, config.seed, config.prior_pose) == (5, 7, "flat")
+    assert config.stages == ("align", "pose", "field")
+    assert config.analysis.support.threshold_m == 0.004
     assert config.restarts == 1  # the command's own option
     assert seen["refine"].seed == 7  # the refinement follows the fit's seed
 
@@ -121,6 +124,9 @@ def test_fit_points_set_is_applied_after_the_options(files, tmp_path, monkeypatc
     ("fit-photo", "max_sides=5", "unknown key 'max_sides'; did you mean 'max_side'?"),
     ("fit-points", "field_iter=5", "unknown key 'field_iter'; did you mean 'field_iters'?"),
     ("fit-points", "field_iters=-5", "field_iters must be an int >= 0"),
+    ("fit-points", "lr_decay=0.2", "unknown key 'lr_decay': it was renamed 'final_lr_fraction'"),
+    ("fit-points", "stages=field,align", "stages must name, in the order align"),
+    ("fit-images", "stages=color", "stages must be one of"),
 ])
 def test_a_bad_setting_is_one_line_and_exit_2(files, tmp_path, capsys, monkeypatch, command,
                                               setting, message):

@@ -58,8 +58,18 @@ def test_the_analysis_finds_the_wall_the_block_and_the_sensor(scene):
     assert analysis.hand(points).shape == (analysis.hand_points, 3)
     assert analysis.coverage is None and analysis.with_coverage(0.5).coverage == 0.5
     assert analysis.coverage is None  # immutable
+    assert analysis.hands == 1  # the block is too small to be a hand
     record = json.loads(json.dumps(analysis.to_dict()))
     assert record["hand_points"] == analysis.hand_points and record["one_view"]
+    assert record["hands"] == 1
+
+
+def test_the_analysis_counts_the_hands_apart(scene):
+    points, kind, _ = scene
+    hand = points[kind == "hand"]
+    two = np.concatenate([hand, hand + np.array([0.0, 0.25, 0.0])])  # another hand, 25 cm away
+    assert analyse_scan(two).hands == 2
+    assert analyse_scan(hand).hands == 1
 
 
 def test_the_analysis_settings_reach_the_searches(scene):

@@ -1,7 +1,7 @@
 """What a scan shows, found once before any stage of the point fit runs.
 
-A scan is more than a hand: a desk it rests on (:mod:`.support`), other objects or the other
-hand (:mod:`.others`), a sensor seen from one side or views merged all round (:mod:`.viewpoint`).
+A scan is more than a hand: a desk it rests on (:mod:`.support`), other objects or other hands
+(:mod:`.others`), a sensor seen from one side or views merged all round (:mod:`.viewpoint`).
 :func:`analyse_scan` looks for all of them once and returns one immutable
 :class:`ScanAnalysis`: the command's model choice, :func:`.fit.fit_points` and each of its
 stages read it, and ``params.json`` records it (``fit.analysis``). The stages never look again;
@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from .others import Others, OthersConfig, find_others
+from .others import Others, OthersConfig, find_others, split_hands
 from .support import Support, SupportConfig, find_support
 from .viewpoint import ViewpointConfig, ViewpointEstimate, estimate_viewpoint
 
@@ -54,6 +54,9 @@ class ScanAnalysis:
     the sensor was given or the points were too few). support: the plane the hand rests on
     (``support="auto"`` and found), its ``removed`` over the points given. others: the pieces
     left out (``others="auto"``), its ``removed`` over the points the support left.
+    hands: how many hands the scan holds apart from each other (:func:`.others.split_hands`,
+    its support left out; a scan of several is fitted a hand at a time, ``lisa fit-points
+    --hand N``).
     coverage: share of the aligned hand's surface within reach of the scan (the 'coverage'
     stage); None before it ran.
     """
@@ -65,6 +68,7 @@ class ScanAnalysis:
     viewpoint: ViewpointEstimate | None = None
     support: Support | None = None
     others: Others | None = None
+    hands: int = 1
     coverage: float | None = None
 
     @property
@@ -100,6 +104,7 @@ class ScanAnalysis:
                 "num_points": estimate.num_points},
             "support_plane": None if self.support is None else self.support.to_dict(),
             "others": None if self.others is None else self.others.to_dict(),
+            "hands": self.hands,
             "coverage": self.coverage,
         }
 
@@ -156,6 +161,7 @@ def analyse_scan(points, *, viewpoint=None, support: str | None = None,
         one_view = estimate.one_view
         if isinstance(viewpoint, str) and one_view:
             sensor = estimate.position
+    split = split_hands(array, seed=seed, support=False, found=found) if count > 1 else None
     if found is not None:
         keep &= ~found.removed
     apart = None
@@ -165,5 +171,4 @@ def analyse_scan(points, *, viewpoint=None, support: str | None = None,
             keep[np.flatnonzero(keep)[apart.removed]] = False
     return ScanAnalysis(num_points=count, keep=keep, sensor=sensor, one_view=one_view,
                         viewpoint=estimate if isinstance(viewpoint, str) else None,
-                        support=found,
-                        others=apart)
+                        support=found, others=apart, hands=1 if split is None else len(split))

@@ -57,7 +57,7 @@ class FitPointsConfig:
     field_iters: int = 200
     """Adam steps of the field stage (all unknowns, the LISA field)."""
     second_pass_iters: int = 100
-    """The fingers' second chance, after the field stage (:func:`.fit.second_finger_pass`):
+    """The fingers' second chance, after the field stage (:func:`.stages.second_finger_pass`):
     the per-finger restarts again on a proxy of the fitted hand's own shape and skeleton, and,
     when a finger changes, this many field steps of the changed hand beside the fitted one (the
     better one is kept); 0 turns it off."""

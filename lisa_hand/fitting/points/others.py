@@ -247,8 +247,8 @@ def _voxel_graph(points: np.ndarray, link_m: float):
 
 
 def split_hands(points, link_m: float = 0.01, reach_m: float = 0.03, max_share: float = 0.6,
-                max_hand_m: float = 0.6, seed: int = 0, support: bool = True
-                ) -> list[np.ndarray] | None:
+                max_hand_m: float = 0.6, seed: int = 0, support: bool = True,
+                found=None) -> list[np.ndarray] | None:
     """The hands of a scan that holds several (both hands, two people's), each to be fitted on
     its own, or None when it holds one.
 
@@ -257,7 +257,8 @@ def split_hands(points, link_m: float = 0.01, reach_m: float = 0.03, max_share: 
     the largest, and the pieces ``reach_m`` or more from it holding more than ``max_share`` of
     its points, each at most ``max_hand_m`` across (what :func:`find_others` keeps as unclear).
     points: [N, 3] metres (numpy or torch). seed: of the support's search; support: False
-    leaves the support plane in (``--support none``).
+    leaves the support plane in (``--support none``); found: the support already found (a
+    :class:`.support.Support`, its ``removed`` over ``points``), not searched again.
     -> [H] masks [N] bool, largest hand first: the points to fit for each (all but the other
     hands' pieces: the desk and small things stay, for the fit to handle as it does), or None
     when fewer than two pieces may be hands.
@@ -267,7 +268,8 @@ def split_hands(points, link_m: float = 0.01, reach_m: float = 0.03, max_share: 
     from .support import find_support
 
     points = _as_points(points)
-    plane = find_support(points, seed=seed) if support else None
+    plane = found if found is not None else (find_support(points, seed=seed) if support
+                                             else None)
     rest = np.ones(len(points), bool) if plane is None else ~plane.removed
     pieces = _pieces(points[rest], link_m)
     if pieces is None:
