@@ -290,6 +290,9 @@ def fit_points(
     device = torch.device(config.device) if config.device is not None else model.device
     if device != model.device:
         model = model.to(device)
+    # the cloud checked before anything reads it (one clear line for a bad one)
+    target_cloud(points, normals, min_points=config.min_points, max_points=config.max_points,
+                 seed=config.seed)
     if analysis is None:
         analysis = analyse_scan(points, viewpoint=viewpoint, support=support, others=others,
                                 config=config.analysis, seed=config.seed)
