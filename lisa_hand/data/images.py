@@ -49,7 +49,7 @@ from ..geometry.fields import SdfFn
 from ..geometry.rays import ray_sphere_bounds
 from ..geometry.tracing import sdf_normals, sphere_trace
 from ..render.raycast import MeshRayCaster
-from .arrays import to_numpy
+from ..utils.arrays import as_numpy
 from .shading import (
     GainBias,
     GainBiasConfig,
@@ -229,7 +229,7 @@ def _call_albedo(albedo_fn: AlbedoFn, points: np.ndarray | torch.Tensor) -> np.n
     with torch.no_grad():
         for start in range(0, num_points, _CHUNK):
             chunk = points[start:start + _CHUNK]
-            values = np.asarray(to_numpy(albedo_fn(chunk), "albedo_fn(points)"), np.float32)
+            values = np.asarray(as_numpy(albedo_fn(chunk), "albedo_fn(points)"), np.float32)
             if values.shape != (chunk.shape[0], 3):
                 raise ValueError(f"albedo_fn(points [N, 3]) must return [N, 3] colours, got shape "
                                  f"{list(values.shape)} for N = {chunk.shape[0]}")
@@ -393,7 +393,7 @@ def _check_vertex_albedo(albedo_fn, albedo_vertices, num_vertices: int):
     albedo_vertices: [V, 3] float32 or None), checked."""
     vertex_colours = None
     if not callable(albedo_fn):
-        vertex_colours = np.asarray(to_numpy(albedo_fn, "albedo_fn"), np.float32)
+        vertex_colours = np.asarray(as_numpy(albedo_fn, "albedo_fn"), np.float32)
         if vertex_colours.shape not in ((3,), (num_vertices, 3)):
             raise ValueError(f"albedo_fn must be a callable, a colour [3] or per-vertex colours "
                              f"[V, 3] = [{num_vertices}, 3], got shape "
@@ -401,7 +401,7 @@ def _check_vertex_albedo(albedo_fn, albedo_vertices, num_vertices: int):
         if not ((vertex_colours >= 0) & (vertex_colours <= 1)).all():
             raise ValueError("albedo_fn colours must be in [0, 1]")
     if albedo_vertices is not None:
-        albedo_vertices = np.asarray(to_numpy(albedo_vertices, "albedo_vertices"), np.float32)
+        albedo_vertices = np.asarray(as_numpy(albedo_vertices, "albedo_vertices"), np.float32)
         if albedo_vertices.shape != (num_vertices, 3):
             raise ValueError(f"albedo_vertices must have shape [V, 3] = [{num_vertices}, 3], "
                              f"got {list(albedo_vertices.shape)}")
@@ -490,7 +490,7 @@ def sphere_trace_views(
                          f"bound_radius > 0; got {tolerance}, {step_scale}, {max_steps}, "
                          f"{bound_radius}")
     device, dtype = cameras[0].device, cameras[0].dtype
-    center = torch.as_tensor(to_numpy(bound_center, "bound_center"), dtype=dtype, device=device)
+    center = torch.as_tensor(as_numpy(bound_center, "bound_center"), dtype=dtype, device=device)
     if center.shape != (3,):
         raise ValueError(f"bound_center must have shape [3], got {list(center.shape)}")
 
@@ -564,7 +564,7 @@ def project_keypoints(keypoints_world, camera: Camera, depth=None,
     """
     if not isinstance(camera, Camera):
         raise TypeError(f"camera must be a Camera, got {type(camera).__name__}")
-    keypoints = torch.as_tensor(np.asarray(to_numpy(keypoints_world, "keypoints_world"),
+    keypoints = torch.as_tensor(np.asarray(as_numpy(keypoints_world, "keypoints_world"),
                                            np.float64))
     if keypoints.ndim != 2 or keypoints.shape[1] != 3:
         raise ValueError(f"keypoints_world must have shape [K, 3], got {list(keypoints.shape)}")
@@ -577,7 +577,7 @@ def project_keypoints(keypoints_world, camera: Camera, depth=None,
                     & (pixels[:, 1] >= 0) & (pixels[:, 1] < camera.height))
     visible = in_image.copy()
     if depth is not None:
-        depth_map = np.asarray(to_numpy(depth, "depth"), np.float32)
+        depth_map = np.asarray(as_numpy(depth, "depth"), np.float32)
         if depth_map.shape != (camera.height, camera.width):
             raise ValueError(f"depth must have shape [H, W] = [{camera.height}, {camera.width}], "
                              f"got {list(depth_map.shape)}")

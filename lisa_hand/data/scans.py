@@ -32,7 +32,7 @@ from ..geometry.fields import SdfFn, call_sdf
 from ..geometry.mesh_distance import mesh_distance
 from ..handmodel.hand import SurfaceSamples
 from ..render.raycast import MeshRayCaster, check_mesh, vertex_normals
-from .arrays import to_numpy
+from ..utils.arrays import as_numpy
 
 __all__ = [
     "ScanConfig",
@@ -393,12 +393,12 @@ def sdf_samples(target: SdfFn | tuple | object, surface_points, normals=None,
     generator: numpy Generator or int seed.
     -> :class:`SdfSamples` ``(points [M, 3], sdf [M])``.
     """
-    surface_points = np.asarray(to_numpy(surface_points, "surface_points"), np.float64)
+    surface_points = np.asarray(as_numpy(surface_points, "surface_points"), np.float64)
     if surface_points.ndim != 2 or surface_points.shape[1] != 3 or surface_points.shape[0] == 0:
         raise ValueError(f"surface_points must have shape [N, 3] with N > 0, got "
                          f"{list(surface_points.shape)}")
     if normals is not None:
-        normals = np.asarray(to_numpy(normals, "normals"), np.float64)
+        normals = np.asarray(as_numpy(normals, "normals"), np.float64)
         if normals.shape != surface_points.shape:
             raise ValueError(f"normals must have the shape of surface_points "
                              f"{list(surface_points.shape)}, got {list(normals.shape)}")

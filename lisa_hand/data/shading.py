@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..geometry.cameras import Camera
-from .arrays import to_numpy
+from ..utils.arrays import as_numpy
 
 __all__ = [
     "ShadingConfig",
@@ -118,7 +118,7 @@ class GainBias:
 
     def __post_init__(self) -> None:
         for name in ("gain", "bias"):
-            value = np.asarray(to_numpy(getattr(self, name), name), dtype=np.float32)
+            value = np.asarray(as_numpy(getattr(self, name), name), dtype=np.float32)
             if value.ndim not in (1, 2) or value.shape[-1] != 3 or not np.isfinite(value).all():
                 raise ValueError(f"{name} must be finite with shape [C, 3] or [3], got "
                                  f"{list(value.shape)}")

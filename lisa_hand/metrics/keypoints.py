@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from .arrays import as_numpy
+from ..utils.arrays import as_numpy
 
 __all__ = ["mpjpe", "pa_mpjpe", "procrustes_align"]
 

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 
 from ..data.units import UNIT_CHOICES, decide_length_unit
+from ..utils.arrays import as_numpy
 from ..utils.io import read_numpy, require_file
-from .arrays import as_numpy
 
 __all__ = [
     "MeshData",

@@ -15,20 +15,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-import torch
+
+from ..utils.arrays import as_numpy
 
 __all__ = ["RayHits", "MeshRayCaster", "check_mesh", "vertex_normals"]
-
-
-def _to_numpy(value, name: str) -> np.ndarray:
-    """A torch tensor (any device; detached) or array-like as a numpy array; TypeError naming
-    ``name`` when ``value`` is not array-like."""
-    if isinstance(value, torch.Tensor):
-        return value.detach().cpu().numpy()
-    try:
-        return np.asarray(value)
-    except (TypeError, ValueError) as exc:
-        raise TypeError(f"{name} must be an array, got {type(value).__name__} ({exc})") from None
 
 
 @dataclass(eq=False)
@@ -48,8 +38,8 @@ class RayHits:
 def check_mesh(vertices, faces) -> tuple[np.ndarray, np.ndarray]:
     """Validate a triangle mesh (vertices [V, 3] metres, faces [F, 3] vertex indices; numpy or
     torch); -> (float32 [V, 3], int32 [F, 3]) C-contiguous arrays."""
-    vertices = _to_numpy(vertices, "vertices")
-    faces = _to_numpy(faces, "faces")
+    vertices = as_numpy(vertices, "vertices")
+    faces = as_numpy(faces, "faces")
     if vertices.ndim != 2 or vertices.shape[1] != 3 or vertices.shape[0] == 0:
         raise ValueError(f"vertices must have shape [V, 3] with V > 0, got {list(vertices.shape)}")
     if not np.issubdtype(vertices.dtype, np.floating) or not np.isfinite(vertices).all():
@@ -134,8 +124,8 @@ class MeshRayCaster:
 
         origins: [R, 3] metres; directions: [R, 3] (unit for ``s`` in metres).
         """
-        origins = np.ascontiguousarray(_to_numpy(origins, "origins"), dtype=np.float32)
-        directions = np.ascontiguousarray(_to_numpy(directions, "directions"), dtype=np.float32)
+        origins = np.ascontiguousarray(as_numpy(origins, "origins"), dtype=np.float32)
+        directions = np.ascontiguousarray(as_numpy(directions, "directions"), dtype=np.float32)
         if origins.ndim != 2 or origins.shape[1] != 3:
             raise ValueError(f"origins must have shape [R, 3], got {list(origins.shape)}")
         if directions.shape != origins.shape:

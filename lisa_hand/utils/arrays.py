@@ -1,4 +1,5 @@
-"""Array inputs of the metrics: torch tensors (any device, with grad or not) or array-likes."""
+"""Array inputs: torch tensors (any device, with grad or not) or array-likes in, numpy out, with
+the argument named in the error (the data layer, the renderer, the metrics)."""
 
 from __future__ import annotations
 
