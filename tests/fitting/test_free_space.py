@@ -212,11 +212,11 @@ def test_the_curled_index_hidden_from_the_sensor_is_unseen(curled_index):
     assert float(truth[0]) > 0.3 and float(truth[1:4].max()) == 0.0, truth.tolist()
     assert float(straight.max()) == 0.0, straight.tolist()
     assert unseen_fingers(proxy, curled_index.plain, curled_index.truth, 0.2) is None
-    # the cloud carries the weights through a copy, its distance grid kept
+    # a copy of the cloud keeps its depth image, distance grid and generator
     grid = cloud.distance_grid
-    coupled = cloud.replace(coupling=truth)
-    assert coupled.coupling is truth and coupled.depth is cloud.depth
-    assert coupled.distance_grid is grid and coupled.generator is cloud.generator
+    copied = cloud.replace(free=cloud.free)
+    assert copied.depth is cloud.depth
+    assert copied.distance_grid is grid and copied.generator is cloud.generator
     with pytest.raises(TypeError, match="no colour"):
         cloud.replace(colour=None)
 

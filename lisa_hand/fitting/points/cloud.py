@@ -23,29 +23,26 @@ class TargetCloud:
     points: [N, 3] world metres; normals: [N, 3] unit outward normals or None (same device and
     dtype); generator: a CPU ``torch.Generator``. For a one-view scan whose sensor position is
     known (:mod:`.free_space`): free, [M, 3] world metres, points the sensor saw to be empty,
-    and depth, its :class:`~.free_space.DepthImage`; None otherwise. coupling: [5] weights of
-    the fingers the sensor could not see (:func:`~.proxy.unseen_fingers`), set by the fit
-    once it has a hand, or None. support: [2, 3] the plane the hand rests on (:mod:`.support`):
-    a point on it (metres) and its unit normal towards the hand, in this cloud's frame, device
-    and dtype; or None.
+    and depth, its :class:`~.free_space.DepthImage`; None otherwise. support: [2, 3] the plane
+    the hand rests on (:mod:`.support`): a point on it (metres) and its unit normal towards the
+    hand, in this cloud's frame, device and dtype; or None.
     """
 
     def __init__(self, points: torch.Tensor, normals: torch.Tensor | None,
                  generator: torch.Generator, free: torch.Tensor | None = None,
-                 depth=None, coupling: torch.Tensor | None = None, support=None) -> None:
+                 depth=None, support=None) -> None:
         self.points = points
         self.normals = normals
         self.generator = generator
         self.free = free
         self.depth = depth
-        self.coupling = coupling
         self.support = support
 
     def replace(self, **changes) -> TargetCloud:
         """A copy with the named attributes (``points``, ``normals``, ``free``, ``depth``,
-        ``coupling``, ``support``) changed; the same generator."""
+        ``support``) changed; the same generator."""
         fields = dict(points=self.points, normals=self.normals, free=self.free,
-                      depth=self.depth, coupling=self.coupling, support=self.support)
+                      depth=self.depth, support=self.support)
         unknown = set(changes) - set(fields)
         if unknown:
             raise TypeError(f"TargetCloud has no {', '.join(sorted(unknown))}")

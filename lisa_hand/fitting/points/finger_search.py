@@ -67,27 +67,28 @@ def _copies(hand: HandParams) -> tuple[list[HandParams], list[str]]:
 
 
 @torch.no_grad()
-def _scores(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, config
-            ) -> torch.Tensor:
+def _scores(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, config,
+            unseen: torch.Tensor | None = None) -> torch.Tensor:
     """[K] proxy energy at the final robust scale on one common cloud subset of
-    :data:`_SCORE_POINTS`, plus the prior."""
+    :data:`_SCORE_POINTS`, plus the prior (with the ``unseen`` fingers' weights)."""
     mean_fingers = prior_mean_fingers(config.prior_pose, batch.pivot.device, batch.pivot.dtype)
     energy = proxy_energy(proxy, cloud, batch, config, config.robust_scale_mm * _MM,
                           num_points=_SCORE_POINTS)
-    return energy + hand_prior(config, mean_fingers, coupling=cloud.coupling)(batch.terms())
+    return energy + hand_prior(config, mean_fingers, coupling=unseen)(batch.terms())
 
 
 def restart_fingers(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequence[HandParams],
-                    config, *, monitor: FitMonitor | None = None, moved_base: bool = False
-                    ) -> tuple[list[HandParams], StageReport]:
+                    config, *, monitor: FitMonitor | None = None, moved_base: bool = False,
+                    unseen: torch.Tensor | None = None) -> tuple[list[HandParams], StageReport]:
     """The per-finger restarts (see the module docstring).
 
     candidates: right hands on the proxy's skeleton, best first (the articulated stage's).
     config: a :class:`~lisa_hand.fitting.points.config.FitPointsConfig` (``finger_iters``; 0
     returns the candidates unchanged). moved_base: when no finger changes, return the best
     candidate as optimised with the copies (instead of as it came), so that the caller can
-    compare it (the second pass of a one-view scan: the free-space term moves it).
-    -> (the candidates, the last replaced by the combined hand when it scores lower; the
+    compare it (the second pass of a one-view scan: the free-space term moves it). unseen: [5]
+    weights of the fingers a one-view sensor could not see (:func:`.proxy.unseen_fingers`), or
+    None. -> (the candidates, the last replaced by the combined hand when it scores lower; the
     :class:`StageReport` ('fingers'): ``energies`` [the best candidate's score, the combined
     hand's], ``loss`` the lower, and ``changed`` in ``notes``: the fingers that moved).
     """
@@ -99,9 +100,9 @@ def restart_fingers(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequenc
     hands, fingers = _copies(candidates[0])
     batch = CandidateBatch.from_hands(hands, proxy.pivot)
     optimise_on_proxy(proxy, cloud, batch, config, "fingers", config.finger_iters,
-                      like=candidates[0], monitor=monitor)
+                      like=candidates[0], monitor=monitor, unseen=unseen)
     moved = [batch.hand(index, hands[index]) for index in range(batch.count)]
-    scores = _scores(proxy, cloud, batch, config)
+    scores = _scores(proxy, cloud, batch, config, unseen)
     combined = moved[0].pose.clone()
     changed = []
     for finger in FINGER_NAMES:
@@ -118,7 +119,7 @@ def restart_fingers(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequenc
     energies = [float(scores[0])]
     if changed:
         check = CandidateBatch.from_hands([moved[0], hand], proxy.pivot)
-        before, after = (float(v) for v in _scores(proxy, cloud, check, config))
+        before, after = (float(v) for v in _scores(proxy, cloud, check, config, unseen))
         energies = [before, after]
         if after < before:
             result = [hand] + candidates[:-1] if len(candidates) > 1 else [hand]

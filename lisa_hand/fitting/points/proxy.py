@@ -218,21 +218,22 @@ def proxy_energy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch,
 def optimise_on_proxy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateBatch, config,
                       stage: str, iterations: int, *, like: HandParams,
                       proxy_subset: torch.Tensor | None = None, step_offset: int = 0,
-                      total: int | None = None,
-                      monitor: FitMonitor | None = None) -> torch.Tensor:
+                      total: int | None = None, monitor: FitMonitor | None = None,
+                      unseen: torch.Tensor | None = None) -> torch.Tensor:
     """Adam on :func:`proxy_energy` for steps ``step_offset .. step_offset + iterations`` of a
     stage of ``total`` steps (the schedules' length; default ``iterations``), in place on
     ``batch``: 'align' moves the rotation and position, any other stage ('pose', 'fingers')
     also the finger pose (with the finger-pose and joint-limit prior). ``like`` and the batch's
-    fixed skeletons make the monitor's hands (:meth:`CandidateBatch.hand`). -> [K] the final
-    proxy energies."""
+    fixed skeletons make the monitor's hands (:meth:`CandidateBatch.hand`). unseen: [5] weights of
+    the fingers a one-view sensor could not see (:func:`unseen_fingers`), or None. -> [K] the
+    final proxy energies."""
     total = iterations if total is None else total
     rates = (config.rotation_lr, config.translation_lr, config.pose_lr)
     tensors = batch.unknowns(with_shape=False)[: 2 if stage == "align" else 3]
     optimizer = adam(list(zip(tensors, rates[: len(tensors)], strict=True)))
     schedule = lr_schedule(optimizer, total, config.final_lr_fraction, start=step_offset)
     mean_fingers = prior_mean_fingers(config.prior_pose, batch.pivot.device, batch.pivot.dtype)
-    prior = hand_prior(config, mean_fingers, coupling=cloud.coupling)
+    prior = hand_prior(config, mean_fingers, coupling=unseen)
     start, end = config.robust_scale_start_mm * _MM, config.robust_scale_mm * _MM
     energy = None
     for step in range(step_offset, step_offset + iterations):
@@ -257,8 +258,8 @@ def optimise_on_proxy(proxy: SurfaceProxy, cloud: TargetCloud, batch: CandidateB
 
 
 def fit_proxy_pose(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequence[HandParams],
-                   config, *, monitor: FitMonitor | None = None
-                   ) -> tuple[list[HandParams], StageReport]:
+                   config, *, monitor: FitMonitor | None = None,
+                   unseen: torch.Tensor | None = None) -> tuple[list[HandParams], StageReport]:
     """The articulated proxy stage ('pose', no network): ``config.pose_iters`` Adam steps of
     every candidate's global rotation, translation and finger pose on the proxy energy plus the
     finger-pose and joint-limit prior (batched).
@@ -272,7 +273,7 @@ def fit_proxy_pose(proxy: SurfaceProxy, cloud: TargetCloud, candidates: Sequence
     start = time.perf_counter()
     batch = CandidateBatch.from_hands(candidates, proxy.pivot)
     energy = optimise_on_proxy(proxy, cloud, batch, config, "pose", config.pose_iters,
-                               like=candidates[0], monitor=monitor)
+                               like=candidates[0], monitor=monitor, unseen=unseen)
     hands = [batch.hand(index, candidates[index]) for index in range(batch.count)]
     history = monitor.history[began:] if monitor is not None else []
     energies = [float(e) for e in energy]

@@ -90,13 +90,17 @@ class PointState:
     cloud: the right hand's cloud the stages fit (after 'align', without what lies beyond its
     wrist and margin). proxy: the surface proxy of the proxy stages. candidates: right hands,
     best first (one after 'field'). analysis: the scan's analysis (its ``coverage`` set by the
-    'coverage' stage). energy: the field energy of ``candidates[0]`` (NaN before 'field').
+    'coverage' stage). unseen: [5] weights of the fingers a one-view sensor could not see on the
+    best candidate (the 'unseen' stage; :func:`.proxy.unseen_fingers`), which the prior couples
+    to their neighbours; None: none. energy: the field energy of ``candidates[0]`` (NaN before
+    'field').
     """
 
     cloud: TargetCloud
     proxy: SurfaceProxy
     candidates: tuple[HandParams, ...] = ()
     analysis: ScanAnalysis | None = None
+    unseen: torch.Tensor | None = None
     energy: float = math.nan
 
     def replace(self, **changes) -> PointState:
@@ -139,20 +143,20 @@ def _free_near(cloud: TargetCloud, proxy: SurfaceProxy, config: FitPointsConfig
     return near
 
 
-def _with_coupling(cloud: TargetCloud, proxy: SurfaceProxy, hand: HandParams,
-                   config: FitPointsConfig, notes: list[str]) -> TargetCloud:
-    """``cloud`` with the weights of the fingers its sensor could not see on ``hand``
-    (:func:`.proxy.unseen_fingers`; none without a sensor position or with
-    ``coupling_weight`` and ``unseen_thumb_weight`` 0), named in ``notes``."""
+def _unseen_weights(cloud: TargetCloud, proxy: SurfaceProxy, hand: HandParams,
+                    config: FitPointsConfig, notes: list[str]) -> torch.Tensor | None:
+    """[5] the weights of the fingers the cloud's sensor could not see on ``hand``
+    (:func:`.proxy.unseen_fingers`), named in ``notes``; None without a sensor position or with
+    ``coupling_weight`` and ``unseen_thumb_weight`` 0."""
     from ..priors import UNSEEN_FINGERS
 
     if cloud.depth is None or (config.coupling_weight <= 0 and config.unseen_thumb_weight <= 0):
-        return cloud
-    coupling = unseen_fingers(proxy, cloud, hand, config.unseen_share)
-    unseen = [f"{name} {float(w):.2f}" for name, w in zip(UNSEEN_FINGERS, coupling,
+        return None
+    weights = unseen_fingers(proxy, cloud, hand, config.unseen_share)
+    unseen = [f"{name} {float(w):.2f}" for name, w in zip(UNSEEN_FINGERS, weights,
                                                            strict=True) if float(w) > 0]
     notes.append(f"unseen fingers: {', '.join(unseen) or 'none'}")
-    return cloud.replace(coupling=coupling)
+    return weights
 
 
 def _covered_distance(cloud: TargetCloud, config: FitPointsConfig) -> float:
@@ -189,7 +193,7 @@ def align(state: PointState, fit: PointFit) -> tuple[PointState, StageReport]:
 def pose(state: PointState, fit: PointFit) -> tuple[PointState, StageReport]:
     """'pose': the candidates' rotation, position and finger pose on the proxy."""
     candidates, report = fit_proxy_pose(state.proxy, state.cloud, state.candidates, fit.config,
-                                        monitor=fit.monitor)
+                                        monitor=fit.monitor, unseen=state.unseen)
     return state.replace(candidates=tuple(candidates)), report
 
 
@@ -206,18 +210,18 @@ def size(state: PointState, fit: PointFit) -> tuple[PointState, StageReport]:
 
 def unseen(state: PointState, fit: PointFit) -> tuple[PointState, StageReport]:
     """'unseen': the fingers of the best candidate a one-view scan's sensor could not see
-    (their weights in the cloud's ``coupling``, named in the report's notes)."""
+    (their weights into the state, named in the report's notes)."""
     began = time.perf_counter()
     notes: list[str] = []
-    cloud = _with_coupling(state.cloud, state.proxy, state.candidates[0], fit.config, notes)
-    return state.replace(cloud=cloud), StageReport(
+    weights = _unseen_weights(state.cloud, state.proxy, state.candidates[0], fit.config, notes)
+    return state.replace(unseen=weights), StageReport(
         stage="unseen", seconds=time.perf_counter() - began, notes=notes)
 
 
 def fingers(state: PointState, fit: PointFit) -> tuple[PointState, StageReport]:
     """'fingers': the per-finger restarts of the best candidate."""
     candidates, report = restart_fingers(state.proxy, state.cloud, state.candidates,
-                                         fit.config, monitor=fit.monitor)
+                                         fit.config, monitor=fit.monitor, unseen=state.unseen)
     return state.replace(candidates=tuple(candidates)), report
 
 
@@ -242,7 +246,8 @@ def field(state: PointState, fit: PointFit) -> tuple[PointState, StageReport]:
     hand, report = fit_surface(fit.model, state.cloud, state.candidates,
                                _field_config(state, fit.config), template=fit.template,
                                pivot=state.proxy.pivot, monitor=fit.monitor,
-                               free_near=_free_near(state.cloud, state.proxy, fit.config))
+                               free_near=_free_near(state.cloud, state.proxy, fit.config),
+                               unseen=state.unseen)
     return state.replace(candidates=(hand,), energy=report.loss), report
 
 
@@ -302,18 +307,18 @@ def second_finger_pass(model, cloud: TargetCloud, hand: HandParams, config, ener
     if config.wrist_clip_m is not None:
         proxy = proxy.without_forearm(config.wrist_clip_m)
     notes: list[str] = []
-    cloud = _with_coupling(cloud, proxy, hand, config, notes)  # unseen where this hand is
+    unseen = _unseen_weights(cloud, proxy, hand, config, notes)  # unseen where this hand is
     moved, changed = restart_fingers(proxy, clip_cloud(cloud, hand, config.wrist_clip_m,
                                                        config.min_points),
                                      [hand], config, monitor=monitor,
-                                     moved_base=cloud.depth is not None)
+                                     moved_base=cloud.depth is not None, unseen=unseen)
     notes = list(changed.notes) + notes
     loss = energy
     if moved[0] is not hand:
         iters = dataclasses.replace(config, field_iters=config.second_pass_iters)
         hand, report = fit_surface(model, cloud, [moved[0], hand], iters, template=template,
                                    pivot=proxy.pivot, monitor=monitor,
-                                   free_near=_free_near(cloud, proxy, config))
+                                   free_near=_free_near(cloud, proxy, config), unseen=unseen)
         loss = report.loss
     history = monitor.history[began:] if monitor is not None else []
     return hand, StageReport(stage="second", seconds=time.perf_counter() - start, loss=loss,

@@ -87,7 +87,7 @@ class _FieldEnergy:
     """The field energy of a batch of candidates on one cloud (see the module docstring)."""
 
     def __init__(self, model, cloud: TargetCloud, config, hands: Sequence[HandParams],
-                 template) -> None:
+                 template, unseen: torch.Tensor | None = None) -> None:
         field_model = model.field
         self.field = field_model
         self.cloud = cloud
@@ -100,7 +100,7 @@ class _FieldEnergy:
         self.shape_scale = self.code_scale if config.fit_shape else None
         self.mean_fingers = prior_mean_fingers(config.prior_pose, **like)
         self.prior = hand_prior(config, self.mean_fingers, shape_scale=self.shape_scale,
-                                coupling=cloud.coupling)
+                                coupling=unseen)
         self.terms = field_terms(config)
         self.cuts: tuple[torch.Tensor, torch.Tensor] | None = None  # see place_cuts
 
@@ -210,8 +210,8 @@ def _prune_schedule(config, count: int) -> dict[int, int]:
 def fit_surface(model, cloud: TargetCloud, candidates: Sequence[HandParams], config, *,
                 template=None, pivot: torch.Tensor | None = None,
                 monitor: FitMonitor | None = None,
-                free_near: Callable[[CandidateBatch], torch.Tensor] | None = None
-                ) -> tuple[HandParams, StageReport]:
+                free_near: Callable[[CandidateBatch], torch.Tensor] | None = None,
+                unseen: torch.Tensor | None = None) -> tuple[HandParams, StageReport]:
     """The surface stage (see the module docstring): ``config.field_iters`` Adam steps of all
     candidates on the LISA field, pruned to the best one.
 
@@ -225,10 +225,12 @@ def fit_surface(model, cloud: TargetCloud, candidates: Sequence[HandParams], con
         optimised (default: the first hand's mean rest joint); it changes the steps, not the
         energy.
     free_near: batch -> [M, 3] world metres, free-space points near the batch's surfaces
-        (:func:`lisa_hand.fitting.points.fit._free_near`), added to the cloud's own at the start
+        (:func:`lisa_hand.fitting.points.stages._free_near`), added to the cloud's own at the start
         and drawn again every ``config.free_near_every`` steps and at each pruning, so that a
         part of a candidate that moves (an unseen finger straightening) still meets the space
         the sensor saw empty; None: the cloud's free points only.
+    unseen: [5] weights of the fingers a one-view sensor could not see
+        (:func:`.proxy.unseen_fingers`), for the prior's coupling; None: none.
     -> (the best hand; the :class:`StageReport` ('field'): its energy on a fixed subset of the
     cloud, ``loss`` and ``energies[0]``).
     """
@@ -243,7 +245,7 @@ def fit_surface(model, cloud: TargetCloud, candidates: Sequence[HandParams], con
                       replace(hand, betas=torch.zeros(template.num_betas), extra={})
                       for hand in candidates]
     with frozen_field(model):
-        energy = _FieldEnergy(model, cloud, config, candidates, template)
+        energy = _FieldEnergy(model, cloud, config, candidates, template, unseen)
         batch = CandidateBatch.from_hands(candidates, pivot, with_betas=fit_betas)
         batch = _optimise(energy, batch, candidates[0], monitor, free_near)
         energy.place_cuts(batch)
