@@ -49,6 +49,10 @@ class HandTerms:
         """K, the candidates."""
         return self.pose.shape[0]
 
+    @property
+    def device(self) -> torch.device:
+        return self.pose.device
+
 
 @dataclass(frozen=True)
 class Term:
@@ -145,7 +149,8 @@ class SizePrior(Term):
 
 @dataclass(frozen=True)
 class Energy:
-    """A sum of weighted terms over one kind of input (which has a ``count`` of candidates)."""
+    """A sum of weighted terms over one kind of input (which has a ``count`` of candidates and
+    the ``device`` they are on)."""
 
     terms: tuple[Term, ...]
 
@@ -165,7 +170,7 @@ class Energy:
         total = None
         for value in self.parts(inputs).values():
             total = value if total is None else total + value
-        return torch.zeros(inputs.count) if total is None else total
+        return torch.zeros(inputs.count, device=inputs.device) if total is None else total
 
 
 def hand_prior(config, mean_fingers: torch.Tensor, *, shape_scale: float | None = None,

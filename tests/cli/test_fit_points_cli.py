@@ -310,32 +310,6 @@ def test_without_model_the_shipped_geometric_prior_fits(lisa, files, tmp_path, c
     assert hand.model == "geometry_mix"
 
 
-def test_the_default_model_follows_the_kind_of_scan(files):
-    """choose_point_model: a scan from all round gets the wider prior ('geometry_mix'), one
-    that looks like one view, or whose sensor is given, the v2 prior ('geometry_v2'), whatever
-    --viewpoint says of using the sensor."""
-    import trimesh
-
-    from lisa_hand.data.scans import simulate_scan
-    from lisa_hand.fitting.points.analysis import analyse_scan
-    from lisa_hand.fitting.points.io import choose_point_model, default_point_model
-
-    def choose(points, viewpoint):
-        return choose_point_model(analyse_scan(points, viewpoint=viewpoint, tell_view=True))
-
-    _, points = files
-    for viewpoint in ("auto", None):
-        assert choose(points, viewpoint) == ("geometry_mix", "the scan shows the hand all round")
-    assert choose(points, np.array([0.0, 0.0, 0.0])) == (
-        "geometry_v2", "a one-view scan, its sensor given")
-    ball = trimesh.creation.icosphere(subdivisions=4, radius=0.04)
-    seen = simulate_scan(np.asarray(ball.vertices) + [0.0, 0.0, 0.4], np.asarray(ball.faces),
-                         ScanConfig(num_points=2000, partial=True), seed=0).points
-    for viewpoint in ("auto", None):
-        assert choose(seen, viewpoint) == ("geometry_v2", "the scan looks like one view")
-    assert default_point_model() == default_point_model(one_view=True) == "geometry_v2"
-
-
 def test_a_failed_preview_leaves_the_fit_written(lisa, files, capsys, monkeypatch):
     """``preview.png`` is a picture, not the fit: when drawing it fails, the command says so in
     one line and writes the fit's other files."""

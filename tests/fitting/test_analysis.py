@@ -14,7 +14,7 @@ from lisa_hand.data.scans import ScanConfig, simulate_scan
 from lisa_hand.fitting.points.analysis import AnalysisConfig, analyse_scan
 from lisa_hand.fitting.points.fit import FitPointsConfig, fit_points
 from lisa_hand.fitting.points.others import OthersConfig
-from tests.fitting.test_points import FAST, tiny_model
+from tests.fitting.test_points import FAST, scan_of, tiny_model, true_hand
 from tests.fitting.test_support import hand_at, with_wall
 
 
@@ -97,3 +97,28 @@ def test_the_fit_takes_the_analysis_and_records_it(scene):
         fit_points(model, points, None, config, analysis=analysis, support="auto")
     with pytest.raises(ValueError, match="analysis is of"):
         fit_points(model, torch.as_tensor(points[:100]), None, config, analysis=analysis)
+
+
+def test_the_default_model_follows_the_kind_of_scan():
+    """choose_point_model: a scan from all round gets the wider prior ('geometry_mix'), one
+    that looks like one view, or whose sensor is given, the v2 prior ('geometry_v2'), whatever
+    --viewpoint says of using the sensor."""
+    import trimesh
+
+    from lisa_hand.fitting.points.io import choose_point_model, default_point_model
+
+    def choose(points, viewpoint):
+        return choose_point_model(analyse_scan(points, viewpoint=viewpoint, tell_view=True))
+
+    model = tiny_model(color=True)
+    points, _, _ = scan_of(model, true_hand(model, seed=2), ScanConfig(num_points=600), seed=2)
+    for viewpoint in ("auto", None):
+        assert choose(points, viewpoint) == ("geometry_mix", "the scan shows the hand all round")
+    assert choose(points, np.array([0.0, 0.0, 0.0])) == (
+        "geometry_v2", "a one-view scan, its sensor given")
+    ball = trimesh.creation.icosphere(subdivisions=4, radius=0.04)
+    seen = simulate_scan(np.asarray(ball.vertices) + [0.0, 0.0, 0.4], np.asarray(ball.faces),
+                         ScanConfig(num_points=2000, partial=True), seed=0).points
+    for viewpoint in ("auto", None):
+        assert choose(seen, viewpoint) == ("geometry_v2", "the scan looks like one view")
+    assert default_point_model() == default_point_model(one_view=True) == "geometry_v2"

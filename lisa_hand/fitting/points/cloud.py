@@ -8,7 +8,8 @@ import functools
 import numpy as np
 import torch
 
-__all__ = ["TargetCloud", "target_cloud", "dense_points", "nearest_distance", "CloudDistance"]
+__all__ = ["TargetCloud", "check_points", "target_cloud", "dense_points", "nearest_distance",
+           "CloudDistance"]
 
 _DISTANCE_EPS = 1e-9  # metres^2 inside the square root of a distance (finite gradient at 0)
 _GRID_VOXEL = 0.002  # metres, cell of the cloud's distance grid
@@ -84,21 +85,15 @@ def _to_tensor(value, name: str, dtype: torch.dtype, device: torch.device) -> to
     return value.detach().to(device=device, dtype=dtype)
 
 
-def target_cloud(points, normals=None, *, dtype: torch.dtype = torch.float32,
-                 device: torch.device | str = "cpu", min_points: int = 20,
-                 max_points: int = 200_000, seed: int = 0) -> TargetCloud:
-    """Check a cloud and make it a :class:`TargetCloud`.
-
-    points: [N, 3] metres, finite (numpy or torch); normals: [N, 3] or None (normalised here).
-    A cloud that looks like centimetres or millimetres
-    (:func:`lisa_hand.data.units.detect_length_unit`) or is over 2 units across, or has fewer
-    than ``min_points`` points, is an error; a larger one than ``max_points`` is randomly
-    subsampled (seed ``seed``). The subsets' generator is seeded with ``seed``.
-    """
+def check_points(points, min_points: int = 20, dtype: torch.dtype = torch.float32,
+                 device: torch.device | str = "cpu") -> torch.Tensor:
+    """``points`` ([N, 3] metres, numpy or torch) as a tensor on ``device``, or one ValueError
+    for a cloud a fit cannot take: not [N, 3], NaN or inf, fewer than ``min_points`` points,
+    or sized like centimetres or millimetres (:func:`lisa_hand.data.units.detect_length_unit`)
+    or over 2 units across."""
     from ...data.units import POSSIBLE_DIAGONAL_M, UNIT_NAMES, detect_length_unit
 
-    device = torch.device(device)
-    cloud = _to_tensor(points, "points", dtype, device)
+    cloud = _to_tensor(points, "points", dtype, torch.device(device))
     if cloud.shape[0] < min_points:
         raise ValueError(f"points: {cloud.shape[0]} points, fewer than the {min_points} "
                          "needed to fit a hand")
@@ -108,6 +103,20 @@ def target_cloud(points, normals=None, *, dtype: torch.dtype = torch.float32,
         looks = UNIT_NAMES[unit] if unit in ("cm", "mm") else "millimetres"
         raise ValueError(f"points are {size:.4g} units across, which looks like {looks} "
                          "(a hand is about 0.2 m): convert them to metres")
+    return cloud
+
+
+def target_cloud(points, normals=None, *, dtype: torch.dtype = torch.float32,
+                 device: torch.device | str = "cpu", min_points: int = 20,
+                 max_points: int = 200_000, seed: int = 0) -> TargetCloud:
+    """Check a cloud and make it a :class:`TargetCloud`.
+
+    points: [N, 3] metres, finite (numpy or torch); normals: [N, 3] or None (normalised here).
+    A cloud :func:`check_points` refuses is an error; a larger one than ``max_points`` is randomly
+    subsampled (seed ``seed``). The subsets' generator is seeded with ``seed``.
+    """
+    device = torch.device(device)
+    cloud = check_points(points, min_points, dtype, device)
     normal_tensor = None
     if normals is not None:
         normal_tensor = _to_tensor(normals, "normals", dtype, device)

@@ -53,6 +53,10 @@ class FieldSample:
     count: int
     sdf: dict[str, torch.Tensor] = field(default_factory=dict)
 
+    @property
+    def device(self) -> torch.device:
+        return self.cloud.points.device
+
 
 def _mean(values: torch.Tensor, keep: torch.Tensor | None) -> torch.Tensor:
     """[K] the mean of values [K, N] over the entries ``keep`` [K, N] (0/1; None: all)."""

@@ -41,7 +41,7 @@ from ...utils.threads import cpu_threads
 from ..sides import mirror_cloud, mirror_hand
 from ..stages import HistoryRecord, StageReport
 from .analysis import ScanAnalysis, analyse_scan
-from .cloud import TargetCloud, target_cloud
+from .cloud import TargetCloud, check_points, target_cloud
 from .config import FitPointsConfig
 from .free_space import DepthImage, free_space_points
 from .hypotheses import best_of
@@ -290,9 +290,7 @@ def fit_points(
     device = torch.device(config.device) if config.device is not None else model.device
     if device != model.device:
         model = model.to(device)
-    # the cloud checked before anything reads it (one clear line for a bad one)
-    target_cloud(points, normals, min_points=config.min_points, max_points=config.max_points,
-                 seed=config.seed)
+    check_points(points, config.min_points)  # one clear line for a bad cloud, first
     if analysis is None:
         analysis = analyse_scan(points, viewpoint=viewpoint, support=support, others=others,
                                 config=config.analysis, seed=config.seed)

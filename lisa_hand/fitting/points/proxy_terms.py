@@ -59,6 +59,10 @@ class ProxySample:
         """K, the candidates."""
         return self.points.shape[0]
 
+    @property
+    def device(self) -> torch.device:
+        return self.points.device
+
 
 @dataclass(frozen=True)
 class ScanDistance(Term):
