@@ -16,6 +16,7 @@ from . import (
     fit_images,
     fit_photo,
     fit_points,
+    fit_video,
     import_data,
     mesh,
     metrics,
@@ -45,8 +46,8 @@ def _root() -> None:
 
 
 # Each verb lives in its own module with a ``register(app)`` function.
-for _module in (demo, synth, train, fit_points, fit_images, fit_photo, mesh, render, animate,
-                blend, metrics, evaluate, view, import_data):
+for _module in (demo, synth, train, fit_points, fit_images, fit_photo, fit_video, mesh, render,
+                animate, blend, metrics, evaluate, view, import_data):
     _module.register(app)
 
 

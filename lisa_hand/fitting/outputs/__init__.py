@@ -37,7 +37,7 @@ from .folder import (
     write_folder,
 )
 from .ground_truth import GroundTruth, ground_truth_metrics, prepare_fit, read_ground_truth
-from .records import hand_keypoints_3d, json_safe, keypoints_3d_record
+from .records import hand_keypoints_3d, json_safe, keypoints_3d_record, posed_keypoints
 from .writer import (
     Artefact,
     fit_artefacts,
@@ -70,6 +70,7 @@ __all__ = [
     "prepare_fit",
     "json_safe",
     "hand_keypoints_3d",
+    "posed_keypoints",
     "keypoints_3d_record",
     "Artefact",
     "params_artefact",

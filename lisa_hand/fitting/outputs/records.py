@@ -21,7 +21,7 @@ import torch
 
 from ...skeleton.params import HandParams
 
-__all__ = ["json_safe", "hand_keypoints_3d", "keypoints_3d_record"]
+__all__ = ["json_safe", "hand_keypoints_3d", "posed_keypoints", "keypoints_3d_record"]
 
 
 def json_safe(value: Any) -> Any:
@@ -50,14 +50,7 @@ def hand_keypoints_3d(params: HandParams, template: Any = None) -> np.ndarray:
     template: the mesh template (default: :func:`lisa_hand.handmodel.template.load_template`).
     -> [21, 3] float64 metres.
     """
-    from ...skeleton import (
-        FINGER_JOINTS,
-        FINGER_NAMES,
-        forward_kinematics,
-        joints_to_keypoints,
-        linear_blend_skinning,
-        mirror_points,
-    )
+    from ...skeleton import mirror_points
     from ..sides import mirror_hand
 
     if template is None:
@@ -66,23 +59,44 @@ def hand_keypoints_3d(params: HandParams, template: Any = None) -> np.ndarray:
         template = load_template()
     template = template.to(device=torch.device("cpu"), dtype=torch.float64)
     hand = mirror_hand(params) if params.side == "left" else params
-    betas = torch.zeros(int(template.num_betas), dtype=torch.float64)
-    if hand.betas is not None and hand.betas.numel() == betas.numel():
-        betas = hand.betas.double()
-    tip_ids = list(template.fingertip_ids)
-    distal = [FINGER_JOINTS[name][2] for name in FINGER_NAMES]
-    rest_joints = hand.rest_joints.double()
-    template_joints = template.rest_joints(betas[None])[0]
-    tips_rest = (template.rest_vertices(betas[None])[0][tip_ids]
-                 + rest_joints[distal] - template_joints[distal])
-    kinematics = forward_kinematics(hand.pose.double()[None], rest_joints[None],
-                                    hand.translation.double()[None])
-    tips = linear_blend_skinning(tips_rest[None], template.weights[tip_ids],
-                                 kinematics.transforms)[0]
-    keypoints = joints_to_keypoints(kinematics.joints[0], tips)
+    keypoints = posed_keypoints(template, hand.rest_joints.double(), hand.betas,
+                                hand.pose.double()[None], hand.translation.double()[None])[0]
     if params.side == "left":
         keypoints = mirror_points(keypoints)
     return keypoints.numpy()
+
+
+def posed_keypoints(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | None,
+                    pose: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
+    """The 21 keypoints of a RIGHT hand in B poses, differentiable (the keypoints of
+    :func:`hand_keypoints_3d`, batched for the fitters that move only pose and translation).
+
+    template: the mesh template on the inputs' device and dtype. rest_joints: [16, 3] metres
+    (the hand's skeleton). betas: [K] the template's shape coefficients (None: zeros).
+    pose: [B, 48] axis-angle radians. translation: [B, 3] metres. -> [B, 21, 3] metres.
+    """
+    from ...skeleton import (
+        FINGER_JOINTS,
+        FINGER_NAMES,
+        forward_kinematics,
+        joints_to_keypoints,
+        linear_blend_skinning,
+    )
+
+    shape = torch.zeros(int(template.num_betas), dtype=rest_joints.dtype,
+                        device=rest_joints.device)
+    if betas is not None and betas.numel() == shape.numel():
+        shape = betas.to(shape)
+    tip_ids = list(template.fingertip_ids)
+    distal = [FINGER_JOINTS[name][2] for name in FINGER_NAMES]
+    template_joints = template.rest_joints(shape[None])[0]
+    tips_rest = (template.rest_vertices(shape[None])[0][tip_ids]
+                 + rest_joints[distal] - template_joints[distal])
+    count = pose.shape[0]
+    kinematics = forward_kinematics(pose, rest_joints.expand(count, -1, -1), translation)
+    tips = linear_blend_skinning(tips_rest.expand(count, -1, -1), template.weights[tip_ids],
+                                 kinematics.transforms)
+    return joints_to_keypoints(kinematics.joints, tips)
 
 
 def keypoints_3d_record(params: HandParams, frame: str = "world",

@@ -67,7 +67,8 @@ from .artefacts import PhotoOfHand, build_hand_outputs, photo_report_html
 from .config import FitPhotoConfig, photo_fit_defaults
 from .inputs import PhotoHand
 
-__all__ = ["photo_fit_defaults", "FitPhotoConfig", "PhotoFitReport", "fit_photo_folder"]
+__all__ = ["photo_fit_defaults", "FitPhotoConfig", "PhotoFitReport", "fit_photo_folder",
+           "keypoint_hand"]
 
 SIDES = ("auto", "right", "left")
 
@@ -284,8 +285,8 @@ def fit_photo_folder(
     return [report for _, report in outcomes]
 
 
-def _keypoint_hand(views: list[Any], side: str, config: FitPhotoConfig, template: Any,
-                   progress: bool) -> tuple[HandParams, Any]:
+def keypoint_hand(views: list[Any], side: str, config: FitPhotoConfig, template: Any,
+                  progress: bool) -> tuple[HandParams, Any]:
     """The keypoint stage as a ``side`` hand -> (the hand, of that side, in the views' world;
     its StageReport)."""
     from ..images.keypoint_stage import fit_keypoints
@@ -326,7 +327,7 @@ def _choose_side(views: list[Any], side: str, hands: list[PhotoHand], config: Fi
     if unsure:
         notes.append(f"the detector is unsure of the side ({', '.join(unsure)}, below "
                      f"{config.side_confidence:g})")
-    fits = {name: _keypoint_hand(views[:1], name, config, template, progress)
+    fits = {name: keypoint_hand(views[:1], name, config, template, progress)
             for name in ("right", "left")}
     chosen = min(fits, key=lambda name: fits[name][1].loss)
     other = "left" if chosen == "right" else "right"
@@ -361,7 +362,7 @@ def _place_cameras(views: list[Any], side: str, config: FitPhotoConfig, template
     flip = torch.diag(torch.tensor([-1.0, 1.0, 1.0], dtype=torch.float64))
     transforms = []
     for view in views:
-        hand, _ = _keypoint_hand([view], side, config, template, progress)
+        hand, _ = keypoint_hand([view], side, config, template, progress)
         transforms.append(_root_transform(mirror_hand(hand) if side == "left" else hand))
     placed = []
     for view, transform in zip(views, transforms, strict=True):
@@ -464,12 +465,12 @@ def _fit_hand(model: Any, inputs: list[_PhotoInput], hands: list[PhotoHand], fol
                                                   progress, notes)
         if len(views) > 1:
             views = _place_cameras(views, chosen, config, template, progress)
-            start, _ = _keypoint_hand(views, chosen, config, template, progress)
+            start, _ = keypoint_hand(views, chosen, config, template, progress)
             views = _refine_cameras(views, start)
             crops = [dataclasses.replace(crop, view=view) for crop, view in zip(crops, views,
                                                                                 strict=True)]
         elif start is None:
-            start, _ = _keypoint_hand(views, chosen, config, template, progress)
+            start, _ = keypoint_hand(views, chosen, config, template, progress)
     timings["seconds_keypoints"] = time.perf_counter() - began - timings["seconds_inputs"]
     log(f"side: {chosen} ({side_source}); fitting {len(views)} photo(s)")
     result = fit_images(model, views, config.fit, progress, side=chosen, start=start)

@@ -145,24 +145,31 @@ _STYLE = ("body{font-family:sans-serif;margin:1.5em;max-width:1500px}"
           ".fail{color:#b00}.pass{color:#070}")
 
 
-def report_html(title: str, sections: Sequence[Mapping[str, Any]]) -> str:
+PHOTO_INTRO = ("Panels: the photo | the fitted hand rendered over it | keypoints given to the "
+               "fit (green) and of the fitted hand (magenta). Pixels are the photo's own (its "
+               "full size, EXIF orientation applied).")
+"""The first paragraph of a photo fit's page."""
+
+
+def report_html(title: str, sections: Sequence[Mapping[str, Any]],
+                intro: str = PHOTO_INTRO) -> str:
     """``report.html``: one self-contained page (see the module docstring).
 
     title: the page's heading. sections: one per fitted hand, each a mapping with
-    ``"heading"`` (str), ``"overlay"`` (PNG bytes of ``overlay.png``), ``"mask"`` (PNG bytes,
-    optional), ``"numbers"`` ({label: value}: numbers, strings, lists), ``"guard"``
-    (optional {label: value} with ``"passed"``), and ``"notes"`` (list of str).
+    ``"heading"`` (str), ``"overlay"`` (PNG bytes of ``overlay.png``), ``"pictures"``
+    (optional, more PNG bytes shown below it), ``"mask"`` (PNG bytes, optional),
+    ``"numbers"`` ({label: value}: numbers, strings, lists), ``"guard"`` (optional {label:
+    value} with ``"passed"``), and ``"notes"`` (list of str). intro: the first paragraph.
     -> the page's text (UTF-8).
     """
     parts = ["<!DOCTYPE html>", '<html lang="en"><head><meta charset="utf-8">',
              f"<title>{html.escape(title)}</title><style>{_STYLE}</style></head><body>",
-             f"<h1>{html.escape(title)}</h1>",
-             "<p>Panels: the photo | the fitted hand rendered over it | keypoints given to the "
-             "fit (green) and of the fitted hand (magenta). Pixels are the photo's own (its "
-             "full size, EXIF orientation applied).</p>"]
+             f"<h1>{html.escape(title)}</h1>", f"<p>{html.escape(intro)}</p>"]
     for section in sections:
         parts.append(f"<h2>{html.escape(str(section['heading']))}</h2>")
         parts.append(_embedded(section["overlay"], "overlay"))
+        for picture in section.get("pictures", ()):
+            parts.append(_embedded(picture, "plot"))
         parts.append(_table(section.get("numbers", {})))
         guard = section.get("guard")
         if guard:

@@ -1,0 +1,216 @@
+"""The files of ``lisa fit-video`` (:func:`video_artefacts`, written by
+:func:`lisa_hand.fitting.outputs.write_fit`, all or nothing).
+
+Per hand (in ``DIR`` for one hand, ``DIR/handN`` for several, N its identity): ``params.json``
+(the hand at its keyframe: side, skeleton, shape and colour codes; ``lisa mesh`` and ``lisa
+render`` read it; ``extra.video`` the clip and the keyframe), ``mesh.ply`` (its surface at the
+keyframe, with colours and skinning weights) and ``hand.glb`` (that surface in the rest pose,
+skinned to the skeleton, with the clip's motion as an animation: :mod:`lisa_hand.data.gltf`).
+In ``DIR``: ``track.json`` (:func:`track_record`), ``overlay.mp4`` (the clip, at the size the
+fit worked at, with each hand's mesh posed by skinning in every frame and rendered over it:
+:class:`HandPoser`, :func:`lisa_hand.inference.mesh_render.render_mesh`), ``report.html`` and
+``metrics.json`` (:mod:`lisa_hand.fitting.video.report`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from ...geometry.meshing import Mesh
+from ...skeleton.params import HandParams
+from ..outputs import Artefact, json_artefact, mesh_artefact, params_artefact
+
+__all__ = ["VIDEO_FILES", "VIDEO_DESCRIBED", "HandPoser", "hand_folder", "track_record",
+           "render_frame", "video_artefacts", "video_entry"]
+
+VIDEO_FILES = ("params.json", "mesh.ply", "hand.glb", "track.json", "overlay.mp4",
+               "report.html", "metrics.json")
+"""The files a video fit writes (per hand or at the top)."""
+
+
+class HandPoser:
+    """A fitted hand's mesh moved to any pose by linear blend skinning: the mesh unposed once
+    (:func:`lisa_hand.inference.mesh.repose_mesh` to the zero pose), each pose then a forward
+    kinematics and a skinning. params: the hand the mesh was made from (either side)."""
+
+    def __init__(self, mesh: Mesh, params: HandParams) -> None:
+        from ...inference.mesh import repose_mesh
+
+        self.params = params
+        self.rest = repose_mesh(mesh, params, torch.zeros(48), torch.zeros(3))
+        self._vertices = torch.from_numpy(self.rest.vertices).double()
+        self._weights = torch.from_numpy(self.rest.skin_weights).double()
+
+    def posed(self, pose: np.ndarray, translation: np.ndarray) -> Mesh:
+        """pose [48] radians, translation [3] metres -> the mesh in that pose."""
+        from ...skeleton import forward_kinematics, linear_blend_skinning
+
+        kinematics = forward_kinematics(torch.as_tensor(pose, dtype=torch.float64)[None],
+                                        self.params.rest_joints.double()[None],
+                                        torch.as_tensor(translation, dtype=torch.float64)[None])
+        vertices = linear_blend_skinning(self._vertices[None], self._weights,
+                                         kinematics.transforms)[0]
+        return Mesh(vertices=vertices.float().numpy(), faces=self.rest.faces,
+                    colors=self.rest.colors)
+
+
+def hand_folder(fit: Any, hand: Any) -> str:
+    """"" for a clip of one hand, else "handN"."""
+    return "" if len(fit.hands) == 1 else f"hand{hand.track.identity}"
+
+
+def _rows(values: np.ndarray, digits: int) -> list:
+    return np.round(np.asarray(values, np.float64), digits).tolist()
+
+
+def track_record(fit: Any) -> dict[str, Any]:
+    """What ``track.json`` holds: the clip (``video``, ``fps``, ``width``, ``height``, original
+    pixels), the camera (``K`` original pixels, its ``source``), ``hands`` (each one's
+    ``identity``, ``side``, ``folder``, keyframe) and ``frames``: per frame its ``index`` in the
+    file, ``time_s`` and ``hands``, each fitted hand's ``identity``, ``side``, ``detected``,
+    ``bridged``, ``pose`` [48] radians, ``translation`` [3] metres, ``keypoints_3d`` [21, 3]
+    metres in the camera frame, ``keypoints_2d`` [21, 2] pixels of the clip."""
+    info = fit.video.info
+    K = fit.camera.K.double().cpu().numpy().copy()
+    K[:2] /= fit.scale
+    frames = []
+    for row, (index, time_s) in enumerate(zip(fit.indices.tolist(), fit.times.tolist(),
+                                              strict=True)):
+        hands = []
+        for hand in fit.hands:
+            if not np.isfinite(hand.motion.pose[row]).all():
+                continue
+            hands.append({"identity": hand.track.identity, "side": hand.side,
+                          "detected": bool(hand.track.detected[row]),
+                          "bridged": bool(hand.track.bridged[row]),
+                          "pose": _rows(hand.motion.pose[row], 6),
+                          "translation": _rows(hand.motion.translation[row], 6),
+                          "keypoints_3d": _rows(hand.motion.keypoints_3d[row], 5),
+                          "keypoints_2d": _rows(hand.keypoints_2d[row], 2)})
+        frames.append({"index": int(index), "time_s": round(float(time_s), 4), "hands": hands})
+    return {"video": str(info.path), "fps": round(float(info.fps), 4), "width": info.width,
+            "height": info.height, "independent": fit.independent,
+            "camera": {"K": K.tolist(), "source": fit.camera_source},
+            "units": {"keypoints_3d": "m", "translation": "m", "pose": "rad (axis-angle, MANO "
+                      "order)", "keypoints_2d": "px of the clip"},
+            "hands": [{"identity": hand.track.identity, "side": hand.side,
+                       "folder": hand_folder(fit, hand),
+                       "keyframe": {"index": int(fit.indices[hand.keyframe_row]),
+                                    "time_s": round(float(fit.times[hand.keyframe_row]), 4)}}
+                      for hand in fit.hands],
+            "frames": frames}
+
+
+def _crop_camera(camera: Any, box: tuple[int, int, int, int]) -> Any:
+    """``camera`` restricted to the pixel box (x0, y0, x1, y1)."""
+    from ...geometry.cameras import Camera
+
+    x0, y0, x1, y1 = box
+    K = camera.K.clone()
+    K[0, 2] -= x0
+    K[1, 2] -= y0
+    return Camera(K=K, R=camera.R, t=camera.t, width=int(x1 - x0), height=int(y1 - y0))
+
+
+def render_frame(model: Any, rgb: np.ndarray, camera: Any, meshes: list[Mesh], alpha: float,
+                 supersample: int = 1) -> np.ndarray:
+    """``rgb`` [H, W, 3] uint8 with ``meshes`` (camera frame) rendered over it at opacity
+    ``alpha``, each only in the box its vertices project to -> [H, W, 3] uint8."""
+    from ...inference.mesh_render import render_mesh
+
+    out = rgb.astype(np.float32) / 255.0
+    height, width = rgb.shape[:2]
+    K = camera.K.double().cpu().numpy()
+    for mesh in meshes:
+        points = mesh.vertices.astype(np.float64)
+        in_front = points[:, 2] > 1e-3
+        if not in_front.any():
+            continue
+        pixels = (points[in_front] @ K.T)[:, :2] / points[in_front, 2:]
+        x0, y0 = np.floor(pixels.min(0)).astype(int) - 2
+        x1, y1 = np.ceil(pixels.max(0)).astype(int) + 2
+        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
+        if x1 - x0 < 2 or y1 - y0 < 2:
+            continue
+        shown = render_mesh(model, mesh, _crop_camera(camera, (x0, y0, x1, y1)), supersample)
+        cover = alpha * shown.alpha[..., None]
+        region = out[y0:y1, x0:x1]
+        out[y0:y1, x0:x1] = region * (1.0 - cover) + shown.rgb * alpha
+    return np.clip(out * 255.0 + 0.5, 0, 255).astype(np.uint8)
+
+
+def _overlay_frames(fit: Any, model: Any, posers: list[HandPoser], config: Any):
+    """The clip's frames with the hands rendered over them, read again from the file."""
+    for row, frame in enumerate(fit.video.frames()):
+        meshes = [poser.posed(hand.motion.pose[row], hand.motion.translation[row])
+                  for hand, poser in zip(fit.hands, posers, strict=True)
+                  if np.isfinite(hand.motion.pose[row]).all()]
+        yield render_frame(model, frame.rgb, fit.camera, meshes, config.overlay_alpha,
+                           config.overlay_supersample)
+
+
+def _glb_artefact(name: str, poser: HandPoser, hand: Any, times: np.ndarray) -> Artefact:
+    fitted = np.isfinite(hand.motion.pose).all(-1)
+
+    def write(path: Path) -> Path:
+        from ...data.gltf import write_animated_glb
+
+        return write_animated_glb(path, poser.rest, poser.params.rest_joints,
+                                  hand.motion.pose[fitted], hand.motion.translation[fitted],
+                                  times[fitted] - times[0], side=hand.side)
+
+    return Artefact(name, write)
+
+
+def _overlay_artefact(fit: Any, model: Any, posers: list[HandPoser], config: Any) -> Artefact:
+    def write(path: Path) -> Path:
+        from ...data.video import write_video
+
+        steps = np.diff(fit.times)
+        rate = 1.0 / float(np.median(steps)) if len(steps) else fit.video.info.fps
+        return write_video(path, _overlay_frames(fit, model, posers, config), rate)
+
+    return Artefact("overlay.mp4", write)
+
+
+def video_artefacts(fit: Any, model: Any, config: Any, report: str, metrics: dict
+                    ) -> list[Artefact]:
+    """Every file of the fit (module docstring). report: ``report.html``'s text; metrics:
+    ``metrics.json``'s record."""
+    from ..outputs import text_artefact
+
+    posers = [HandPoser(hand.keyframe.mesh, hand.params) for hand in fit.hands]
+    artefacts = []
+    for hand, poser in zip(fit.hands, posers, strict=True):
+        folder = hand_folder(fit, hand)
+        prefix = f"{folder}/" if folder else ""
+        artefacts += [params_artefact(hand.params, prefix + "params.json"),
+                      mesh_artefact(hand.keyframe.mesh, prefix + "mesh.ply"),
+                      _glb_artefact(prefix + "hand.glb", poser, hand, fit.times)]
+    return artefacts + [json_artefact("track.json", track_record(fit)),
+                        json_artefact("metrics.json", metrics),
+                        _overlay_artefact(fit, model, posers, config),
+                        text_artefact("report.html", report)]
+
+
+def video_entry(path: Path) -> bool:
+    """Whether ``path``, an entry of an output folder, is what a video fit writes: a file of
+    :data:`VIDEO_FILES`, or a ``handN`` folder holding only such files."""
+    import re
+
+    if path.is_symlink():
+        return False
+    if path.is_file():
+        return path.name in VIDEO_FILES
+    if path.is_dir() and re.fullmatch(r"hand\d+", path.name):
+        return all(entry.is_file() and not entry.is_symlink() and entry.name in VIDEO_FILES
+                   for entry in path.iterdir())
+    return False
+
+
+VIDEO_DESCRIBED = ", ".join(VIDEO_FILES) + " and handN folders"
+"""How an output-folder error names what a video fit leaves."""

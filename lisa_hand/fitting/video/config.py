@@ -1,0 +1,136 @@
+"""The settings of ``lisa fit-video`` (:class:`FitVideoConfig`): detection and tracking, the
+keyframe fit (a photo fit, :class:`~lisa_hand.fitting.photo.config.FitPhotoConfig`), the
+motion fit (:class:`MotionConfig`) and the outputs. The fit is
+:mod:`lisa_hand.fitting.video.fit`."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from ..photo.config import FitPhotoConfig
+
+__all__ = ["MotionConfig", "FitVideoConfig"]
+
+
+@dataclass(frozen=True)
+class MotionConfig:
+    """The per-frame pose and translation fit of a tracked hand
+    (:func:`lisa_hand.fitting.video.motion.fit_motion`), in windows of frames.
+
+    The energy of a window: the keypoints' reprojection (pseudo-Huber, in percent of the hand's
+    size in the image, weighed by the detector's score; bridged frames have none), the finger
+    pose prior and joint limits of every fitter (:func:`lisa_hand.fitting.terms.hand_prior`),
+    and the motion prior: the 3D keypoints' velocity and acceleration (m/s, m/s^2) and the
+    joints' turning speed above ``max_joint_speed``.
+    """
+
+    window: int = 24
+    """Frames a window holds (its first ``overlap`` already fitted, held fixed)."""
+    overlap: int = 4
+    """Frames each window shares with the one before: they carry the motion across."""
+    window_iters: int = 50
+    """Adam iterations a window."""
+    pose_lr: float = 0.02
+    translation_lr: float = 0.004
+    final_lr_fraction: float = 0.2
+    keypoint_scale: float = 1.0
+    """The pseudo-Huber scale of the keypoint residuals, percent of the hand's size."""
+    keypoint_weight: float = 1.0
+    pose_weight: float = 0.02
+    """The finger-pose prior's weight (toward the relaxed hand)."""
+    limit_weight: float = 10.0
+    """The joint limits' weight."""
+    betas_weight: float = 0.0
+    velocity_weight: float = 1e-4
+    """x the mean squared velocity of the 3D keypoints, (m/s)^2."""
+    acceleration_weight: float = 1e-3
+    """x the mean squared acceleration of the 3D keypoints, (m/s^2)^2."""
+    articulation_weight: float = 1e-2
+    """x the mean squared acceleration of the 3D keypoints relative to the wrist, (m/s^2)^2:
+    the hand's own motion (what jitters most where one view leaves depth open)."""
+    max_joint_speed: float = 25.0
+    """rad/s: a finger joint turning faster than this is penalised."""
+    joint_speed_weight: float = 1e-3
+    prior_pose: str = "relaxed"
+    """The named pose the finger prior pulls toward."""
+
+    def __post_init__(self) -> None:
+        for name in ("window", "window_iters"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        if not 0 <= self.overlap < self.window:
+            raise ValueError(f"overlap must be in [0, window), got {self.overlap}")
+        for name in ("pose_lr", "translation_lr", "keypoint_scale", "max_joint_speed"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
+        for name in ("keypoint_weight", "pose_weight", "limit_weight", "betas_weight",
+                     "velocity_weight", "acceleration_weight", "articulation_weight",
+                     "joint_speed_weight"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0 < self.final_lr_fraction <= 1:
+            raise ValueError(f"final_lr_fraction must be in (0, 1], got {self.final_lr_fraction}")
+
+
+@dataclass(frozen=True)
+class FitVideoConfig:
+    """Settings of :func:`lisa_hand.fitting.video.fit.fit_video`."""
+
+    keyframe: FitPhotoConfig = field(default_factory=FitPhotoConfig)
+    """The fit of each hand's keyframe (shape, skeleton, colour; a photo fit)."""
+    motion: MotionConfig = field(default_factory=MotionConfig)
+    """The per-frame pose fit."""
+    max_side: int = 1280
+    """Frames are downscaled to at most this long side for detection and fitting, pixels
+    (results are given in the clip's own pixels)."""
+    max_hands: int = 2
+    """At most this many hands are followed."""
+    detection_confidence: float = 0.5
+    """MediaPipe's palm-detection threshold."""
+    tracking_confidence: float = 0.5
+    """MediaPipe's landmark-tracking threshold (below it the palm detector runs again)."""
+    model_complexity: int = 1
+    """MediaPipe's landmark model: 0 (lite) or 1 (full)."""
+    bridge_s: float = 0.5
+    """Dropouts of the detector up to this long are bridged, seconds; a longer gap ends a
+    segment (the hand is absent there)."""
+    match_fraction: float = 1.0
+    """A detection further than this from a track's last keypoints (mean distance over the
+    hand's size) is another hand."""
+    min_frames: int = 3
+    """A track with fewer detected frames is dropped (a false detection)."""
+    min_hand_px: float = 16.0
+    """A keyframe's hand must be at least this large (wrist-to-knuckle length, pixels)."""
+    independent: bool = False
+    """Every frame fitted alone (no motion prior, no bridging; each frame starts from the
+    previous frame's fit): the reference of the benchmark."""
+    overlay_alpha: float = 0.75
+    """The rendered hand's opacity in ``overlay.mp4``."""
+    overlay_supersample: int = 1
+    """Rays a pixel side of the overlay's rendering."""
+    report_frames: int = 4
+    """Frames shown in ``report.html``."""
+    num_threads: int = 2
+    """CPU threads of the fit."""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.keyframe, FitPhotoConfig):
+            raise TypeError(f"keyframe must be a FitPhotoConfig, got {type(self.keyframe)}")
+        if not isinstance(self.motion, MotionConfig):
+            raise TypeError(f"motion must be a MotionConfig, got {type(self.motion)}")
+        for name in ("max_side", "max_hands", "min_frames", "overlay_supersample",
+                     "report_frames", "num_threads"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        for name in ("detection_confidence", "tracking_confidence"):
+            if not 0 < getattr(self, name) < 1:
+                raise ValueError(f"{name} must be in (0, 1), got {getattr(self, name)!r}")
+        if self.model_complexity not in (0, 1):
+            raise ValueError(f"model_complexity must be 0 or 1, got {self.model_complexity!r}")
+        for name in ("bridge_s", "match_fraction", "min_hand_px"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0 <= self.overlay_alpha <= 1:
+            raise ValueError(f"overlay_alpha must be in [0, 1], got {self.overlay_alpha!r}")

@@ -1,0 +1,215 @@
+"""A tracked hand's pose and translation in every frame, its shape fixed
+(:func:`fit_motion`): the motion fit of ``lisa fit-video``.
+
+The hand's skeleton and template shape come from its keyframe; per frame only the pose [48]
+and translation [3] are unknown. The energy of a set of frames (:class:`MotionEnergy`) is a
+sum of per-frame data and prior terms and of motion terms between consecutive frames:
+
+* keypoints: each frame's 21 keypoints (:func:`lisa_hand.fitting.outputs.posed_keypoints`)
+  projected and compared with the detector's, the distance in percent of the hand's size in the
+  image, pseudo-Huber, weighed by the detector's score (a bridged frame has weight 0);
+* the prior of every fitter (:func:`lisa_hand.fitting.terms.hand_prior`: finger pose toward
+  the relaxed hand, joint limits);
+* motion: the mean squared velocity (m/s) and acceleration (m/s^2) of the 3D keypoints, from
+  the frames' own times (a variable frame rate is taken as it comes), and the finger joints'
+  turning speed above ``max_joint_speed`` (rad/s).
+
+Solved in two passes from an anchor frame whose pose is known (the keyframe's fit): windows of
+``window`` frames stepping away from the anchor, forward then backward in time, each window's
+first ``overlap`` frames already solved and held (they carry position and velocity across),
+its new frames starting from the last solved frame; then every frame of the segment at once
+(each frame between both neighbours). With ``temporal=False`` the motion terms are off and
+each frame is fitted alone (from its predecessor's fit: the ``--independent`` reference).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from ...skeleton import NUM_KEYPOINTS
+from ..optim import lr_schedule
+from ..outputs.records import posed_keypoints
+from ..priors import prior_mean_fingers
+from ..terms import HandTerms, hand_prior
+from .config import MotionConfig
+
+__all__ = ["MotionData", "MotionResult", "MotionEnergy", "fit_motion"]
+
+
+@dataclass(frozen=True)
+class MotionData:
+    """What the motion fit sees of one RIGHT hand (a left hand's keypoints mirrored first:
+    ``u -> 2 cx - u``), N frames.
+
+    K: [3, 3] the camera's intrinsics (processing pixels; the camera frame is the world).
+    keypoints: [N, 21, 2] pixels (any value where ``weights`` is 0). weights: [N] the keypoint
+    term's weight per frame (the detector's score; 0: no keypoints). times: [N] seconds,
+    increasing. size_px: the hand's size in the image, pixels (the residuals' unit is 1 % of it).
+    """
+
+    K: torch.Tensor
+    keypoints: torch.Tensor
+    weights: torch.Tensor
+    times: torch.Tensor
+    size_px: float
+
+
+@dataclass(frozen=True)
+class MotionResult:
+    """pose: [N, 48] radians, translation: [N, 3] metres, keypoints_3d: [N, 21, 3] metres (NaN
+    rows: frames outside every fitted segment). seconds; iterations (Adam steps in all)."""
+
+    pose: np.ndarray
+    translation: np.ndarray
+    keypoints_3d: np.ndarray
+    seconds: float
+    iterations: int
+
+
+class MotionEnergy:
+    """The energy of consecutive frames (module docstring). ``temporal``: with the motion
+    terms. All rows of one call are consecutive frames of the data, ``rows`` [W] their indices."""
+
+    def __init__(self, template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | None,
+                 data: MotionData, config: MotionConfig, temporal: bool) -> None:
+        self.template, self.rest_joints, self.betas = template, rest_joints, betas
+        self.data, self.config, self.temporal = data, config, temporal
+        self.prior = hand_prior(config, prior_mean_fingers(config.prior_pose))
+
+    def keypoints(self, pose: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
+        """[W, 48], [W, 3] -> [W, 21, 3] metres."""
+        return posed_keypoints(self.template, self.rest_joints, self.betas, pose, translation)
+
+    def __call__(self, rows: torch.Tensor, pose: torch.Tensor, translation: torch.Tensor,
+                 data_rows: torch.Tensor) -> torch.Tensor:
+        """rows: [W] consecutive frame indices; pose [W, 48], translation [W, 3];
+        data_rows: [W] bool, the frames whose data and prior terms count (the others are
+        context: they enter only the motion terms). -> the energy (a scalar)."""
+        config, data = self.config, self.data
+        points = self.keypoints(pose, translation)
+        depth = points[..., 2].clamp_min(1e-3)
+        pixels = (points @ data.K.T)[..., :2] / depth[..., None]
+        distance = (pixels - data.keypoints[rows]).norm(dim=-1) * (100.0 / data.size_px)
+        scale = config.keypoint_scale
+        huber = scale ** 2 * (torch.sqrt(1.0 + (distance / scale) ** 2) - 1.0)
+        weight = data.weights[rows] * data_rows
+        energy = config.keypoint_weight * (huber.mean(-1) * weight).sum()
+        energy = energy + (self.prior(HandTerms(pose=pose)) * data_rows).sum()
+        behind = torch.relu(0.05 - points[..., 2]).sum()  # stay in front of the camera
+        energy = energy + 1e4 * behind
+        if not self.temporal or len(rows) < 2:
+            return energy
+        times = data.times[rows]
+        step = (times[1:] - times[:-1]).abs().clamp_min(1e-4)  # [W-1] seconds
+        velocity = (points[1:] - points[:-1]) / step[:, None, None]  # [W-1, 21, 3] m/s
+        energy = energy + config.velocity_weight * (velocity ** 2).sum(-1).mean(-1).sum()
+        if len(rows) > 2:
+            middle = 0.5 * (step[1:] + step[:-1])
+            acceleration = (velocity[1:] - velocity[:-1]) / middle[:, None, None]
+            energy = energy + config.acceleration_weight * (
+                acceleration ** 2).sum(-1).mean(-1).sum()
+            relative = acceleration - acceleration[:, :1]  # the hand's own motion, wrist held
+            energy = energy + config.articulation_weight * (relative ** 2).sum(-1).mean(-1).sum()
+        turning = (pose[1:, 3:] - pose[:-1, 3:]).abs() / step[:, None]
+        excess = torch.relu(turning - config.max_joint_speed)
+        return energy + config.joint_speed_weight * (excess ** 2).sum()
+
+
+def _optimise(energy: MotionEnergy, rows: torch.Tensor, pose: torch.Tensor,
+              translation: torch.Tensor, free: torch.Tensor, iterations: int) -> None:
+    """Adam on the ``free`` [W] rows of ``pose`` and ``translation`` (in place)."""
+    config = energy.config
+    free_pose = pose[free].clone().requires_grad_(True)
+    free_translation = translation[free].clone().requires_grad_(True)
+    optimizer = torch.optim.Adam([{"params": [free_pose], "lr": config.pose_lr},
+                                  {"params": [free_translation], "lr": config.translation_lr}])
+    schedule = lr_schedule(optimizer, iterations, config.final_lr_fraction)
+    held_pose, held_translation = pose.detach(), translation.detach()
+    for _ in range(iterations):
+        optimizer.zero_grad(set_to_none=True)
+        full_pose = held_pose.clone()
+        full_pose[free] = free_pose
+        full_translation = held_translation.clone()
+        full_translation[free] = free_translation
+        energy(rows, full_pose, full_translation, free).backward()
+        optimizer.step()
+        schedule.step()
+    with torch.no_grad():
+        pose[free] = free_pose.detach()
+        translation[free] = free_translation.detach()
+
+
+def _sweep(energy: MotionEnergy, order: list[int], pose: torch.Tensor,
+           translation: torch.Tensor) -> int:
+    """Windows along ``order`` (frame rows, the first one solved): each window's first
+    ``overlap`` rows held, the rest started from the last solved row -> Adam steps taken."""
+    config = energy.config
+    steps, done = 0, 1
+    fresh = config.window - config.overlap
+    while done < len(order):
+        held = order[max(0, done - config.overlap):done]
+        new = order[done:done + fresh]
+        with torch.no_grad():
+            pose[new] = pose[order[done - 1]].clone()
+            translation[new] = translation[order[done - 1]].clone()
+        window = sorted(held + new)  # frame order, whichever way the sweep goes
+        rows = torch.tensor(window)
+        free = torch.tensor([row in new for row in window])
+        sub_pose, sub_translation = pose[rows].clone(), translation[rows].clone()
+        _optimise(energy, rows, sub_pose, sub_translation, free, config.window_iters)
+        pose[rows], translation[rows] = sub_pose, sub_translation
+        steps += config.window_iters
+        done += len(new)
+    return steps
+
+
+def fit_motion(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | None,
+               data: MotionData, segments: list[tuple[int, int, int, torch.Tensor, torch.Tensor]],
+               config: MotionConfig, temporal: bool = True, refine_iters: int | None = None
+               ) -> MotionResult:
+    """Fit the pose and translation of a RIGHT hand in the frames of ``segments``.
+
+    template: the mesh template (float32, CPU). rest_joints: [16, 3] metres; betas: [K] or
+    None: the hand's skeleton and template shape (fixed). data: :class:`MotionData` of all N
+    frames. segments: (first, end, anchor, anchor_pose [48], anchor_translation [3]) per run
+    of frames to fit, rows [first, end) with the pose known at row ``anchor``.
+    temporal: with the motion terms (False: each frame alone). refine_iters: Adam steps of the
+    final pass over every frame of a segment at once (default ``2 * window_iters``; without
+    the motion terms the frames do not interact and the pass is more steps for each alone).
+    -> :class:`MotionResult` (NaN outside the segments).
+    """
+    began = time.perf_counter()
+    count = data.keypoints.shape[0]
+    energy = MotionEnergy(template, rest_joints, betas, data, config, temporal)
+    pose = torch.full((count, 48), float("nan"))
+    translation = torch.full((count, 3), float("nan"))
+    steps = 0
+    refine_iters = 2 * config.window_iters if refine_iters is None else refine_iters
+    for first, end, anchor, anchor_pose, anchor_translation in segments:
+        if not first <= anchor < end <= count:
+            raise ValueError(f"segment ({first}, {end}) must hold its anchor row {anchor}")
+        pose[anchor] = anchor_pose.float()
+        translation[anchor] = anchor_translation.float()
+        steps += _sweep(energy, list(range(anchor, end)), pose, translation)
+        steps += _sweep(energy, list(range(anchor, first - 1, -1)), pose, translation)
+        if refine_iters > 0 and end - first > 1:
+            rows = torch.arange(first, end)
+            sub_pose, sub_translation = pose[rows].clone(), translation[rows].clone()
+            _optimise(energy, rows, sub_pose, sub_translation,
+                      torch.ones(len(rows), dtype=torch.bool), refine_iters)
+            pose[rows], translation[rows] = sub_pose, sub_translation
+            steps += refine_iters
+    keypoints = torch.full((count, NUM_KEYPOINTS, 3), float("nan"))
+    fitted = torch.isfinite(pose).all(-1)
+    with torch.no_grad():
+        if fitted.any():
+            keypoints[fitted] = energy.keypoints(pose[fitted], translation[fitted])
+    return MotionResult(pose=pose.numpy().astype(np.float64),
+                        translation=translation.numpy().astype(np.float64),
+                        keypoints_3d=keypoints.numpy().astype(np.float64),
+                        seconds=time.perf_counter() - began, iterations=steps)
