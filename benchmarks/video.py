@@ -41,7 +41,6 @@ import tempfile
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
@@ -50,7 +49,7 @@ from lisa_hand.utils.threads import cpu_threads
 from . import write_results
 
 __all__ = ["ModeResult", "ClipResult", "RealResult", "SpeedResult", "VideoBenchmark",
-           "default_real_clip", "run_video_benchmark", "main"]
+           "default_real_clip", "fit_config", "run_video_benchmark", "main"]
 
 MODES = ("tracked", "independent")
 TARGET_JITTER_RATIO = 1.0 / 3.0
@@ -187,10 +186,14 @@ def _fitted_rows(keypoints_3d: np.ndarray) -> np.ndarray:
     return np.isfinite(np.asarray(keypoints_3d, np.float64)).all(axis=(1, 2))
 
 
-def _config(independent: bool, threads: int):
+def fit_config(independent: bool, threads: int, overrides=()):
+    """The :class:`~lisa_hand.fitting.video.config.FitVideoConfig` of a fit: the defaults with
+    ``independent``, ``threads`` CPU threads and the ``--set KEY=VALUE`` overrides."""
     from lisa_hand.fitting.video.config import FitVideoConfig
+    from lisa_hand.utils.config import apply_overrides
 
-    return FitVideoConfig(independent=independent, num_threads=threads)
+    config = FitVideoConfig(independent=independent, num_threads=threads)
+    return apply_overrides(config, list(overrides)) if overrides else config
 
 
 def _nearest_hand(fit, keypoints_2d: np.ndarray):
@@ -210,14 +213,14 @@ def _masked(keypoints_3d: np.ndarray, rows: np.ndarray) -> np.ndarray:
     return out
 
 
-def _fit_clip(clip, independent: bool, options: dict, threads: int):
+def _fit_clip(clip, independent: bool, options: dict, make_config):
     """-> (fit or None, seconds, error or None)."""
     from lisa_hand.fitting.video.fit import fit_video
 
     start = time.perf_counter()
     try:
         fit = fit_video(clip.folder, camera_json=clip.camera_json, fps=clip.fps, progress=False,
-                        log=None, config=_config(independent, threads), **options)
+                        log=None, config=make_config(independent), **options)
     except (ValueError, OSError) as exc:
         return None, time.perf_counter() - start, str(exc)
     return fit, time.perf_counter() - start, None
@@ -314,7 +317,7 @@ def _upscaled(real: Path, path: Path, size: tuple[int, int]) -> Path:
 # The three parts
 
 
-def _clips_part(num_clips: int, scene, work_dir: Path, options: dict, threads: int,
+def _clips_part(num_clips: int, scene, work_dir: Path, options: dict, make_config,
                 log) -> list[ClipResult]:
     from ._video_scenes import make_clip
 
@@ -324,7 +327,7 @@ def _clips_part(num_clips: int, scene, work_dir: Path, options: dict, threads: i
         log(f"  clip {index} ({clip.subject}, {clip.side}, turns {clip.turn_deg:+.0f} deg): "
             f"{clip.num_frames} frames rendered in {clip.seconds_render:.1f} s "
             f"({clip.seconds_render / clip.num_frames:.2f} s a frame)")
-        fits = {mode: _fit_clip(clip, mode == "independent", options, threads)
+        fits = {mode: _fit_clip(clip, mode == "independent", options, make_config)
                 for mode in MODES}
         results.append(_clip_result(clip, fits))
         for line in _clip_lines(results[-1]):
@@ -332,8 +335,7 @@ def _clips_part(num_clips: int, scene, work_dir: Path, options: dict, threads: i
     return results
 
 
-def _real_part(real: Path, work_dir: Path, options: dict, threads: int,
-               log) -> dict[str, RealResult]:
+def _real_part(real: Path, options: dict, make_config, log) -> dict[str, RealResult]:
     from lisa_hand.fitting.video.fit import fit_video
 
     results = {}
@@ -341,7 +343,7 @@ def _real_part(real: Path, work_dir: Path, options: dict, threads: int,
         start = time.perf_counter()
         try:
             fit = fit_video(real, progress=False, log=None,
-                            config=_config(mode == "independent", threads), **options)
+                            config=make_config(mode == "independent"), **options)
         except (ValueError, OSError) as exc:
             results[mode] = RealResult(0, 0, math.nan, math.nan, math.nan,
                                        time.perf_counter() - start, 0, error=str(exc))
@@ -351,7 +353,7 @@ def _real_part(real: Path, work_dir: Path, options: dict, threads: int,
     return results
 
 
-def _speed_part(real: Path, work_dir: Path, options: dict, threads: int,
+def _speed_part(real: Path, work_dir: Path, options: dict, make_config,
                 log) -> dict[str, SpeedResult]:
     from lisa_hand.fitting.video import fit_video_folder
 
@@ -368,7 +370,7 @@ def _speed_part(real: Path, work_dir: Path, options: dict, threads: int,
         start = time.perf_counter()
         try:
             report = fit_video_folder(clip, out, progress=False, log=None,
-                                      config=_config(mode == "independent", threads), **options)
+                                      config=make_config(mode == "independent"), **options)
         except (ValueError, OSError) as exc:
             results[mode] = SpeedResult(0, time.perf_counter() - start, math.nan, math.nan,
                                         error=str(exc))
@@ -412,10 +414,12 @@ def _targets(clips: list[ClipResult], real: dict[str, RealResult],
 def run_video_benchmark(num_clips: int = 3, frames: int = 40, *, real: Path | None = None,
                         skip_real: bool = False, skip_speed: bool = False,
                         work_dir: Path | None = None, threads: int = 2, device: str = "cpu",
-                        model_path=None, seed: int = 0, log=print) -> VideoBenchmark:
+                        model_path=None, seed: int = 0, overrides=(),
+                        log=print) -> VideoBenchmark:
     """Run the benchmark (see the module docstring). work_dir: where the clips and fits go
     (default: a temporary folder, removed afterwards). real: the real clip (default
-    :func:`default_real_clip`)."""
+    :func:`default_real_clip`). overrides: ``KEY=VALUE`` strings applied to every fit's
+    ``FitVideoConfig`` (:func:`fit_config`)."""
     if isinstance(num_clips, bool) or not isinstance(num_clips, int) or num_clips < 0:
         raise ValueError(f"--clips must be an integer >= 0, got {num_clips!r}")
     if work_dir is None:
@@ -423,13 +427,18 @@ def run_video_benchmark(num_clips: int = 3, frames: int = 40, *, real: Path | No
             return run_video_benchmark(num_clips, frames, real=real, skip_real=skip_real,
                                        skip_speed=skip_speed, work_dir=Path(tmp),
                                        threads=threads, device=device, model_path=model_path,
-                                       seed=seed, log=log)
+                                       seed=seed, overrides=overrides, log=log)
     from ._video_scenes import VideoSceneConfig
 
     scene = VideoSceneConfig(seed=seed, frames=frames)
     work_dir = Path(work_dir)
     real = default_real_clip() if real is None else Path(real)
     options = {"device": device, "model_path": model_path}
+
+    def make_config(independent: bool):
+        return fit_config(independent, threads, overrides)
+
+    make_config(True)  # a bad override fails before any work
     notes: list[str] = []
     parts: dict[str, float] = {}
     clips: list[ClipResult] = []
@@ -440,7 +449,7 @@ def run_video_benchmark(num_clips: int = 3, frames: int = 40, *, real: Path | No
             log(f"1. rendered clips with truth ({num_clips} x {frames} frames, "
                 f"{scene.width}x{scene.height}, {scene.fps:g} fps)")
             start = time.perf_counter()
-            clips = _clips_part(num_clips, scene, work_dir, options, threads, log)
+            clips = _clips_part(num_clips, scene, work_dir, options, make_config, log)
             parts["clips"] = time.perf_counter() - start
         wanted = [name for name, skip in (("real", skip_real), ("speed", skip_speed)) if not skip]
         if wanted and not real.is_file():
@@ -450,12 +459,12 @@ def run_video_benchmark(num_clips: int = 3, frames: int = 40, *, real: Path | No
             if "real" in wanted:
                 log(f"2. the real clip {real}")
                 start = time.perf_counter()
-                real_results = _real_part(real, work_dir / "real", options, threads, log)
+                real_results = _real_part(real, options, make_config, log)
                 parts["real"] = time.perf_counter() - start
             if "speed" in wanted:
                 log(f"3. speed: {real.name} at {SPEED_SIZE[0]}x{SPEED_SIZE[1]}, with its files")
                 start = time.perf_counter()
-                speed = _speed_part(real, work_dir / "speed", options, threads, log)
+                speed = _speed_part(real, work_dir / "speed", options, make_config, log)
                 parts["speed"] = time.perf_counter() - start
 
     def clip_mean(mode: str, name: str) -> float:
@@ -523,8 +532,9 @@ def _clip_lines(result: ClipResult) -> list[str]:
 def _real_line(mode: str, result: RealResult) -> str:
     if result.error is not None:
         return f"    {mode}: failed: {result.error}"
-    return (f"    {mode:<11}: {result.hands} hand(s), fitted in {_number(100 * result.fitted_share)}"
-            f" % of {result.detected_frames} detected frames (of {result.frames}), jitter "
+    share = _number(100 * result.fitted_share)
+    return (f"    {mode:<11}: {result.hands} hand(s), fitted in {share} % of "
+            f"{result.detected_frames} detected frames (of {result.frames}), jitter "
             f"{_number(result.jitter_mm, 2)} mm/frame^2, agreement "
             f"{_number(result.agreement_px, 2)} px, {result.seconds:.1f} s")
 
@@ -561,7 +571,8 @@ def _table(result: VideoBenchmark) -> list[str]:
                         f"{_number(_mean(getattr(c, mode).seconds for c in result.clips))} |")
         rows.append("")
     if result.real:
-        rows += ["| real clip | hands | fitted share of detected | jitter mm/f^2 | agreement px | s |",
+        rows += ["| real clip | hands | fitted share of detected | jitter mm/f^2 | agreement px "
+                 "| s |",
                  "| --- | --- | --- | --- | --- | --- |"]
         for mode, r in result.real.items():
             rows.append(f"| {mode} | {r.hands} | {_number(100 * r.fitted_share)} % | "
@@ -621,11 +632,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--threads", type=int, default=2, help="torch threads (CPU)")
     parser.add_argument("--seed", type=int, default=0, help="seed of the rendered clips")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE",
+                        help="override a FitVideoConfig value of every fit (both modes), e.g. "
+                             "--set motion.window_iters=30 (repeatable)")
     args = parser.parse_args(argv)
     if args.frames < 3:
         parser.error(f"--frames must be at least 3, got {args.frames}")
     if args.threads < 1:
         parser.error(f"--threads must be at least 1, got {args.threads}")
+    if args.overrides:
+        try:
+            fit_config(False, args.threads, args.overrides)
+        except (ValueError, TypeError) as exc:
+            parser.error(f"--set: {exc}")
+        print(f"fit config overrides: {', '.join(args.overrides)}")
     print(f"video fitting, tracked against independent frames: {args.clips} rendered clip(s) of "
           f"{args.frames} frames, then the real clip{'' if not args.skip_real else ' (skipped)'}"
           f", then speed{'' if not args.skip_speed else ' (skipped)'}; {args.threads} torch "
@@ -633,7 +654,8 @@ def main(argv: list[str] | None = None) -> None:
     result = run_video_benchmark(args.clips, args.frames, real=args.real,
                                  skip_real=args.skip_real, skip_speed=args.skip_speed,
                                  work_dir=args.out, threads=args.threads, device=args.device,
-                                 model_path=args.model, seed=args.seed)
+                                 model_path=args.model, seed=args.seed,
+                                 overrides=tuple(args.overrides))
     print()
     print("\n".join(_table(result)))
     print("seconds per part: " + ", ".join(f"{name} {seconds:.0f}"
@@ -642,4 +664,4 @@ def main(argv: list[str] | None = None) -> None:
              if result.clips else ""))
     print()
     print("\n".join(_target_lines(result.targets)))
-    write_results(args.json, _json_safe(result.to_dict()))
+    write_results(args.json, {**_json_safe(result.to_dict()), "overrides": list(args.overrides)})

@@ -37,6 +37,7 @@ if TYPE_CHECKING:
     from .fitting.images.views import ImageView
     from .fitting.photo.fit import PhotoFitReport
     from .fitting.points.fit import FitResult
+    from .fitting.video.io import VideoFitReport
     from .geometry.cameras import Camera
     from .geometry.meshing import Mesh
     from .geometry.planes import Plane
@@ -57,6 +58,7 @@ __all__ = [
     "fit_points",
     "fit_images",
     "fit_photo",
+    "fit_video",
     "mesh_hand",
     "render_hand",
 ]
@@ -438,6 +440,55 @@ def fit_photo(
                             fov_deg=fov_deg, keypoints_json=keypoints, mask_path=mask,
                             hand=hand, model_path=model, device=device, progress=progress,
                             log=log, config=config)
+
+
+def fit_video(
+    video: str | os.PathLike,
+    out: str | os.PathLike | None = None,
+    *,
+    side: str = "auto",
+    camera=None,
+    focal_px: float | None = None,
+    fov_deg: float | None = None,
+    start_s: float | None = None,
+    end_s: float | None = None,
+    stride: int = 1,
+    fps: float | None = None,
+    model: str | os.PathLike | None = None,
+    device: str = "auto",
+    progress: bool = False,
+    log=None,
+    **settings,
+) -> VideoFitReport:
+    """Fit LISA through a video clip, as ``lisa fit-video`` does, and write its files
+    (``params.json``, ``mesh.ply``, ``hand.glb``, ``track.json``, ``overlay.mp4``,
+    ``report.html``, ``metrics.json``) into ``out``.
+
+    video: a video file (MP4, MOV, WebM, AVI...) or a folder of frames. out: the output folder
+        (new or empty); None: a new temporary folder (kept; the report's ``folder``).
+    side: "auto" (each hand's detected side), "right" or "left". camera, focal_px (the clip's
+        pixels), fov_deg (along its long side): the camera, as :func:`fit_photo`'s.
+    start_s, end_s: the part of the clip, seconds; stride: every n-th frame; fps: a frame
+        folder's rate (default 30).
+    settings: fields of :class:`lisa_hand.fitting.video.config.FitVideoConfig` (e.g.
+        ``independent=True``: every frame fitted alone).
+    model, device, progress, log: as :func:`fit_photo`.
+    -> :class:`lisa_hand.fitting.video.io.VideoFitReport`: ``fit.hands`` (each hand's
+    ``params``, ``motion.pose`` [N, 48], ``motion.translation`` [N, 3] m,
+    ``motion.keypoints_3d`` [N, 21, 3] m in the camera frame, ``keypoints_2d`` [N, 21, 2] px),
+    ``metrics``, ``seconds``, ``written``. Needs the photo extra (MediaPipe, OpenCV).
+    """
+    import tempfile
+
+    from .fitting.video import FitVideoConfig, fit_video_folder
+
+    config = _config(FitVideoConfig, FitVideoConfig(), settings)
+    if out is None:
+        out = tempfile.mkdtemp(prefix="lisa-fit-video-")
+    return fit_video_folder(video, out, camera_json=camera, focal_px=focal_px,
+                            fov_deg=fov_deg, side=side, start_s=start_s, end_s=end_s,
+                            stride=stride, fps=fps, model_path=model, device=device,
+                            progress=progress, log=log, config=config)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -9,7 +9,8 @@ skinned to the skeleton, with the clip's motion as an animation: :mod:`lisa_hand
 In ``DIR``: ``track.json`` (:func:`track_record`), ``overlay.mp4`` (the clip, at the size the
 fit worked at, with each hand's mesh posed by skinning in every frame and rendered over it:
 :class:`HandPoser`, :func:`lisa_hand.inference.mesh_render.render_mesh`), ``report.html`` and
-``metrics.json`` (:mod:`lisa_hand.fitting.video.report`).
+``metrics.json`` (:mod:`lisa_hand.fitting.video.report`). The overlay draws the mesh decimated
+to ``overlay_faces`` faces (the same picture, a quarter of the time).
 """
 
 from __future__ import annotations
@@ -35,12 +36,17 @@ VIDEO_FILES = ("params.json", "mesh.ply", "hand.glb", "track.json", "overlay.mp4
 class HandPoser:
     """A fitted hand's mesh moved to any pose by linear blend skinning: the mesh unposed once
     (:func:`lisa_hand.inference.mesh.repose_mesh` to the zero pose), each pose then a forward
-    kinematics and a skinning. params: the hand the mesh was made from (either side)."""
+    kinematics and a skinning. params: the hand the mesh was made from (either side).
+    max_faces: the mesh decimated to at most this many faces first
+    (:func:`lisa_hand.geometry.meshing.decimate_mesh`; None: as it is)."""
 
-    def __init__(self, mesh: Mesh, params: HandParams) -> None:
+    def __init__(self, mesh: Mesh, params: HandParams, max_faces: int | None = None) -> None:
+        from ...geometry.meshing import decimate_mesh
         from ...inference.mesh import repose_mesh
 
         self.params = params
+        if max_faces is not None:
+            mesh = decimate_mesh(mesh, max_faces)
         self.rest = repose_mesh(mesh, params, torch.zeros(48), torch.zeros(3))
         self._vertices = torch.from_numpy(self.rest.vertices).double()
         self._weights = torch.from_numpy(self.rest.skin_weights).double()
@@ -183,14 +189,16 @@ def video_artefacts(fit: Any, model: Any, config: Any, report: str, metrics: dic
     ``metrics.json``'s record."""
     from ..outputs import text_artefact
 
-    posers = [HandPoser(hand.keyframe.mesh, hand.params) for hand in fit.hands]
+    posers = [HandPoser(hand.keyframe.mesh, hand.params, config.overlay_faces)
+              for hand in fit.hands]
     artefacts = []
-    for hand, poser in zip(fit.hands, posers, strict=True):
+    for hand in fit.hands:
         folder = hand_folder(fit, hand)
         prefix = f"{folder}/" if folder else ""
         artefacts += [params_artefact(hand.params, prefix + "params.json"),
                       mesh_artefact(hand.keyframe.mesh, prefix + "mesh.ply"),
-                      _glb_artefact(prefix + "hand.glb", poser, hand, fit.times)]
+                      _glb_artefact(prefix + "hand.glb", HandPoser(hand.keyframe.mesh,
+                                                                    hand.params), hand, fit.times)]
     return artefacts + [json_artefact("track.json", track_record(fit)),
                         json_artefact("metrics.json", metrics),
                         _overlay_artefact(fit, model, posers, config),

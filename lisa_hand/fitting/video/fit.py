@@ -266,7 +266,6 @@ def fit_video(
     from ...model.trained import load_trained
     from ...utils.device import resolve_device
     from ...utils.threads import cpu_threads
-    from ..stages import template_on
     from .keyframe import frame_photo
     from .tracks import build_tracks
 
@@ -299,29 +298,47 @@ def fit_video(
         log(f"{len(video)} frames, {len(tracks)} hand(s) followed: "
             + ", ".join(f"{t.side} in {int(t.present.sum())} frames" for t in tracks))
         model = load_trained(model_path, resolve_device(device))
-        template = template_on(None, torch.device("cpu"))
-        anchors = _anchor_rows(tracks, info.size, config.independent)
-        frames = _frames_at(video, {row for rows in anchors.values() for row in rows})
-        hands = []
-        for track in tracks:
-            chosen = track.side if side == "auto" else side
-            key_row = anchors[track.identity][0]
-            log(f"hand {track.identity} ({chosen}): keyframe at {times[key_row]:.2f} s")
-            keyframe, motion = _fit_track(model, video, track, chosen, camera, times,
-                                          {row: frames[row] for row in anchors[track.identity]},
-                                          key_row, config, template, progress)
-            notes += keyframe.notes
-            params = keyframe.params
-            params.model = _model_label(model_path)
-            hands.append(TrackedHand(
-                track=track, params=params, keyframe_row=key_row, keyframe=keyframe,
-                motion=motion, keypoints_2d=_project(camera, motion.keypoints_3d, info.scale),
-                side_source="detected" if side == "auto" else "--side"))
+        hands = _fit_hands(model, video, tracks, side, camera, indices, times, model_path,
+                           config, progress, log, notes)
     timings["seconds_fit"] = time.perf_counter() - began - sum(timings.values())
     return VideoFit(video=video, indices=indices, times=times, camera=camera,
                     camera_source=camera_source, hands=hands, detections=detections,
                     independent=config.independent, model=model, timings=timings,
                     notes=notes)
+
+
+def _fit_hands(model: Any, video: Any, tracks: list[HandTrack], side: str, camera: Any,
+               indices: np.ndarray, times: np.ndarray, model_path: Any,
+               config: FitVideoConfig, progress: bool, log: Callable[[str], None],
+               notes: list[str]) -> list[TrackedHand]:
+    """Each track's keyframe and motion (module docstring, steps 3 and 4)."""
+    from ...utils.config import config_to_dict
+    from ..stages import template_on
+
+    info = video.info
+    template = template_on(None, torch.device("cpu"))
+    anchors = _anchor_rows(tracks, info.size, config.independent)
+    frames = _frames_at(video, {row for rows in anchors.values() for row in rows})
+    hands = []
+    for track in tracks:
+        chosen = track.side if side == "auto" else side
+        key_row = anchors[track.identity][0]
+        log(f"hand {track.identity} ({chosen}): keyframe at {times[key_row]:.2f} s")
+        keyframe, motion = _fit_track(model, video, track, chosen, camera, times,
+                                      {row: frames[row] for row in anchors[track.identity]},
+                                      key_row, config, template, progress)
+        notes += keyframe.notes
+        params = keyframe.params
+        params.model = _model_label(model_path)
+        params.extra["video"] = {"path": str(info.path), "identity": track.identity,
+                                 "keyframe": {"index": int(indices[key_row]),
+                                              "time_s": float(times[key_row])}}
+        params.extra["config"] = config_to_dict(config)  # the settings that fitted it
+        hands.append(TrackedHand(
+            track=track, params=params, keyframe_row=key_row, keyframe=keyframe,
+            motion=motion, keypoints_2d=_project(camera, motion.keypoints_3d, info.scale),
+            side_source="detected" if side == "auto" else "--side"))
+    return hands
 
 
 def _model_label(model_path: Any) -> str:

@@ -106,7 +106,7 @@ def _strip(fit: Any, model: Any, hand: Any, count: int, config: Any) -> np.ndarr
     fitted = np.flatnonzero(np.isfinite(hand.motion.pose).all(-1))
     rows = set(fitted[np.linspace(0, len(fitted) - 1, min(count, len(fitted))).round()
                       .astype(int)].tolist())
-    poser = HandPoser(hand.keyframe.mesh, hand.params)
+    poser = HandPoser(hand.keyframe.mesh, hand.params, config.overlay_faces)
     panels = []
     for row, frame in enumerate(fit.video.frames()):
         if row not in rows:
