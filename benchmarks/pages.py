@@ -43,6 +43,8 @@ SECTIONS: dict[str, tuple[str, str]] = {
                 "python -m benchmarks oneview --hands 3"),
     "photo": ("Photos: lisa fit-photo on synthetic photos with ground truth",
               "python -m benchmarks photo"),
+    "video": ("Video: lisa fit-video tracked against every frame fitted alone",
+              "python -m benchmarks video"),
     "rgbd": ("RGB-D frames: depth with and without its colour image",
              "python -m benchmarks rgbd --frames 1 --threads 1"),
     "colours": ("Colours of a fit from a coloured scan",
@@ -295,9 +297,51 @@ def _photo(data: dict) -> list[str]:
     return lines
 
 
+def _video(data: dict) -> list[str]:
+    """The means, then one row a rendered clip and mode, the real clip and the speed runs, and
+    the targets."""
+    lines = _scalars({key: value for key, value in data.items()
+                      if key not in ("clips", "real", "speed", "targets", "notes", "overrides",
+                                     "seconds_parts")})
+    rows = [[clip["clip"], clip["subject"], clip["side"], mode,
+             f"{clip[mode]['fitted_frames']}/{clip['frames']}", clip[mode]["mpjpe_mm"],
+             clip[mode]["pa_mpjpe_mm"], clip[mode]["acceleration_error_mm"],
+             clip[mode]["jitter_mm"], clip["truth_jitter_mm"], clip[mode]["seconds"]]
+            for clip in data.get("clips") or [] for mode in ("tracked", "independent")]
+    if rows:
+        lines += ["", "Rendered clips of held-out hands with truth; the distances over the frames "
+                  "fitted in both modes (mm; acceleration error and jitter mm/frame^2):", ""]
+        lines += _table(["clip", "subject", "side", "mode", "fitted frames", "MPJPE",
+                         "PA-MPJPE", "acceleration error", "jitter", "truth's jitter", "s"],
+                        rows)
+    real = data.get("real") or {}
+    if real:
+        lines += ["", "The real clip (no truth): the share of the detected frames with a fitted "
+                  "hand, jitter (mm/frame^2) and the fitted keypoints' distance from the "
+                  "detected ones (pixels of the clip):", ""]
+        lines += _table(["mode", "hands", "fitted share", "jitter", "agreement px", "s"],
+                        [[mode, row.get("hands"), row.get("fitted_share"), row.get("jitter_mm"),
+                          row.get("agreement_px"), row.get("seconds")]
+                         for mode, row in real.items()])
+    speed = data.get("speed") or {}
+    if speed:
+        lines += ["", "Speed: the real clip upscaled to 1280x720, fitted with its files:", ""]
+        lines += _table(["mode", "frames", "s end to end", "frames/s", "detection frames/s"],
+                        [[mode, row.get("frames"), row.get("seconds"),
+                          row.get("frames_per_second"), row.get("detect_frames_per_second")]
+                         for mode, row in speed.items()])
+    targets = data.get("targets") or {}
+    if targets:
+        lines += ["", "Targets:", ""]
+        lines += _table(["target", "met"], [[f"`{name}`", "not measured" if met is None else met]
+                                            for name, met in targets.items()])
+    return lines
+
+
 RENDERERS: dict[str, Callable[[dict], list[str]]] = {
-    "fit": _fit, "photo": _photo, "field": _field, "mesh": _mesh, "render": _render,
-    "handmodel": _handmodel, "oneview": _oneview, "rgbd": _rgbd, "colours": _colours,
+    "fit": _fit, "photo": _photo, "video": _video, "field": _field, "mesh": _mesh,
+    "render": _render, "handmodel": _handmodel, "oneview": _oneview, "rgbd": _rgbd,
+    "colours": _colours,
 }
 
 

@@ -658,10 +658,13 @@ def main(argv: list[str] | None = None) -> None:
                                  overrides=tuple(args.overrides))
     print()
     print("\n".join(_table(result)))
-    print("seconds per part: " + ", ".join(f"{name} {seconds:.0f}"
-                                           for name, seconds in result.seconds_parts.items())
-          + (f"; {result.seconds_per_rendered_frame:.2f} s a rendered frame"
-             if result.clips else ""))
+    if result.seconds_parts:
+        print("seconds per part: " + ", ".join(f"{name} {seconds:.0f}"
+                                               for name, seconds in result.seconds_parts.items())
+              + (f"; {result.seconds_per_rendered_frame:.2f} s a rendered frame"
+                 if result.clips else ""))
+    for note in result.notes:
+        print(f"note: {note}")
     print()
     print("\n".join(_target_lines(result.targets)))
     write_results(args.json, {**_json_safe(result.to_dict()), "overrides": list(args.overrides)})

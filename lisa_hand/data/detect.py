@@ -69,18 +69,15 @@ searched) about a second. Importing MediaPipe takes about 1 s more, once.
 from __future__ import annotations
 
 import math
-import os
-import sys
-import tempfile
 import warnings
-from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from ..skeleton import KEYPOINT_NAMES, NUM_KEYPOINTS
+from ..utils.stderr import native_stderr_captured
 
 __all__ = [
     "PHOTO_EXTRA_HINT",
@@ -146,32 +143,6 @@ def _mediapipe_hands() -> Any:
         import mediapipe as mp
 
         return mp.solutions.hands
-
-
-@contextmanager
-def _native_stderr_captured() -> Iterator[None]:
-    """Hold back what native code writes to file descriptor 2 inside the block (MediaPipe's
-    TensorFlow Lite and absl start-up lines: "Created TensorFlow Lite XNNPACK delegate", "All log
-    messages before absl::InitializeLog()", "Feedback manager requires ..."), and give it back
-    on stderr only when the block raises."""
-    sys.stderr.flush()
-    try:
-        saved = os.dup(2)
-    except OSError:  # no file descriptor 2 (a daemon): nothing to hold back
-        yield
-        return
-    with tempfile.TemporaryFile() as captured:
-        os.dup2(captured.fileno(), 2)
-        try:
-            yield
-        except BaseException:
-            os.dup2(saved, 2)
-            captured.seek(0)
-            os.write(2, captured.read())
-            raise
-        finally:
-            os.dup2(saved, 2)
-            os.close(saved)
 
 
 @dataclass(frozen=True)
@@ -487,7 +458,7 @@ def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | N
             raise ImportError(PHOTO_EXTRA_HINT) from None
     # The start-up lines come from MediaPipe's threads while the graph starts: hold them back
     # for the whole search.
-    with _native_stderr_captured(), hands_factory(
+    with native_stderr_captured(), hands_factory(
             static_image_mode=True, max_num_hands=max_hands,
             model_complexity=config.model_complexity,
             min_detection_confidence=config.min_detection_confidence) as hands:
@@ -544,9 +515,10 @@ class VideoHandDetector:
         self._factory = hands_factory
         self._hands: Any = None
         self._context: Any = None
+        self._first = True
 
     def __enter__(self) -> VideoHandDetector:
-        with _native_stderr_captured():
+        with native_stderr_captured():
             self._context = self._factory(**self._arguments)
             self._hands = self._context.__enter__()
         return self
@@ -562,8 +534,14 @@ class VideoHandDetector:
             raise RuntimeError("VideoHandDetector is used inside a 'with' block")
         pixels = _as_uint8(frame)
         height, width = pixels.shape[:2]
-        found = _run(self._hands, pixels, (0, 0, width, height), max(height, width),
-                     np.zeros(3, np.uint8))
+        window = (0, 0, width, height)
+        if self._first:  # MediaPipe's start-up lines come with its first frame
+            self._first = False
+            with native_stderr_captured():
+                found = _run(self._hands, pixels, window, max(height, width),
+                             np.zeros(3, np.uint8))
+        else:
+            found = _run(self._hands, pixels, window, max(height, width), np.zeros(3, np.uint8))
         hands = [DetectedHand(keypoints=one.keypoints, score=max(one.p_right, 1 - one.p_right),
                               side="right" if one.p_right >= 0.5 else "left", box=one.box,
                               found_by="video",

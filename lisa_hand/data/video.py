@@ -30,6 +30,8 @@ from typing import Any
 
 import numpy as np
 
+from ..utils.stderr import native_stderr_captured
+
 __all__ = ["VideoError", "VideoInfo", "VideoFrame", "Video", "open_video", "write_video",
            "FRAME_SUFFIXES", "DEFAULT_FPS"]
 
@@ -207,7 +209,8 @@ def _scan_file(path: Path, fps_arg: float | None) -> tuple[VideoInfo, list[float
     cv2 = _cv2(path)
     if path.suffix.lower() in FRAME_SUFFIXES or cv2.haveImageReader(str(path)):
         raise VideoError(f"{path}: is an image, not a video; give a folder of frames or a video")
-    cap = cv2.VideoCapture(str(path))
+    with native_stderr_captured():  # FFmpeg's own complaint ("moov atom not found"): ours below
+        cap = cv2.VideoCapture(str(path))
     try:
         if not cap.isOpened():
             raise VideoError(f"{path}: not a video OpenCV can read (truncated or not a video)")

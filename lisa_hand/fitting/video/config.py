@@ -45,7 +45,7 @@ class MotionConfig:
     """x the mean squared velocity of the 3D keypoints, (m/s)^2."""
     acceleration_weight: float = 1e-3
     """x the mean squared acceleration of the 3D keypoints, (m/s^2)^2."""
-    articulation_weight: float = 1e-2
+    articulation_weight: float = 3e-3
     """x the mean squared acceleration of the 3D keypoints relative to the wrist, (m/s^2)^2:
     the hand's own motion (what jitters most where one view leaves depth open)."""
     max_joint_speed: float = 25.0

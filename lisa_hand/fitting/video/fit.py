@@ -173,7 +173,7 @@ def _fit_track(model: Any, video: Any, track: HandTrack, side: str, camera: Any,
     photo_of = {row: frame_photo(info.path, rgb, (info.width, info.height), info.scale)
                 for row, rgb in frames.items()}
     keyframe = fit_keyframe(model, photo_of[key_row], camera, track, key_row, side,
-                            config.keyframe, template, progress)
+                            config.keyframe, template, progress, config.min_hand_px)
     right = mirror_hand(keyframe.params) if side == "left" else keyframe.params
     segments = []
     for first, end in _segments(track, config.independent):

@@ -81,18 +81,22 @@ class KeyframeFit:
 
 
 def fit_keyframe(model: Any, photo: Any, camera: Camera, track: HandTrack, row: int,
-                 side: str, config: Any, template: Any, progress: bool) -> KeyframeFit:
+                 side: str, config: Any, template: Any, progress: bool,
+                 min_hand_px: float = 16.0) -> KeyframeFit:
     """Fit ``track``'s hand at ``row`` as a photo (module docstring). config: the keyframe's
-    :class:`lisa_hand.fitting.photo.config.FitPhotoConfig`."""
+    :class:`lisa_hand.fitting.photo.config.FitPhotoConfig`. A hand smaller than
+    ``min_hand_px`` (wrist to knuckle, pixels) even there is refused (ValueError)."""
     from ...geometry.pieces import drop_specks
     from ...skeleton.wrist import wrist_plane
     from ..images.fit import fit_images
     from ..images.folder import fitted_mesh
     from ..photo.fit import keypoint_hand
-    from ..photo.inputs import crop_view
+    from ..photo.inputs import check_hand_size, crop_view
     from ..photo.mask import coarse_mask, mask_method
 
     hand = _photo_hand(track, row, side)
+    check_hand_size(hand, photo, min_hand_px, f"{photo.path} (hand {track.identity} at its "
+                    f"best-seen frame, {row})")
     method = mask_method()
     mask = None if method == "keypoints" else coarse_mask(photo.image, hand.keypoints)
     crop = crop_view(photo, camera, hand, mask, f"frame{row}", config.crop_margin,

@@ -191,7 +191,7 @@ def fit_motion(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | N
     steps = 0
     refine_iters = 2 * config.window_iters if refine_iters is None else refine_iters
     for first, end, anchor, anchor_pose, anchor_translation in segments:
-        if not first <= anchor < end <= count:
+        if not 0 <= first <= anchor < end <= count:
             raise ValueError(f"segment ({first}, {end}) must hold its anchor row {anchor}")
         pose[anchor] = anchor_pose.float()
         translation[anchor] = anchor_translation.float()

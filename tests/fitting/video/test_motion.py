@@ -171,7 +171,10 @@ def test_rows_outside_the_segments_are_nan(clip):
     assert clip.pixel_error(result)[fitted].mean(-1).max() < 1.0
 
 
-@pytest.mark.parametrize("segment", [(5, 20, 20), (5, 20, 4), (25, 31, 26), (10, 5, 7)])
+@pytest.mark.parametrize("segment", [
+    (5, 20, 20), (5, 20, 4), (25, 31, 26), (10, 5, 7),
+    (-1, 5, 0),
+])
 def test_a_segment_must_hold_its_anchor(clip, segment):
     first, end, anchor = segment
     with pytest.raises(ValueError, match="must hold its anchor"):
