@@ -19,7 +19,7 @@ frame's fit).
    :func:`lisa_hand.fitting.video.quality.acceleration_error_mm`) and the jitter of the fit and
    of the truth (mm/frame^2, :func:`~lisa_hand.fitting.video.quality.jitter_mm`); seconds a fit.
    The fitted hand is the one nearest the true hand in the image.
-2. **A real clip** (``--real``, default ``../shared/data/videos/hand_landmarker_test_video.mp4``;
+2. **A real clip** (``--real``, default ``tests/assets/videos/hand_landmarker_test_video.mp4``;
    skipped with a note when missing): the share of the frames where the detector found a hand
    that have a fitted hand, the jitter (mm/frame^2), the 2D agreement between the fitted
    keypoints projected and the detector's (pixels of the clip), seconds.
@@ -59,8 +59,8 @@ SPEED_SIZE = (1280, 720)
 
 
 def default_real_clip() -> Path:
-    """The shared real clip (``../shared/data/videos/`` beside the repository)."""
-    return (Path(__file__).resolve().parents[1].parent / "shared" / "data" / "videos"
+    """The real clip of the repository's test assets (``tests/assets/videos/``)."""
+    return (Path(__file__).resolve().parents[1] / "tests" / "assets" / "videos"
             / "hand_landmarker_test_video.mp4")
 
 
@@ -622,7 +622,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--clips", type=int, default=3, help="rendered clips (0: none)")
     parser.add_argument("--frames", type=int, default=40, help="frames a rendered clip")
     parser.add_argument("--real", type=Path, default=None,
-                        help="the real clip (default ../shared/data/videos/"
+                        help="the real clip (default tests/assets/videos/"
                              "hand_landmarker_test_video.mp4)")
     parser.add_argument("--skip-real", action="store_true", help="skip the real clip's part")
     parser.add_argument("--skip-speed", action="store_true", help="skip the speed part")

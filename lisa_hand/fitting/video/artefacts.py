@@ -123,12 +123,17 @@ def _crop_camera(camera: Any, box: tuple[int, int, int, int]) -> Any:
 
 
 def render_frame(model: Any, rgb: np.ndarray, camera: Any, meshes: list[Mesh], alpha: float,
-                 supersample: int = 1) -> np.ndarray:
+                 supersample: int = 1, max_side: int | None = None) -> np.ndarray:
     """``rgb`` [H, W, 3] uint8 with ``meshes`` (camera frame) rendered over it at opacity
-    ``alpha``, each only in the box its vertices project to -> [H, W, 3] uint8."""
-    from ...inference.mesh_render import render_mesh
+    ``alpha``, each only in the box its vertices project to, at most ``max_side`` pixels a side
+    there (then resized: a hand filling a 4K frame costs what a small one does; None: at the
+    frame's resolution) -> [H, W, 3] uint8."""
+    from PIL import Image
 
-    out = rgb.astype(np.float32) / 255.0
+    from ...inference.mesh_render import render_mesh
+    from ...inference.render import scale_camera
+
+    out = rgb.copy()  # only the boxes around the hands are blended, in floats
     height, width = rgb.shape[:2]
     K = camera.K.double().cpu().numpy()
     for mesh in meshes:
@@ -142,11 +147,21 @@ def render_frame(model: Any, rgb: np.ndarray, camera: Any, meshes: list[Mesh], a
         x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
         if x1 - x0 < 2 or y1 - y0 < 2:
             continue
-        shown = render_mesh(model, mesh, _crop_camera(camera, (x0, y0, x1, y1)), supersample)
-        cover = alpha * shown.alpha[..., None]
-        region = out[y0:y1, x0:x1]
-        out[y0:y1, x0:x1] = region * (1.0 - cover) + shown.rgb * alpha
-    return np.clip(out * 255.0 + 0.5, 0, 255).astype(np.uint8)
+        box = _crop_camera(camera, (x0, y0, x1, y1))
+        factor = 1.0 if max_side is None else min(1.0, max_side / max(x1 - x0, y1 - y0))
+        small = scale_camera(box, max(int(round((x1 - x0) * factor)), 1),
+                             max(int(round((y1 - y0) * factor)), 1))
+        shown = render_mesh(model, mesh, small, supersample)
+        colour, cover = shown.rgb, shown.alpha
+        if small is not box:
+            colour = np.stack([np.asarray(Image.fromarray(colour[..., c]).resize(
+                (x1 - x0, y1 - y0), Image.BILINEAR)) for c in range(3)], -1)
+            cover = np.asarray(Image.fromarray(cover).resize((x1 - x0, y1 - y0),
+                                                             Image.BILINEAR))
+        region = out[y0:y1, x0:x1].astype(np.float32) / 255.0
+        blended = region * (1.0 - alpha * cover[..., None]) + colour * alpha
+        out[y0:y1, x0:x1] = np.clip(blended * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    return out
 
 
 def _overlay_frames(fit: Any, model: Any, posers: list[HandPoser], config: Any):
@@ -156,7 +171,7 @@ def _overlay_frames(fit: Any, model: Any, posers: list[HandPoser], config: Any):
                   for hand, poser in zip(fit.hands, posers, strict=True)
                   if np.isfinite(hand.motion.pose[row]).all()]
         yield render_frame(model, frame.rgb, fit.camera, meshes, config.overlay_alpha,
-                           config.overlay_supersample)
+                           config.overlay_supersample, config.overlay_max_side)
 
 
 def _glb_artefact(name: str, poser: HandPoser, hand: Any, times: np.ndarray) -> Artefact:

@@ -107,9 +107,12 @@ class FitVideoConfig:
     previous frame's fit): the reference of the benchmark."""
     overlay_alpha: float = 0.75
     """The rendered hand's opacity in ``overlay.mp4``."""
-    overlay_faces: int = 8000
+    overlay_faces: int = 5000
     """The hand's mesh is decimated to this many faces for ``overlay.mp4`` and the report's
     frames (``mesh.ply`` and ``hand.glb`` keep every face)."""
+    overlay_max_side: int = 256
+    """Each hand is rendered into ``overlay.mp4`` at most this many pixels a side, then
+    resized to its place (the time a frame takes stays that of a small hand's)."""
     overlay_supersample: int = 1
     """Rays a pixel side of the overlay's rendering."""
     report_frames: int = 4
@@ -122,7 +125,8 @@ class FitVideoConfig:
             raise TypeError(f"keyframe must be a FitPhotoConfig, got {type(self.keyframe)}")
         if not isinstance(self.motion, MotionConfig):
             raise TypeError(f"motion must be a MotionConfig, got {type(self.motion)}")
-        for name in ("max_side", "max_hands", "min_frames", "overlay_faces", "overlay_supersample",
+        for name in ("max_side", "max_hands", "min_frames", "overlay_faces", "overlay_max_side",
+                     "overlay_supersample",
                      "report_frames", "num_threads"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:

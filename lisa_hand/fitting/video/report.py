@@ -109,6 +109,8 @@ def _strip(fit: Any, model: Any, hand: Any, count: int, config: Any) -> np.ndarr
     poser = HandPoser(hand.keyframe.mesh, hand.params, config.overlay_faces)
     panels = []
     for row, frame in enumerate(fit.video.frames()):
+        if row > max(rows):
+            break
         if row not in rows:
             continue
         mesh = poser.posed(hand.motion.pose[row], hand.motion.translation[row])
