@@ -31,10 +31,23 @@ def native_stderr_captured() -> Iterator[None]:
         try:
             yield
         except BaseException:
+            _flush_c_stdio()
             os.dup2(saved, 2)
             captured.seek(0)
             os.write(2, captured.read())
             raise
         finally:
+            _flush_c_stdio()  # what C code left in stdio's buffer belongs to the block
             os.dup2(saved, 2)
             os.close(saved)
+
+
+def _flush_c_stdio() -> None:
+    """``fflush(NULL)`` of the C library: TensorFlow Lite writes "INFO: " and the rest of its
+    line in two calls, the first left in stdio's buffer (it would reach the terminal later)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).fflush(None)
+    except (OSError, AttributeError):  # no C library to ask (not a POSIX system)
+        pass

@@ -164,14 +164,39 @@ def render_frame(model: Any, rgb: np.ndarray, camera: Any, meshes: list[Mesh], a
     return out
 
 
-def _overlay_frames(fit: Any, model: Any, posers: list[HandPoser], config: Any):
-    """The clip's frames with the hands rendered over them, read again from the file."""
-    for row, frame in enumerate(fit.video.frames()):
+class OverlayFrames:
+    """The frames of ``overlay.mp4``, rendered once: iterating reads the clip again and yields
+    each frame with the fitted hands over it (:func:`render_frame`), keeping those of the rows
+    ``keep`` (the report's pictures); :meth:`frame` gives a kept one (or renders it alone)."""
+
+    def __init__(self, fit: Any, model: Any, config: Any, keep: set[int]) -> None:
+        self.fit, self.model, self.config, self.keep = fit, model, config, set(keep)
+        self.posers = [HandPoser(hand.keyframe.mesh, hand.params, config.overlay_faces)
+                       for hand in fit.hands]
+        self.kept: dict[int, np.ndarray] = {}
+
+    def render(self, row: int, rgb: np.ndarray) -> np.ndarray:
+        """The processed frame ``rgb`` of ``row`` with the hands fitted there over it."""
         meshes = [poser.posed(hand.motion.pose[row], hand.motion.translation[row])
-                  for hand, poser in zip(fit.hands, posers, strict=True)
+                  for hand, poser in zip(self.fit.hands, self.posers, strict=True)
                   if np.isfinite(hand.motion.pose[row]).all()]
-        yield render_frame(model, frame.rgb, fit.camera, meshes, config.overlay_alpha,
-                           config.overlay_supersample, config.overlay_max_side)
+        return render_frame(self.model, rgb, self.fit.camera, meshes, self.config.overlay_alpha,
+                            self.config.overlay_supersample, self.config.overlay_max_side)
+
+    def __iter__(self):
+        for row, frame in enumerate(self.fit.video.frames()):
+            image = self.render(row, frame.rgb)
+            if row in self.keep:
+                self.kept[row] = image
+            yield image
+
+    def frame(self, row: int) -> np.ndarray:
+        if row not in self.kept:
+            for number, frame in enumerate(self.fit.video.frames()):
+                if number == row:
+                    self.kept[row] = self.render(row, frame.rgb)
+                    break
+        return self.kept[row]
 
 
 def _glb_artefact(name: str, poser: HandPoser, hand: Any, times: np.ndarray) -> Artefact:
@@ -187,25 +212,34 @@ def _glb_artefact(name: str, poser: HandPoser, hand: Any, times: np.ndarray) -> 
     return Artefact(name, write)
 
 
-def _overlay_artefact(fit: Any, model: Any, posers: list[HandPoser], config: Any) -> Artefact:
+def _overlay_artefact(fit: Any, frames: OverlayFrames) -> Artefact:
     def write(path: Path) -> Path:
         from ...data.video import write_video
 
         steps = np.diff(fit.times)
         rate = 1.0 / float(np.median(steps)) if len(steps) else fit.video.info.fps
-        return write_video(path, _overlay_frames(fit, model, posers, config), rate)
+        return write_video(path, frames, rate)
 
     return Artefact("overlay.mp4", write)
 
 
-def video_artefacts(fit: Any, model: Any, config: Any, report: str, metrics: dict
-                    ) -> list[Artefact]:
-    """Every file of the fit (module docstring). report: ``report.html``'s text; metrics:
-    ``metrics.json``'s record."""
-    from ..outputs import text_artefact
+def _report_artefact(fit: Any, frames: OverlayFrames, metrics: dict, config: Any) -> Artefact:
+    def write(path: Path) -> Path:
+        from .report import video_report_html
 
-    posers = [HandPoser(hand.keyframe.mesh, hand.params, config.overlay_faces)
-              for hand in fit.hands]
+        path.write_text(video_report_html(fit, metrics, config, frames.frame), encoding="utf-8")
+        return path  # in the staging folder: the folder is swapped in whole
+
+    return Artefact("report.html", write)
+
+
+def video_artefacts(fit: Any, model: Any, config: Any, metrics: dict) -> list[Artefact]:
+    """Every file of the fit (module docstring); metrics: ``metrics.json``'s record. The
+    report, written last, shows frames the overlay rendered."""
+    from .report import report_rows
+
+    keep = {row for hand in fit.hands for row in report_rows(hand, config.report_frames)}
+    frames = OverlayFrames(fit, model, config, keep)
     artefacts = []
     for hand in fit.hands:
         folder = hand_folder(fit, hand)
@@ -216,8 +250,8 @@ def video_artefacts(fit: Any, model: Any, config: Any, report: str, metrics: dic
                                                                     hand.params), hand, fit.times)]
     return artefacts + [json_artefact("track.json", track_record(fit)),
                         json_artefact("metrics.json", metrics),
-                        _overlay_artefact(fit, model, posers, config),
-                        text_artefact("report.html", report)]
+                        _overlay_artefact(fit, frames),
+                        _report_artefact(fit, frames, metrics, config)]
 
 
 def video_entry(path: Path) -> bool:

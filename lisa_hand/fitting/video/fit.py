@@ -91,32 +91,44 @@ class VideoFit:
 
 
 def detect_clip(video: Any, config: FitVideoConfig, progress: bool
-                ) -> tuple[list[list[Any]], np.ndarray, np.ndarray]:
+                ) -> tuple[list[list[Any]], np.ndarray, np.ndarray, dict[int, np.ndarray]]:
     """MediaPipe on every frame of ``video`` in order -> (per frame the detected hands,
-    indices [N], times [N] seconds)."""
+    indices [N], times [N] seconds, the frames where each side was seen best so far: row ->
+    [h, w, 3] uint8, most often the keyframes, which then need not be read again)."""
     from ...data.detect import VideoHandDetector
     from ..stages import progress_bar
+    from .keyframe import view_score
 
     detections, indices, times = [], [], []
+    best: dict[str, tuple[tuple[bool, float], int, np.ndarray]] = {}
     bar = progress_bar(progress, len(video), "detect")
     with VideoHandDetector(max_hands=config.max_hands,
                            min_detection_confidence=config.detection_confidence,
                            min_tracking_confidence=config.tracking_confidence,
                            model_complexity=config.model_complexity) as detector:
-        for frame in video.frames():
+        for row, frame in enumerate(video.frames()):
             detections.append(detector(frame.rgb))
+            for hand in detections[-1]:
+                seen = view_score(hand.keypoints, hand.score, *video.info.size)
+                if hand.side not in best or seen > best[hand.side][0]:
+                    best[hand.side] = (seen, row, frame.rgb)
             indices.append(frame.index)
             times.append(frame.time_s)
             if bar is not None:
                 bar.update(1)
     if bar is not None:
         bar.close()
-    return detections, np.asarray(indices, np.int64), np.asarray(times, np.float64)
+    kept = {row: rgb for _, row, rgb in best.values()}
+    return detections, np.asarray(indices, np.int64), np.asarray(times, np.float64), kept
 
 
-def _frames_at(video: Any, rows: set[int]) -> dict[int, np.ndarray]:
-    """The processed frames at ``rows`` (positions in ``video.frames()``), read again."""
-    found = {}
+def _frames_at(video: Any, rows: set[int], kept: dict[int, np.ndarray]
+               ) -> dict[int, np.ndarray]:
+    """The processed frames at ``rows`` (positions in ``video.frames()``): those in ``kept``,
+    the others read again."""
+    found = {row: kept[row] for row in rows if row in kept}
+    if len(found) == len(rows):
+        return found
     for row, frame in enumerate(video.frames()):
         if row in rows:
             found[row] = frame.rgb
@@ -285,7 +297,7 @@ def fit_video(
         camera_json, focal_px, fov_deg)
     timings = {"seconds_open": time.perf_counter() - began}
     with cpu_threads(config.num_threads):
-        detections, indices, times = detect_clip(video, config, progress)
+        detections, indices, times, kept = detect_clip(video, config, progress)
         timings["seconds_detect"] = time.perf_counter() - began - timings["seconds_open"]
         bridge = int(round(config.bridge_s * info.fps / stride)) if not \
             config.independent else 0
@@ -298,8 +310,8 @@ def fit_video(
         log(f"{len(video)} frames, {len(tracks)} hand(s) followed: "
             + ", ".join(f"{t.side} in {int(t.present.sum())} frames" for t in tracks))
         model = load_trained(model_path, resolve_device(device))
-        hands = _fit_hands(model, video, tracks, side, camera, indices, times, model_path,
-                           config, progress, log, notes)
+        hands = _fit_hands(model, video, tracks, side, camera, indices, times, kept,
+                           model_path, config, progress, log, notes)
     timings["seconds_fit"] = time.perf_counter() - began - sum(timings.values())
     return VideoFit(video=video, indices=indices, times=times, camera=camera,
                     camera_source=camera_source, hands=hands, detections=detections,
@@ -308,7 +320,8 @@ def fit_video(
 
 
 def _fit_hands(model: Any, video: Any, tracks: list[HandTrack], side: str, camera: Any,
-               indices: np.ndarray, times: np.ndarray, model_path: Any,
+               indices: np.ndarray, times: np.ndarray, kept: dict[int, np.ndarray],
+               model_path: Any,
                config: FitVideoConfig, progress: bool, log: Callable[[str], None],
                notes: list[str]) -> list[TrackedHand]:
     """Each track's keyframe and motion (module docstring, steps 3 and 4)."""
@@ -318,7 +331,7 @@ def _fit_hands(model: Any, video: Any, tracks: list[HandTrack], side: str, camer
     info = video.info
     template = template_on(None, torch.device("cpu"))
     anchors = _anchor_rows(tracks, info.size, config.independent)
-    frames = _frames_at(video, {row for rows in anchors.values() for row in rows})
+    frames = _frames_at(video, {row for rows in anchors.values() for row in rows}, kept)
     hands = []
     for track in tracks:
         chosen = track.side if side == "auto" else side

@@ -46,7 +46,7 @@ def fit_video_folder(video: Any, out_dir: Any, *, progress: bool = True,
     from ..outputs import claim_output_folder, write_fit
     from .artefacts import VIDEO_DESCRIBED, video_artefacts, video_entry
     from .fit import fit_video
-    from .report import video_metrics, video_report_html
+    from .report import video_metrics
 
     began = time.perf_counter()
     log = log or (lambda line: None)
@@ -56,8 +56,7 @@ def fit_video_folder(video: Any, out_dir: Any, *, progress: bool = True,
     model = fit.model
     with cpu_threads(config.num_threads):
         metrics = video_metrics(fit, time.perf_counter() - began)
-        report = video_report_html(fit, model, metrics, config)
-        written = write_fit(out_dir, video_artefacts(fit, model, config, report, metrics),
+        written = write_fit(out_dir, video_artefacts(fit, model, config, metrics),
                             video_entry, VIDEO_DESCRIBED)
     seconds = time.perf_counter() - began
     for note in fit.notes:

@@ -22,7 +22,19 @@ from ...geometry.cameras import Camera
 from ...skeleton.params import HandParams
 from .tracks import HandTrack
 
-__all__ = ["choose_keyframe", "frame_photo", "KeyframeFit", "fit_keyframe", "segment_anchor"]
+__all__ = ["view_score", "choose_keyframe", "frame_photo", "KeyframeFit", "fit_keyframe",
+           "segment_anchor"]
+
+
+def view_score(keypoints: np.ndarray, score: float, width: int, height: int
+               ) -> tuple[bool, float]:
+    """How well a detected hand is seen: (every keypoint [21, 2] inside the ``width`` x
+    ``height`` frame, its size in pixels times the detector's ``score``); larger is better."""
+    from .tracks import hand_size_px
+
+    inside = bool((keypoints >= 0).all() and (keypoints[:, 0] < width).all()
+                  and (keypoints[:, 1] < height).all())
+    return inside, hand_size_px(keypoints) * float(score)
 
 
 def choose_keyframe(track: HandTrack, width: int, height: int,
@@ -30,20 +42,12 @@ def choose_keyframe(track: HandTrack, width: int, height: int,
     """The row (of ``rows``, default all) where ``track`` is seen best (module docstring);
     frames with keypoints outside the ``width`` x ``height`` frame count only when no other
     is left."""
-    from .tracks import hand_size_px
-
     candidates = [row for row in (range(len(track.detected)) if rows is None else rows)
                   if track.detected[row]]
     if not candidates:
         raise ValueError(f"hand {track.identity} is never detected in those frames")
-
-    def score(row: int) -> tuple[bool, float]:
-        points = track.keypoints[row]
-        inside = bool((points >= 0).all() and (points[:, 0] < width).all()
-                      and (points[:, 1] < height).all())
-        return inside, hand_size_px(points) * float(track.scores[row])
-
-    return max(candidates, key=score)
+    return max(candidates, key=lambda row: view_score(track.keypoints[row], track.scores[row],
+                                                      width, height))
 
 
 def frame_photo(path: Any, rgb: np.ndarray, original_size: tuple[int, int], scale: float

@@ -6,14 +6,14 @@ jitter along the clip (:mod:`lisa_hand.fitting.video.quality`), and the hand's n
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
 from .quality import agreement_px, jitter_mm, nan_mean
 
-__all__ = ["video_metrics", "line_plot", "video_report_html"]
+__all__ = ["video_metrics", "line_plot", "report_rows", "video_report_html"]
 
 _PLOT_SIZE = (720, 240)
 _SERIES_COLOURS = ((31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189))
@@ -95,27 +95,27 @@ def line_plot(series: Sequence[tuple[str, np.ndarray, np.ndarray, bool]], title:
     return np.asarray(image)
 
 
-def _strip(fit: Any, model: Any, hand: Any, count: int, config: Any) -> np.ndarray:
-    """``count`` frames of the clip where ``hand`` is fitted, with every fitted hand rendered
-    over them and this hand's keypoints drawn, side by side."""
+def report_rows(hand: Any, count: int) -> list[int]:
+    """The rows of the frames the report shows for ``hand``: ``count`` spread over those where
+    it is fitted."""
+    fitted = np.flatnonzero(np.isfinite(hand.motion.pose).all(-1))
+    if not len(fitted):
+        return []
+    picks = np.linspace(0, len(fitted) - 1, min(count, len(fitted))).round().astype(int)
+    return sorted(set(fitted[picks].tolist()))
+
+
+def _strip(fit: Any, hand: Any, rows: list[int], frame: Callable[[int], np.ndarray]
+           ) -> np.ndarray:
+    """The frames of ``rows`` with the fitted hands over them (``frame(row)``) and this hand's
+    keypoints drawn, side by side."""
     from PIL import Image, ImageDraw
 
     from ..photo.report import DETECTED_COLOUR, FITTED_COLOUR, _draw_skeleton
-    from .artefacts import HandPoser, render_frame
 
-    fitted = np.flatnonzero(np.isfinite(hand.motion.pose).all(-1))
-    rows = set(fitted[np.linspace(0, len(fitted) - 1, min(count, len(fitted))).round()
-                      .astype(int)].tolist())
-    poser = HandPoser(hand.keyframe.mesh, hand.params, config.overlay_faces)
     panels = []
-    for row, frame in enumerate(fit.video.frames()):
-        if row > max(rows):
-            break
-        if row not in rows:
-            continue
-        mesh = poser.posed(hand.motion.pose[row], hand.motion.translation[row])
-        shown = Image.fromarray(render_frame(model, frame.rgb, fit.camera, [mesh],
-                                             config.overlay_alpha))
+    for row in rows:
+        shown = Image.fromarray(frame(row))
         draw = ImageDraw.Draw(shown)
         if hand.track.detected[row]:
             _draw_skeleton(draw, hand.track.keypoints[row], DETECTED_COLOUR, 1, 1.5)
@@ -132,8 +132,10 @@ def _strip(fit: Any, model: Any, hand: Any, count: int, config: Any) -> np.ndarr
     return np.asarray(canvas)
 
 
-def video_report_html(fit: Any, model: Any, metrics: dict[str, Any], config: Any) -> str:
-    """``report.html``: one section per hand (module docstring), the notes in the first."""
+def video_report_html(fit: Any, metrics: dict[str, Any], config: Any,
+                      frame: Callable[[int], np.ndarray]) -> str:
+    """``report.html``: one section per hand (module docstring), the notes in the first.
+    frame: row -> that frame of the overlay ([H, W, 3] uint8, the fitted hands over it)."""
     from ..photo.report import png_bytes, report_html
 
     times = fit.times
@@ -163,8 +165,8 @@ def video_report_html(fit: Any, model: Any, metrics: dict[str, Any], config: Any
                 "seconds (all hands) / frames a second":
                     f"{metrics['seconds']:.1f} / {metrics['frames_per_second']:.2f}"}
         sections.append({"heading": f"hand {hand.track.identity}: {hand.side}",
-                         "overlay": png_bytes(_strip(fit, model, hand, config.report_frames,
-                                                     config)),
+                         "overlay": png_bytes(_strip(fit, hand, report_rows(
+                             hand, config.report_frames), frame)),
                          "pictures": [png_bytes(trajectories), png_bytes(jitter_plot)],
                          "numbers": rows, "notes": list(fit.notes) if not sections else []})
     intro = ("Frames of the clip with the fitted hand rendered over them, the detected "
