@@ -515,12 +515,17 @@ class VideoHandDetector:
         self._factory = hands_factory
         self._hands: Any = None
         self._context: Any = None
-        self._first = True
+        self._quiet_frames = 2
 
     def __enter__(self) -> VideoHandDetector:
         with native_stderr_captured():
             self._context = self._factory(**self._arguments)
             self._hands = self._context.__enter__()
+            # MediaPipe's threads log their start-up while the graph first runs: run it once on
+            # a blank frame here, so that those lines are held back too.
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                self._hands.process(np.zeros((64, 64, 3), np.uint8))
         return self
 
     def __exit__(self, *exc: Any) -> None:
@@ -535,11 +540,11 @@ class VideoHandDetector:
         pixels = _as_uint8(frame)
         height, width = pixels.shape[:2]
         window = (0, 0, width, height)
-        if self._first:  # MediaPipe's start-up lines come with its first frame
-            self._first = False
+        if self._quiet_frames > 0:  # the landmark model starts with the first hand found
             with native_stderr_captured():
                 found = _run(self._hands, pixels, window, max(height, width),
                              np.zeros(3, np.uint8))
+            self._quiet_frames -= bool(found)
         else:
             found = _run(self._hands, pixels, window, max(height, width), np.zeros(3, np.uint8))
         hands = [DetectedHand(keypoints=one.keypoints, score=max(one.p_right, 1 - one.p_right),

@@ -25,12 +25,14 @@ def landmarks(x0: float, y0: float, x1: float, y1: float) -> np.ndarray:
 
 class ScriptedHands:
     """MediaPipe's ``Hands`` interface: each ``process`` call returns the next frame of
-    ``script``, a list of (normalised landmarks [21, 2], MediaPipe label, score) per frame."""
+    ``script``, a list of (normalised landmarks [21, 2], MediaPipe label, score) per frame.
+    The detector's warm-up call on a blank frame when it starts (``warmups``) finds nothing
+    and is not one of ``inputs``."""
 
     def __init__(self, script, **options):
         self.script, self.options = list(script), options
         self.inputs: list[np.ndarray] = []
-        self.entered = self.exited = 0
+        self.entered = self.exited = self.warmups = 0
 
     def __enter__(self):
         self.entered += 1
@@ -41,6 +43,9 @@ class ScriptedHands:
         return False
 
     def process(self, rgb: np.ndarray):
+        if not self.inputs and not rgb.any():
+            self.warmups += 1
+            return SimpleNamespace(multi_hand_landmarks=None, multi_handedness=None)
         self.inputs.append(rgb.copy())
         hands = self.script.pop(0)
         if not hands:
@@ -82,7 +87,7 @@ def test_keypoints_sides_and_order():
     (hands,) = made
     assert hands.options == dict(static_image_mode=False, max_num_hands=2, model_complexity=0,
                                  min_detection_confidence=0.4, min_tracking_confidence=0.6)
-    assert (hands.entered, hands.exited) == (1, 1)
+    assert (hands.entered, hands.exited, hands.warmups) == (1, 1, 1)  # one blank start-up run
     assert len(hands.inputs) == 2
     np.testing.assert_array_equal(hands.inputs[0], image)  # the frame as it is: no resizing
     # Left to right: the left hand first.
