@@ -24,12 +24,15 @@ class MotionConfig:
     joints' turning speed above ``max_joint_speed``.
     """
 
-    window: int = 24
+    window: int = 40
     """Frames a window holds (its first ``overlap`` already fitted, held fixed)."""
     overlap: int = 4
     """Frames each window shares with the one before: they carry the motion across."""
-    window_iters: int = 50
-    """Adam iterations a window."""
+    window_iters: int = 25
+    """Adam steps a window: the windows only bring every frame near its pose; the pass over
+    all frames converges."""
+    refine_iters: int = 400
+    """Iterations of the final pass over every frame of a segment at once."""
     pose_lr: float = 0.02
     translation_lr: float = 0.004
     final_lr_fraction: float = 0.2
@@ -45,7 +48,7 @@ class MotionConfig:
     """x the mean squared velocity of the 3D keypoints, (m/s)^2."""
     acceleration_weight: float = 1e-3
     """x the mean squared acceleration of the 3D keypoints, (m/s^2)^2."""
-    articulation_weight: float = 3e-3
+    articulation_weight: float = 5e-3
     """x the mean squared acceleration of the 3D keypoints relative to the wrist, (m/s^2)^2:
     the hand's own motion (what jitters most where one view leaves depth open)."""
     max_joint_speed: float = 25.0
@@ -55,6 +58,9 @@ class MotionConfig:
     """The named pose the finger prior pulls toward."""
 
     def __post_init__(self) -> None:
+        if isinstance(self.refine_iters, bool) or not isinstance(self.refine_iters, int) \
+                or self.refine_iters < 0:
+            raise ValueError(f"refine_iters must be an integer >= 0, got {self.refine_iters!r}")
         for name in ("window", "window_iters"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:

@@ -17,9 +17,11 @@ sum of per-frame data and prior terms and of motion terms between consecutive fr
 Solved in two passes from an anchor frame whose pose is known (the keyframe's fit): windows of
 ``window`` frames stepping away from the anchor, forward then backward in time, each window's
 first ``overlap`` frames already solved and held (they carry position and velocity across),
-its new frames starting from the last solved frame; then every frame of the segment at once
-(each frame between both neighbours). With ``temporal=False`` the motion terms are off and
-each frame is fitted alone (from its predecessor's fit: the ``--independent`` reference).
+its new frames starting from the last solved frame, a few steps each to bring every frame near
+its pose; then every frame of the segment at once, until it converges (each frame between both
+neighbours; with too few steps the fit stays smoother than its energy and off the keypoints).
+With ``temporal=False`` the motion terms are off and each frame is fitted alone (from its
+predecessor's fit: the ``--independent`` reference).
 """
 
 from __future__ import annotations
@@ -122,7 +124,8 @@ class MotionEnergy:
 
 def _optimise(energy: MotionEnergy, rows: torch.Tensor, pose: torch.Tensor,
               translation: torch.Tensor, free: torch.Tensor, iterations: int) -> None:
-    """Adam on the ``free`` [W] rows of ``pose`` and ``translation`` (in place)."""
+    """Adam under the cosine schedule on the ``free`` [W] rows of ``pose`` and ``translation``
+    (in place)."""
     config = energy.config
     free_pose = pose[free].clone().requires_grad_(True)
     free_translation = translation[free].clone().requires_grad_(True)
@@ -170,17 +173,15 @@ def _sweep(energy: MotionEnergy, order: list[int], pose: torch.Tensor,
 
 def fit_motion(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | None,
                data: MotionData, segments: list[tuple[int, int, int, torch.Tensor, torch.Tensor]],
-               config: MotionConfig, temporal: bool = True, refine_iters: int | None = None
-               ) -> MotionResult:
+               config: MotionConfig, temporal: bool = True) -> MotionResult:
     """Fit the pose and translation of a RIGHT hand in the frames of ``segments``.
 
     template: the mesh template (float32, CPU). rest_joints: [16, 3] metres; betas: [K] or
     None: the hand's skeleton and template shape (fixed). data: :class:`MotionData` of all N
     frames. segments: (first, end, anchor, anchor_pose [48], anchor_translation [3]) per run
     of frames to fit, rows [first, end) with the pose known at row ``anchor``.
-    temporal: with the motion terms (False: each frame alone). refine_iters: Adam steps of the
-    final pass over every frame of a segment at once (default ``2 * window_iters``; without
-    the motion terms the frames do not interact and the pass is more steps for each alone).
+    temporal: with the motion terms (False: each frame alone; the final pass over all frames,
+    ``config.refine_iters`` steps, is then more steps for each alone).
     -> :class:`MotionResult` (NaN outside the segments).
     """
     began = time.perf_counter()
@@ -189,7 +190,7 @@ def fit_motion(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | N
     pose = torch.full((count, 48), float("nan"))
     translation = torch.full((count, 3), float("nan"))
     steps = 0
-    refine_iters = 2 * config.window_iters if refine_iters is None else refine_iters
+    refine_iters = config.refine_iters
     for first, end, anchor, anchor_pose, anchor_translation in segments:
         if not 0 <= first <= anchor < end <= count:
             raise ValueError(f"segment ({first}, {end}) must hold its anchor row {anchor}")

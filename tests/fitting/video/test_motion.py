@@ -22,7 +22,7 @@ from lisa_hand.handmodel.template import load_template
 
 FRAMES, FPS = 30, 25.0
 K = torch.tensor([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])  # 640 x 480
-FAST = MotionConfig(window=12, overlap=3, window_iters=40)
+FAST = MotionConfig(window=12, overlap=3, window_iters=40, refine_iters=80)
 
 
 @pytest.fixture(scope="module", autouse=True)
