@@ -137,8 +137,7 @@ def _frames_at(video: Any, rows: set[int], kept: dict[int, np.ndarray]
     return found
 
 
-def _motion_data(track: HandTrack, camera: Any, times: np.ndarray, side: str,
-                 independent: bool) -> Any:
+def _motion_data(track: HandTrack, camera: Any, times: np.ndarray, side: str) -> Any:
     """The track's keypoints as :class:`MotionData` of a right hand."""
     from .motion import MotionData
 
@@ -196,7 +195,7 @@ def _fit_track(model: Any, video: Any, track: HandTrack, side: str, camera: Any,
         pose, translation = segment_anchor(photo_of[anchor], camera, track, anchor, side,
                                            config.keyframe, template)
         segments.append((first, end, anchor, *_right(pose, translation, side)))
-    data = _motion_data(track, camera, times, side, config.independent)
+    data = _motion_data(track, camera, times, side)
     motion = fit_motion(template, right.rest_joints.float(), right.betas, data, segments,
                         config.motion, temporal=not config.independent)
     if side == "left":
