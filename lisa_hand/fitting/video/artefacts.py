@@ -169,8 +169,10 @@ class OverlayFrames:
     each frame with the fitted hands over it (:func:`render_frame`), keeping those of the rows
     ``keep`` (the report's pictures); :meth:`frame` gives a kept one (or renders it alone)."""
 
-    def __init__(self, fit: Any, model: Any, config: Any, keep: set[int]) -> None:
+    def __init__(self, fit: Any, model: Any, config: Any, keep: set[int],
+                 progress: bool = False) -> None:
         self.fit, self.model, self.config, self.keep = fit, model, config, set(keep)
+        self.progress = progress
         self.posers = [HandPoser(hand.keyframe.mesh, hand.params, config.overlay_faces)
                        for hand in fit.hands]
         self.kept: dict[int, np.ndarray] = {}
@@ -184,11 +186,18 @@ class OverlayFrames:
                             self.config.overlay_supersample, self.config.overlay_max_side)
 
     def __iter__(self):
+        from ..stages import progress_bar
+
+        bar = progress_bar(self.progress, len(self.fit.indices), "overlay")
         for row, frame in enumerate(self.fit.video.frames()):
             image = self.render(row, frame.rgb)
             if row in self.keep:
                 self.kept[row] = image
+            if bar is not None:
+                bar.update(1)
             yield image
+        if bar is not None:
+            bar.close()
 
     def frame(self, row: int) -> np.ndarray:
         if row not in self.kept:
@@ -233,13 +242,15 @@ def _report_artefact(fit: Any, frames: OverlayFrames, metrics: dict, config: Any
     return Artefact("report.html", write)
 
 
-def video_artefacts(fit: Any, model: Any, config: Any, metrics: dict) -> list[Artefact]:
+def video_artefacts(fit: Any, model: Any, config: Any, metrics: dict, progress: bool = False
+                    ) -> list[Artefact]:
     """Every file of the fit (module docstring); metrics: ``metrics.json``'s record. The
-    report, written last, shows frames the overlay rendered."""
+    report, written last, shows frames the overlay rendered. progress: a progress bar of the
+    overlay's frames."""
     from .report import report_rows
 
     keep = {row for hand in fit.hands for row in report_rows(hand, config.report_frames)}
-    frames = OverlayFrames(fit, model, config, keep)
+    frames = OverlayFrames(fit, model, config, keep, progress)
     artefacts = []
     for hand in fit.hands:
         folder = hand_folder(fit, hand)

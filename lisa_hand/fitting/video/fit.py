@@ -197,7 +197,7 @@ def _fit_track(model: Any, video: Any, track: HandTrack, side: str, camera: Any,
         segments.append((first, end, anchor, *_right(pose, translation, side)))
     data = _motion_data(track, camera, times, side)
     motion = fit_motion(template, right.rest_joints.float(), right.betas, data, segments,
-                        config.motion, temporal=not config.independent)
+                        config.motion, temporal=not config.independent, progress=progress)
     if side == "left":
         motion = replace(motion,
                          pose=mirror_pose(torch.from_numpy(motion.pose)).numpy(),

@@ -56,7 +56,7 @@ def fit_video_folder(video: Any, out_dir: Any, *, progress: bool = True,
     model = fit.model
     with cpu_threads(config.num_threads):
         metrics = video_metrics(fit, time.perf_counter() - began)
-        written = write_fit(out_dir, video_artefacts(fit, model, config, metrics),
+        written = write_fit(out_dir, video_artefacts(fit, model, config, metrics, progress),
                             video_entry, VIDEO_DESCRIBED)
     seconds = time.perf_counter() - began
     for note in fit.notes:

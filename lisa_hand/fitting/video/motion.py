@@ -123,9 +123,10 @@ class MotionEnergy:
 
 
 def _optimise(energy: MotionEnergy, rows: torch.Tensor, pose: torch.Tensor,
-              translation: torch.Tensor, free: torch.Tensor, iterations: int) -> None:
+              translation: torch.Tensor, free: torch.Tensor, iterations: int,
+              bar: Any = None) -> None:
     """Adam under the cosine schedule on the ``free`` [W] rows of ``pose`` and ``translation``
-    (in place)."""
+    (in place); ``bar`` (a progress bar, or None) counts the steps."""
     config = energy.config
     free_pose = pose[free].clone().requires_grad_(True)
     free_translation = translation[free].clone().requires_grad_(True)
@@ -142,13 +143,15 @@ def _optimise(energy: MotionEnergy, rows: torch.Tensor, pose: torch.Tensor,
         energy(rows, full_pose, full_translation, free).backward()
         optimizer.step()
         schedule.step()
+        if bar is not None:
+            bar.update(1)
     with torch.no_grad():
         pose[free] = free_pose.detach()
         translation[free] = free_translation.detach()
 
 
 def _sweep(energy: MotionEnergy, order: list[int], pose: torch.Tensor,
-           translation: torch.Tensor) -> int:
+           translation: torch.Tensor, bar: Any = None) -> int:
     """Windows along ``order`` (frame rows, the first one solved): each window's first
     ``overlap`` rows held, the rest started from the last solved row -> Adam steps taken."""
     config = energy.config
@@ -164,16 +167,27 @@ def _sweep(energy: MotionEnergy, order: list[int], pose: torch.Tensor,
         rows = torch.tensor(window)
         free = torch.tensor([row in new for row in window])
         sub_pose, sub_translation = pose[rows].clone(), translation[rows].clone()
-        _optimise(energy, rows, sub_pose, sub_translation, free, config.window_iters)
+        _optimise(energy, rows, sub_pose, sub_translation, free, config.window_iters, bar)
         pose[rows], translation[rows] = sub_pose, sub_translation
         steps += config.window_iters
         done += len(new)
     return steps
 
 
+def _planned_steps(segments: list, config: MotionConfig) -> int:
+    """The Adam steps :func:`fit_motion` takes on ``segments`` (for its progress bar)."""
+    fresh = config.window - config.overlap
+    total = 0
+    for first, end, anchor, *_ in segments:
+        windows = -(-(end - anchor - 1) // fresh) + -(-(anchor - first) // fresh)
+        total += windows * config.window_iters + (config.refine_iters if end - first > 1 else 0)
+    return total
+
+
 def fit_motion(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | None,
                data: MotionData, segments: list[tuple[int, int, int, torch.Tensor, torch.Tensor]],
-               config: MotionConfig, temporal: bool = True) -> MotionResult:
+               config: MotionConfig, temporal: bool = True, progress: bool = False
+               ) -> MotionResult:
     """Fit the pose and translation of a RIGHT hand in the frames of ``segments``.
 
     template: the mesh template (float32, CPU). rest_joints: [16, 3] metres; betas: [K] or
@@ -181,9 +195,12 @@ def fit_motion(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | N
     frames. segments: (first, end, anchor, anchor_pose [48], anchor_translation [3]) per run
     of frames to fit, rows [first, end) with the pose known at row ``anchor``.
     temporal: with the motion terms (False: each frame alone; the final pass over all frames,
-    ``config.refine_iters`` steps, is then more steps for each alone).
+    ``config.refine_iters`` steps, is then more steps for each alone). progress: a progress
+    bar of the steps.
     -> :class:`MotionResult` (NaN outside the segments).
     """
+    from ..stages import progress_bar
+
     began = time.perf_counter()
     count = data.keypoints.shape[0]
     energy = MotionEnergy(template, rest_joints, betas, data, config, temporal)
@@ -191,20 +208,24 @@ def fit_motion(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | N
     translation = torch.full((count, 3), float("nan"))
     steps = 0
     refine_iters = config.refine_iters
-    for first, end, anchor, anchor_pose, anchor_translation in segments:
+    for first, end, anchor, *_ in segments:
         if not 0 <= first <= anchor < end <= count:
             raise ValueError(f"segment ({first}, {end}) must hold its anchor row {anchor}")
+    bar = progress_bar(progress, _planned_steps(segments, config), "motion")
+    for first, end, anchor, anchor_pose, anchor_translation in segments:
         pose[anchor] = anchor_pose.float()
         translation[anchor] = anchor_translation.float()
-        steps += _sweep(energy, list(range(anchor, end)), pose, translation)
-        steps += _sweep(energy, list(range(anchor, first - 1, -1)), pose, translation)
+        steps += _sweep(energy, list(range(anchor, end)), pose, translation, bar)
+        steps += _sweep(energy, list(range(anchor, first - 1, -1)), pose, translation, bar)
         if refine_iters > 0 and end - first > 1:
             rows = torch.arange(first, end)
             sub_pose, sub_translation = pose[rows].clone(), translation[rows].clone()
             _optimise(energy, rows, sub_pose, sub_translation,
-                      torch.ones(len(rows), dtype=torch.bool), refine_iters)
+                      torch.ones(len(rows), dtype=torch.bool), refine_iters, bar)
             pose[rows], translation[rows] = sub_pose, sub_translation
             steps += refine_iters
+    if bar is not None:
+        bar.close()
     keypoints = torch.full((count, NUM_KEYPOINTS, 3), float("nan"))
     fitted = torch.isfinite(pose).all(-1)
     with torch.no_grad():

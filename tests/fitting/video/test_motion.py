@@ -16,7 +16,13 @@ from lisa_hand.fitting.outputs.records import posed_keypoints
 from lisa_hand.fitting.priors import prior_mean_fingers
 from lisa_hand.fitting.stages import template_on
 from lisa_hand.fitting.video.config import MotionConfig
-from lisa_hand.fitting.video.motion import MotionData, MotionEnergy, MotionResult, fit_motion
+from lisa_hand.fitting.video.motion import (
+    MotionData,
+    MotionEnergy,
+    MotionResult,
+    _planned_steps,
+    fit_motion,
+)
 from lisa_hand.fitting.video.quality import jitter_mm
 from lisa_hand.handmodel.template import load_template
 
@@ -118,8 +124,11 @@ def test_without_noise_the_fit_reprojects_onto_the_truth(clip):
     assert error.mean(-1).max() < 1.0, error.mean(-1)  # measured 0.40 px
     assert error.max() < 2.0
     # Every frame of the segment fitted: 4 windows of 9 new frames forward from the anchor at
-    # row 0, none backward, then the whole segment at once (2 x window_iters).
+    # row 0, none backward, then the whole segment at once (refine_iters = 2 x window_iters);
+    # the progress bar is told as many.
     assert result.iterations == 4 * 40 + 2 * 40
+    assert _planned_steps([(0, FRAMES, 0)], FAST) == result.iterations
+    assert _planned_steps([(0, FRAMES, 10)], FAST) == (3 + 2) * 40 + 2 * 40  # 19 on, 10 back
     assert np.isfinite(result.pose).all() and np.isfinite(result.translation).all()
     np.testing.assert_allclose(result.translation, clip.translation.numpy(), atol=0.02)
 
