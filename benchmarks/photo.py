@@ -43,6 +43,7 @@ from typing import Any
 
 import numpy as np
 
+from lisa_hand.fitting.outputs.records import json_safe
 from lisa_hand.utils.threads import cpu_threads
 
 from . import write_results
@@ -463,17 +464,6 @@ def _target_lines(targets: dict[str, bool | None]) -> list[str]:
     return [f"target {labels[name]}: {words[value]}" for name, value in targets.items()]
 
 
-def _json_safe(value):
-    """NaN and infinities as null (strict JSON)."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    if isinstance(value, dict):
-        return {key: _json_safe(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(item) for item in value]
-    return value
-
-
 def main(argv: list[str] | None = None) -> None:
     """``python -m benchmarks photo [--json FILE] [--photos N] [--shared DIR] ...``"""
     parser = argparse.ArgumentParser(prog="python -m benchmarks photo",
@@ -533,4 +523,4 @@ def main(argv: list[str] | None = None) -> None:
     print("\n".join(_table(result)))
     print()
     print("\n".join(_target_lines(result.targets)))
-    write_results(args.json, {**_json_safe(result.to_dict()), "overrides": list(args.overrides)})
+    write_results(args.json, {**json_safe(result.to_dict()), "overrides": list(args.overrides)})

@@ -38,10 +38,10 @@ class HandPoser:
     (:func:`lisa_hand.inference.mesh.repose_mesh` to the zero pose), each pose then a forward
     kinematics and a skinning. params: the hand the mesh was made from (either side).
     max_faces: the mesh decimated to at most this many faces first
-    (:func:`lisa_hand.geometry.meshing.decimate_mesh`; None: as it is)."""
+    (:func:`lisa_hand.geometry.decimation.decimate_mesh`; None: as it is)."""
 
     def __init__(self, mesh: Mesh, params: HandParams, max_faces: int | None = None) -> None:
-        from ...geometry.meshing import decimate_mesh
+        from ...geometry.decimation import decimate_mesh
         from ...inference.mesh import repose_mesh
 
         self.params = params
