@@ -48,15 +48,23 @@ from lisa_hand.fitting.outputs.records import json_safe
 from lisa_hand.utils.threads import cpu_threads
 
 from . import write_results
+from ._video_tables import (
+    MODES,
+    SPEED_SIZE,
+    _clip_lines,
+    _mean,
+    _real_line,
+    _speed_line,
+    _table,
+    _target_lines,
+)
 
 __all__ = ["ModeResult", "ClipResult", "RealResult", "SpeedResult", "VideoBenchmark",
            "default_real_clip", "fit_config", "run_video_benchmark", "main"]
 
-MODES = ("tracked", "independent")
 TARGET_JITTER_RATIO = 1.0 / 3.0
 TARGET_AGREEMENT_RATIO = 1.0
 TARGET_FPS = 5.0
-SPEED_SIZE = (1280, 720)
 
 
 def default_real_clip() -> Path:
@@ -175,11 +183,6 @@ class VideoBenchmark:
 
 # ------------------------------------------------------------------------------------------------
 # Pieces
-
-
-def _mean(values) -> float:
-    values = [v for v in values if v is not None and math.isfinite(v)]
-    return float(np.mean(values)) if values else math.nan
 
 
 def _fitted_rows(keypoints_3d: np.ndarray) -> np.ndarray:
@@ -501,107 +504,6 @@ def run_video_benchmark(num_clips: int = 3, frames: int = 40, *, real: Path | No
         reference_speed_frames_per_second=part(speed, "independent", "frames_per_second"),
         clips=clips, real=real_results, speed=speed,
         targets=_targets(clips, real_results, speed), seconds_parts=parts, notes=notes)
-
-
-# ------------------------------------------------------------------------------------------------
-# Printing
-
-
-def _number(value, digits: int = 1) -> str:
-    if value is None or (isinstance(value, float) and not math.isfinite(value)):
-        return "-"
-    return f"{value:.{digits}f}"
-
-
-def _clip_lines(result: ClipResult) -> list[str]:
-    lines = []
-    for mode in MODES:
-        mode_result = getattr(result, mode)
-        if mode_result.fitted_frames == 0:
-            lines.append(f"    {mode}: failed: {mode_result.error}")
-            continue
-        lines.append(
-            f"    {mode:<11}: {mode_result.fitted_frames}/{result.frames} frames fitted "
-            f"({mode_result.fitted_side}), MPJPE {_number(mode_result.mpjpe_mm)} mm, PA-MPJPE "
-            f"{_number(mode_result.pa_mpjpe_mm)} mm, acceleration error "
-            f"{_number(mode_result.acceleration_error_mm, 2)}, jitter "
-            f"{_number(mode_result.jitter_mm, 2)} (truth {_number(result.truth_jitter_mm, 2)}) "
-            f"mm/frame^2, {mode_result.seconds:.1f} s")
-    return lines
-
-
-def _real_line(mode: str, result: RealResult) -> str:
-    if result.error is not None:
-        return f"    {mode}: failed: {result.error}"
-    share = _number(100 * result.fitted_share)
-    return (f"    {mode:<11}: {result.hands} hand(s), fitted in {share} % of "
-            f"{result.detected_frames} detected frames (of {result.frames}), jitter "
-            f"{_number(result.jitter_mm, 2)} mm/frame^2, agreement "
-            f"{_number(result.agreement_px, 2)} px, {result.seconds:.1f} s")
-
-
-def _speed_line(mode: str, result: SpeedResult) -> str:
-    if result.error is not None:
-        return f"    {mode}: failed: {result.error}"
-    return (f"    {mode:<11}: {result.frames} frames in {result.seconds:.1f} s: "
-            f"{_number(result.frames_per_second, 2)} frames/s end to end, detection "
-            f"{_number(result.detect_frames_per_second, 2)} frames/s")
-
-
-def _table(result: VideoBenchmark) -> list[str]:
-    rows = []
-    if result.clips:
-        rows += ["| rendered clip | subject | side | mode | fitted frames | MPJPE mm | PA-MPJPE mm "
-                 "| accel. error mm/f^2 | jitter mm/f^2 (truth) | s |",
-                 "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
-        for clip in result.clips:
-            for mode in MODES:
-                m = getattr(clip, mode)
-                rows.append(f"| {clip.clip} | {clip.subject} | {clip.side} | {mode} | "
-                            f"{m.fitted_frames}/{clip.frames} | {_number(m.mpjpe_mm)} | "
-                            f"{_number(m.pa_mpjpe_mm)} | {_number(m.acceleration_error_mm, 2)} | "
-                            f"{_number(m.jitter_mm, 2)} ({_number(clip.truth_jitter_mm, 2)}) | "
-                            f"{_number(m.seconds)} |")
-        for mode, prefix in (("tracked", ""), ("independent", "reference_")):
-            d = result.to_dict()
-            rows.append(f"| mean | | | {mode} | {_number(100 * d[prefix + 'fitted_share'])} % | "
-                        f"{_number(d[prefix + 'mpjpe_mm'])} | {_number(d[prefix + 'pa_mpjpe_mm'])}"
-                        f" | {_number(d[prefix + 'acceleration_error_mm'], 2)} | "
-                        f"{_number(d[prefix + 'jitter_mm'], 2)} "
-                        f"({_number(result.truth_jitter_mm, 2)}) | "
-                        f"{_number(_mean(getattr(c, mode).seconds for c in result.clips))} |")
-        rows.append("")
-    if result.real:
-        rows += ["| real clip | hands | fitted share of detected | jitter mm/f^2 | agreement px "
-                 "| s |",
-                 "| --- | --- | --- | --- | --- | --- |"]
-        for mode, r in result.real.items():
-            rows.append(f"| {mode} | {r.hands} | {_number(100 * r.fitted_share)} % | "
-                        f"{_number(r.jitter_mm, 2)} | {_number(r.agreement_px, 2)} | "
-                        f"{_number(r.seconds)} |")
-        rows.append("")
-    if result.speed:
-        rows += [f"| speed, {SPEED_SIZE[0]}x{SPEED_SIZE[1]} | frames | s end to end | frames/s | "
-                 "detection frames/s |", "| --- | --- | --- | --- | --- |"]
-        for mode, r in result.speed.items():
-            rows.append(f"| {mode} | {r.frames} | {_number(r.seconds)} | "
-                        f"{_number(r.frames_per_second, 2)} | "
-                        f"{_number(r.detect_frames_per_second, 2)} |")
-        rows.append("")
-    return rows
-
-
-def _target_lines(targets: dict[str, bool | None]) -> list[str]:
-    words = {True: "met", False: "NOT met", None: "not measured"}
-    labels = {"mpjpe_tracked_le_independent": "MPJPE tracked <= independent (rendered clips)",
-              "acceleration_error_tracked_lt_independent":
-                  "acceleration error tracked < independent (rendered clips)",
-              "real_jitter_tracked_le_third_of_independent":
-                  "jitter tracked <= 1/3 of independent (real clip)",
-              "real_agreement_no_loss":
-                  "no loss of 2D agreement, tracked <= independent (real clip)",
-              "speed_tracked_at_least_5_fps": "at least 5 frames/s tracked, end to end (speed)"}
-    return [f"target {labels[name]}: {words[value]}" for name, value in targets.items()]
 
 
 def main(argv: list[str] | None = None) -> None:
