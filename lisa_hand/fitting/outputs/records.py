@@ -21,7 +21,8 @@ import torch
 
 from ...skeleton.params import HandParams
 
-__all__ = ["json_safe", "hand_keypoints_3d", "posed_keypoints", "keypoints_3d_record"]
+__all__ = ["json_safe", "hand_keypoints_3d", "fingertips_at_rest", "posed_keypoints",
+           "keypoints_3d_record"]
 
 
 def json_safe(value: Any) -> Any:
@@ -66,35 +67,42 @@ def hand_keypoints_3d(params: HandParams, template: Any = None) -> np.ndarray:
     return keypoints.numpy()
 
 
-def posed_keypoints(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | None,
-                    pose: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
-    """The 21 keypoints of a RIGHT hand in B poses, differentiable (the keypoints of
-    :func:`hand_keypoints_3d`, batched for the fitters that move only pose and translation).
-
-    template: the mesh template on the inputs' device and dtype. rest_joints: [16, 3] metres
-    (the hand's skeleton). betas: [K] the template's shape coefficients (None: zeros).
-    pose: [B, 48] axis-angle radians. translation: [B, 3] metres. -> [B, 21, 3] metres.
-    """
-    from ...skeleton import (
-        FINGER_JOINTS,
-        FINGER_NAMES,
-        forward_kinematics,
-        joints_to_keypoints,
-        linear_blend_skinning,
-    )
+def fingertips_at_rest(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | None
+                       ) -> torch.Tensor:
+    """The five fingertips of a RIGHT hand at rest: the mesh template's fingertip vertices
+    (shaped by ``betas``, zeros when None) moved with their distal joint onto the skeleton
+    ``rest_joints`` [16, 3] metres -> [5, 3] metres (constant through a fit of the pose)."""
+    from ...skeleton import FINGER_JOINTS, FINGER_NAMES
 
     shape = torch.zeros(int(template.num_betas), dtype=rest_joints.dtype,
                         device=rest_joints.device)
     if betas is not None and betas.numel() == shape.numel():
         shape = betas.to(shape)
-    tip_ids = list(template.fingertip_ids)
     distal = [FINGER_JOINTS[name][2] for name in FINGER_NAMES]
     template_joints = template.rest_joints(shape[None])[0]
-    tips_rest = (template.rest_vertices(shape[None])[0][tip_ids]
-                 + rest_joints[distal] - template_joints[distal])
+    return (template.rest_vertices(shape[None])[0][list(template.fingertip_ids)]
+            + rest_joints[distal] - template_joints[distal])
+
+
+def posed_keypoints(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | None,
+                    pose: torch.Tensor, translation: torch.Tensor,
+                    tips_rest: torch.Tensor | None = None) -> torch.Tensor:
+    """The 21 keypoints of a RIGHT hand in B poses, differentiable (the keypoints of
+    :func:`hand_keypoints_3d`, batched for the fitters that move only pose and translation).
+
+    template: the mesh template on the inputs' device and dtype. rest_joints: [16, 3] metres
+    (the hand's skeleton). betas: [K] the template's shape coefficients (None: zeros).
+    pose: [B, 48] axis-angle radians. translation: [B, 3] metres. tips_rest:
+    :func:`fingertips_at_rest` when already computed. -> [B, 21, 3] metres.
+    """
+    from ...skeleton import forward_kinematics, joints_to_keypoints, linear_blend_skinning
+
+    if tips_rest is None:
+        tips_rest = fingertips_at_rest(template, rest_joints, betas)
     count = pose.shape[0]
     kinematics = forward_kinematics(pose, rest_joints.expand(count, -1, -1), translation)
-    tips = linear_blend_skinning(tips_rest.expand(count, -1, -1), template.weights[tip_ids],
+    tips = linear_blend_skinning(tips_rest.expand(count, -1, -1),
+                                 template.weights[list(template.fingertip_ids)],
                                  kinematics.transforms)
     return joints_to_keypoints(kinematics.joints, tips)
 

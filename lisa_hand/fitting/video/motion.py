@@ -35,7 +35,7 @@ import torch
 
 from ...skeleton import NUM_KEYPOINTS
 from ..optim import lr_schedule
-from ..outputs.records import posed_keypoints
+from ..outputs.records import fingertips_at_rest, posed_keypoints
 from ..priors import prior_mean_fingers
 from ..terms import HandTerms, hand_prior
 from .config import MotionConfig
@@ -82,10 +82,13 @@ class MotionEnergy:
         self.template, self.rest_joints, self.betas = template, rest_joints, betas
         self.data, self.config, self.temporal = data, config, temporal
         self.prior = hand_prior(config, prior_mean_fingers(config.prior_pose))
+        with torch.no_grad():  # the same for every frame and step
+            self.tips_rest = fingertips_at_rest(template, rest_joints, betas)
 
     def keypoints(self, pose: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
         """[W, 48], [W, 3] -> [W, 21, 3] metres."""
-        return posed_keypoints(self.template, self.rest_joints, self.betas, pose, translation)
+        return posed_keypoints(self.template, self.rest_joints, self.betas, pose, translation,
+                               self.tips_rest)
 
     def __call__(self, rows: torch.Tensor, pose: torch.Tensor, translation: torch.Tensor,
                  data_rows: torch.Tensor) -> torch.Tensor:
