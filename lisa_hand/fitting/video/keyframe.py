@@ -74,13 +74,12 @@ def _photo_hand(track: HandTrack, row: int, side: str) -> Any:
 class KeyframeFit:
     """params: the fitted hand at its keyframe (camera frame, the hand's side). result: the
     image fit's :class:`lisa_hand.fitting.images.fit.FitImagesResult`. mesh: its surface with
-    colours and skinning weights, cut at the wrist, specks dropped. crop_box: (x0, y0, x1, y1)
-    the region the fit saw, processing pixels. notes: what the user should know."""
+    colours and skinning weights, cut at the wrist, specks dropped. notes: what the user
+    should know."""
 
     params: HandParams
     result: Any
     mesh: Any
-    crop_box: tuple[int, int, int, int]
     notes: list[str]
 
 
@@ -113,8 +112,7 @@ def fit_keyframe(model: Any, photo: Any, camera: Camera, track: HandTrack, row: 
     notes = list(result.notes)
     if specks.count:
         notes.append(specks.note("the hand's mesh"))
-    return KeyframeFit(params=result.params, result=result, mesh=mesh, crop_box=crop.box,
-                       notes=notes)
+    return KeyframeFit(params=result.params, result=result, mesh=mesh, notes=notes)
 
 
 def segment_anchor(photo: Any, camera: Camera, track: HandTrack, row: int, side: str,
