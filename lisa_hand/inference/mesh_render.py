@@ -6,7 +6,8 @@ model's own learned shading (:class:`lisa_hand.render.shading.HeadlightShading`,
 renderer applies it), at ``supersample x supersample`` rays a pixel averaged into colour and
 coverage. Milliseconds where the volume renderer (:func:`prepare_render`) takes seconds on a CPU:
 for overlays and previews of a surface already meshed; the volume render stays the measure of
-a model's images (PSNR). Runs under ``torch.no_grad``.
+a model's images (PSNR). Runs under ``torch.no_grad``. :func:`render_meshes_over` lays
+several hands over a photo or a video frame (the overlays of the fits).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from ..geometry.meshing import Mesh
 from ..model.trained import TrainedModel
 from .render import scale_camera
 
-__all__ = ["MeshRender", "render_mesh"]
+__all__ = ["MeshRender", "render_mesh", "render_meshes_over"]
 
 
 @dataclass(eq=False)
@@ -84,3 +85,54 @@ def render_mesh(model: TrainedModel, mesh: Mesh, camera: Camera, supersample: in
     alpha = pooled(hit.astype(np.float32)[:, None])[..., 0] / rays
     return MeshRender(rgb=np.clip(pooled(rgb) / rays, 0.0, 1.0).astype(np.float32),
                       alpha=alpha.astype(np.float32))
+
+
+def _crop_camera(camera: Camera, box: tuple[int, int, int, int]) -> Camera:
+    """``camera`` restricted to the pixel box (x0, y0, x1, y1)."""
+    x0, y0, x1, y1 = box
+    K = camera.K.clone()
+    K[0, 2] -= x0
+    K[1, 2] -= y0
+    return Camera(K=K, R=camera.R, t=camera.t, width=int(x1 - x0), height=int(y1 - y0))
+
+
+def render_meshes_over(model: TrainedModel | None, rgb: np.ndarray, camera: Camera,
+                       meshes: list[Mesh], alpha: float, supersample: int = 1,
+                       max_side: int | None = None) -> np.ndarray:
+    """``rgb`` [H, W, 3] uint8 with ``meshes`` (camera frame) ray cast with the model's shading
+    (:func:`render_mesh`) and laid over it at opacity ``alpha``, each only in the box its
+    vertices project to, at most ``max_side`` pixels a side there (then resized: a hand filling
+    a 4K frame costs what a small one does; None: at the frame's resolution) -> [H, W, 3]
+    uint8."""
+    from PIL import Image
+
+
+    out = rgb.copy()  # only the boxes around the hands are blended, in floats
+    height, width = rgb.shape[:2]
+    K = camera.K.double().cpu().numpy()
+    for mesh in meshes:
+        points = mesh.vertices.astype(np.float64)
+        in_front = points[:, 2] > 1e-3
+        if not in_front.any():
+            continue
+        pixels = (points[in_front] @ K.T)[:, :2] / points[in_front, 2:]
+        x0, y0 = np.floor(pixels.min(0)).astype(int) - 2
+        x1, y1 = np.ceil(pixels.max(0)).astype(int) + 2
+        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
+        if x1 - x0 < 2 or y1 - y0 < 2:
+            continue
+        box = _crop_camera(camera, (x0, y0, x1, y1))
+        factor = 1.0 if max_side is None else min(1.0, max_side / max(x1 - x0, y1 - y0))
+        small = scale_camera(box, max(int(round((x1 - x0) * factor)), 1),
+                             max(int(round((y1 - y0) * factor)), 1))
+        shown = render_mesh(model, mesh, small, supersample)
+        colour, cover = shown.rgb, shown.alpha
+        if small is not box:
+            colour = np.stack([np.asarray(Image.fromarray(colour[..., c]).resize(
+                (x1 - x0, y1 - y0), Image.BILINEAR)) for c in range(3)], -1)
+            cover = np.asarray(Image.fromarray(cover).resize((x1 - x0, y1 - y0),
+                                                             Image.BILINEAR))
+        region = out[y0:y1, x0:x1].astype(np.float32) / 255.0
+        blended = region * (1.0 - alpha * cover[..., None]) + colour * alpha
+        out[y0:y1, x0:x1] = np.clip(blended * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    return out

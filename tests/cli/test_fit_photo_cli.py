@@ -153,7 +153,14 @@ def test_several_hands_each_into_its_folder_or_one_with_hand(lisa, files, tmp_pa
     args = fit_args(files, "two_jpeg", "two_keypoints")
     code, printed, err = run(lisa, ["fit-photo", *args, "--out", str(out)], capsys)
     assert code == 0, err
-    assert sorted(p.name for p in out.iterdir()) == ["hand0", "hand1"]
+    assert sorted(p.name for p in out.iterdir()) == ["hand0", "hand1", "hands.json",
+                                                      "hands.ply", "overlay.png"]
+    hands = json.loads((out / "hands.json").read_text())
+    assert [(hand["folder"], hand["side"]) for hand in hands["hands"]] == [
+        ("hand0", "right"), ("hand1", "right")]
+    assert hands["right_to_left_m"] is None  # two right hands: no right-to-left offset
+    assert 0.0 <= hands["penetration_mm"] < 1.0  # hands apart
+    assert "2 right hands in one photo" in printed
     two = files["two"]
     for index in (0, 1):
         folder = out / f"hand{index}"

@@ -76,7 +76,8 @@ __all__ = ["PHOTO_FILES", "PHOTO_DESCRIBED", "PhotoOfHand", "PhotoViewOutputs",
            "keypoints_record", "photo_artefacts"]
 
 PHOTO_FILES = ("params.json", "mesh.ply", "keypoints.json", "camera.json", "cameras.json",
-               "mask.png", "overlay.png", "report.html", "metrics.json")
+               "mask.png", "overlay.png", "report.html", "metrics.json", "hands.json",
+               "hands.ply")
 """The files a photo fit writes into a hand's folder (or a ``photoK/`` folder)."""
 _FOLDER = re.compile(r"(hand|photo)\d+")
 PHOTO_DESCRIBED = ", ".join(PHOTO_FILES) + " and hand0/, photo0/, ... folders"

@@ -254,6 +254,7 @@ def fit_photo_folder(
     from ...model.trained import model_label as label_of
     from ...utils.device import resolve_device
     from ..outputs import claim_output_folder, write_fit
+    from . import several
     from .artefacts import PHOTO_DESCRIBED, photo_artefacts, photo_entry
     from .inputs import check_hand_size
 
@@ -270,14 +271,22 @@ def fit_photo_folder(
             check_hand_size(one, item.photo, config.min_hand_px, label)
     model = load_trained(model_path, resolve_device(device))
     model_label = label_of(model_path)
-    outcomes = []
-    for folder, hands in targets:
+    masks = several.split_coarse_masks(inputs, targets) if len(targets) > 1 else None
+    alones = []
+    for index, (folder, hands) in enumerate(targets):
         if folder:
             log(f"fitting {folder}")
-        outcomes.append(_fit_hand(model, inputs, hands, folder, side, config, progress, log,
-                                  model_label))
-    written = write_fit(out_dir, photo_artefacts([outputs for outputs, _ in outcomes]),
-                        photo_entry, PHOTO_DESCRIBED)
+        alones.append(_fit_alone(model, inputs, hands, folder, side, config, progress, log,
+                                 model_label, None if masks is None else masks[index]))
+    together = several.fit_together(model, alones, config, progress, log) \
+        if len(alones) > 1 else None
+    outcomes = [_hand_files(model, alone, config, log,
+                            None if together is None else together.meshes[index])
+                for index, alone in enumerate(alones)]
+    artefacts = photo_artefacts([outputs for outputs, _ in outcomes])
+    if together is not None:
+        artefacts += several.several_artefacts(model, together, alones)
+    written = write_fit(out_dir, artefacts, photo_entry, PHOTO_DESCRIBED)
     for outputs, report in outcomes:
         report.folder = out_dir / outputs.folder if outputs.folder else out_dir
         report.written = [path for path in written
@@ -431,25 +440,41 @@ def _pose_camera(view: Any, points: torch.Tensor, iterations: int) -> Any:
                      keypoints=view.keypoints, visible=view.visible)
 
 
-def _fit_hand(model: Any, inputs: list[_PhotoInput], hands: list[PhotoHand], folder: str,
-              side: str, config: FitPhotoConfig, progress: bool, log: Callable[[str], None],
-              model_label: str) -> tuple[Any, PhotoFitReport]:
-    """Fit one hand to its photos -> (what to write, the report)."""
-    from ...geometry.pieces import drop_specks
-    from ...skeleton.wrist import wrist_plane
+@dataclass
+class _Alone:
+    """One hand fitted alone, before its files: what :func:`_hand_files` needs."""
+
+    folder: str
+    inputs: list[_PhotoInput]
+    hands: list[PhotoHand]
+    crops: list[Any]
+    coarse: list[np.ndarray]
+    method: str
+    side: str
+    side_source: str
+    result: Any
+    notes: list[str]
+    timings: dict[str, float]
+    began: float
+
+
+def _fit_alone(model: Any, inputs: list[_PhotoInput], hands: list[PhotoHand], folder: str,
+               side: str, config: FitPhotoConfig, progress: bool, log: Callable[[str], None],
+               model_label: str, masks: list[np.ndarray] | None = None) -> _Alone:
+    """Fit one hand to its photos, alone. masks: the hand's coarse mask per photo when already
+    made (several hands of one photo: split between them), else made here."""
     from ...utils.config import config_to_dict
     from ...utils.threads import cpu_threads
     from ..images.fit import fit_images
-    from ..images.folder import fitted_mesh, output_surface
     from ..stages import template_on
     from .inputs import crop_view
     from .mask import coarse_mask, mask_method
 
     began = time.perf_counter()
     notes: list[str] = []
-    coarse = [item.mask if item.mask is not None else coarse_mask(item.photo.image,
-                                                                  one.keypoints)
-              for item, one in zip(inputs, hands, strict=True)]
+    coarse = masks if masks is not None else [
+        item.mask if item.mask is not None else coarse_mask(item.photo.image, one.keypoints)
+        for item, one in zip(inputs, hands, strict=True)]
     method = "--mask" if all(item.mask is not None for item in inputs) else mask_method()
     if method == "keypoints":  # not an outline: the fit uses keypoints and colours only
         notes.append("mask: from the keypoints alone (OpenCV missing: pip install -e "
@@ -483,16 +508,41 @@ def _fit_hand(model: Any, inputs: list[_PhotoInput], hands: list[PhotoHand], fol
                              "side_source": side_source, "mask": method,
                              "keypoints": [one.source for one in hands]}
     params.extra["config"] = config_to_dict(config)  # the settings that fitted it
+    return _Alone(folder=folder, inputs=inputs, hands=hands, crops=crops, coarse=coarse,
+                  method=method, side=chosen, side_source=side_source, result=result,
+                  notes=notes, timings=timings, began=began)
+
+
+def alone_mesh(model: Any, alone: _Alone, config: FitPhotoConfig) -> Any:
+    """The mesh ``mesh.ply`` holds of a hand's fit (cut past its wrist, no specks) and what
+    was dropped: (mesh, specks)."""
+    from ...geometry.pieces import drop_specks
+    from ...skeleton.wrist import wrist_plane
+    from ..images.folder import fitted_mesh
+
+    params = alone.result.params
+    cut = None if config.wrist_clip_m is None else wrist_plane(params, config.wrist_clip_m)
+    return drop_specks(fitted_mesh(model, alone.result, config.mesh_resolution, cut))
+
+
+def _hand_files(model: Any, alone: _Alone, config: FitPhotoConfig, log: Callable[[str], None],
+                mesh: Any = None) -> tuple[Any, PhotoFitReport]:
+    """A hand's fit -> (what to write, the report). mesh: (mesh, specks) when already made."""
+    from ...utils.threads import cpu_threads
+    from ..images.folder import output_surface
+
+    inputs, hands, result, notes = alone.inputs, alone.hands, alone.result, alone.notes
+    params, timings = result.params, alone.timings
     outputs_began = time.perf_counter()
     with cpu_threads(config.fit.num_threads):
         guard = result.guard  # None when the colour stage did not run
         photos = [PhotoOfHand(photo=item.photo, camera=item.camera,
                               camera_source=item.camera_source, hand=one, crop=crop,
                               coarse=mask, refine=item.mask is None)
-                  for item, one, crop, mask in zip(inputs, hands, crops, coarse, strict=True)]
-        cut = None if config.wrist_clip_m is None else wrist_plane(params, config.wrist_clip_m)
-        mesh, specks = drop_specks(fitted_mesh(model, result, config.mesh_resolution, cut))
-        outputs = build_hand_outputs(model, params, photos, folder, mesh,
+                  for item, one, crop, mask in zip(inputs, hands, alone.crops, alone.coarse,
+                                                   strict=True)]
+        mesh, specks = alone_mesh(model, alone, config) if mesh is None else mesh
+        outputs = build_hand_outputs(model, params, photos, alone.folder, mesh,
                                      config.render_supersample, config.render_max_side)
         outputs.metrics["surface"] = output_surface(model, result, mesh, config.mesh_resolution,
                                                     config.wrist_clip_m)
@@ -501,17 +551,17 @@ def _fit_hand(model: Any, inputs: list[_PhotoInput], hands: list[PhotoHand], fol
             notes.append(specks.note("mesh.ply"))
     _consistency_notes(outputs, photos, config, notes)
     timings["seconds_outputs"] = time.perf_counter() - outputs_began
-    seconds = time.perf_counter() - began
+    seconds = time.perf_counter() - alone.began
     photo_notes = [f"{item.photo.path.name}: {note}" for item in inputs
                    for note in item.photo.notes]  # logged when read
-    outputs.metrics.update(_fit_metrics(result, guard, side_source, method, seconds, timings,
-                                        photo_notes + notes))
+    outputs.metrics.update(_fit_metrics(result, guard, alone.side_source, alone.method, seconds,
+                                        timings, photo_notes + notes))
     outputs.report = photo_report_html(outputs, photo_notes + notes)
     for note in notes:
         log(note)
     report = PhotoFitReport(
-        folder=Path(folder), photos=[item.photo.path for item in inputs], params=params,
-        side=chosen, side_source=side_source,
+        folder=Path(alone.folder), photos=[item.photo.path for item in inputs], params=params,
+        side=alone.side, side_source=alone.side_source,
         camera_sources=[item.camera_source for item in inputs],
         keypoint_error_px=[view.keypoint_error_px for view in outputs.views], guard=guard,
         seconds=seconds, metrics=outputs.metrics, notes=notes)

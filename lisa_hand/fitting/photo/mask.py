@@ -1,5 +1,6 @@
 """A hand mask for a photo: :func:`coarse_mask` from the 21 keypoints before the fit,
 :func:`refine_mask` with the fitted hand's silhouette after it.
+Several hands of one photo: :func:`split_masks` gives each pixel to one of them.
 
 Both work in a crop around the hand, downscaled to at most :data:`GRABCUT_MAX_SIDE` pixels
 (GrabCut's cost grows with the pixels; the mask is scaled back up), and measure every distance
@@ -54,6 +55,7 @@ __all__ = [
     "keypoint_mask",
     "coarse_mask",
     "refine_mask",
+    "split_masks",
 ]
 
 HAND_BONES = tuple((0 if index % 4 == 1 else index - 1, index)
@@ -392,3 +394,40 @@ def _paste(shape: tuple[int, int], box: tuple[int, int, int, int],
     mask = np.zeros(shape, dtype=bool)
     mask[y0:y1, x0:x1] = resize_array(small, (x1 - x0, y1 - y0))
     return mask
+
+
+def _bone_distance(pixels: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """[M] the distance, pixels, of pixel centres [M, 2] to the nearest bone of a hand's
+    keypoint skeleton [21, 2] (segments :data:`HAND_BONES`)."""
+    start = keypoints[[a for a, _ in HAND_BONES]]  # [20, 2]
+    along = keypoints[[b for _, b in HAND_BONES]] - start
+    length = np.maximum((along ** 2).sum(-1), 1e-9)
+    offset = pixels[:, None] - start[None]  # [M, 20, 2]
+    t = np.clip((offset * along[None]).sum(-1) / length[None], 0.0, 1.0)
+    return np.linalg.norm(offset - t[..., None] * along[None], axis=-1).min(axis=1)
+
+
+def split_masks(masks: list[np.ndarray], keypoints: list[np.ndarray]) -> list[np.ndarray]:
+    """Several hands' masks of one photo made exclusive: a pixel claimed by several goes to
+    the hand whose keypoint skeleton is nearest (in units of each hand's size,
+    :func:`hand_scale_px`, so that a large hand does not take a small one's pixels).
+
+    masks: K [H, W] bool. keypoints: K [21, 2] pixels. -> K [H, W] bool, no pixel in two."""
+    if len(masks) != len(keypoints):
+        raise ValueError(f"{len(masks)} masks for {len(keypoints)} hands")
+    if len(masks) < 2:
+        return [np.asarray(mask, bool).copy() for mask in masks]
+    stack = np.stack([np.asarray(mask, bool) for mask in masks])  # [K, H, W]
+    shared = stack.sum(0) > 1
+    rows, columns = np.nonzero(shared)
+    out = stack.copy()
+    if rows.size:
+        pixels = np.stack([columns + 0.5, rows + 0.5], axis=-1)
+        distance = np.stack([
+            _bone_distance(pixels, np.asarray(points, np.float64)) / hand_scale_px(points)
+            for points in keypoints])  # [K, M]
+        distance[~stack[:, rows, columns]] = np.inf
+        owner = distance.argmin(axis=0)
+        out[:, rows, columns] = False
+        out[owner, rows, columns] = True
+    return list(out)

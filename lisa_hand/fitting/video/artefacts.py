@@ -8,9 +8,10 @@ keyframe, with colours and skinning weights) and ``hand.glb`` (that surface in t
 skinned to the skeleton, with the clip's motion as an animation: :mod:`lisa_hand.data.gltf`).
 In ``DIR``: ``track.json`` (:func:`track_record`), ``overlay.mp4`` (the clip, at the size the
 fit worked at, with each hand's mesh posed by skinning in every frame and rendered over it:
-:class:`HandPoser`, :func:`lisa_hand.inference.mesh_render.render_mesh`), ``report.html`` and
-``metrics.json`` (:mod:`lisa_hand.fitting.video.report`). The overlay draws the mesh decimated
-to ``overlay_faces`` faces (the same picture, a quarter of the time).
+:class:`lisa_hand.inference.skinned.SkinnedMesh`,
+:func:`lisa_hand.inference.mesh_render.render_mesh`), ``report.html`` and ``metrics.json``
+(:mod:`lisa_hand.fitting.video.report`). The overlay draws the mesh decimated to
+``overlay_faces`` faces (the same picture, a quarter of the time).
 """
 
 from __future__ import annotations
@@ -19,49 +20,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
-from ...geometry.meshing import Mesh
-from ...skeleton.params import HandParams
+from ...inference.mesh_render import render_meshes_over
+from ...inference.skinned import SkinnedMesh
 from ..outputs import Artefact, json_artefact, mesh_artefact, params_artefact
 
-__all__ = ["VIDEO_FILES", "VIDEO_DESCRIBED", "HandPoser", "hand_folder", "track_record",
-           "render_frame", "video_artefacts", "video_entry"]
+__all__ = ["VIDEO_FILES", "VIDEO_DESCRIBED", "hand_folder", "track_record",
+           "video_artefacts", "video_entry"]
 
 VIDEO_FILES = ("params.json", "mesh.ply", "hand.glb", "track.json", "overlay.mp4",
                "report.html", "metrics.json")
 """The files a video fit writes (per hand or at the top)."""
-
-
-class HandPoser:
-    """A fitted hand's mesh moved to any pose by linear blend skinning: the mesh unposed once
-    (:func:`lisa_hand.inference.mesh.repose_mesh` to the zero pose), each pose then a forward
-    kinematics and a skinning. params: the hand the mesh was made from (either side).
-    max_faces: the mesh decimated to at most this many faces first
-    (:func:`lisa_hand.geometry.decimation.decimate_mesh`; None: as it is)."""
-
-    def __init__(self, mesh: Mesh, params: HandParams, max_faces: int | None = None) -> None:
-        from ...geometry.decimation import decimate_mesh
-        from ...inference.mesh import repose_mesh
-
-        self.params = params
-        if max_faces is not None:
-            mesh = decimate_mesh(mesh, max_faces)
-        self.rest = repose_mesh(mesh, params, torch.zeros(48), torch.zeros(3))
-        self._vertices = torch.from_numpy(self.rest.vertices).double()
-        self._weights = torch.from_numpy(self.rest.skin_weights).double()
-
-    def posed(self, pose: np.ndarray, translation: np.ndarray) -> Mesh:
-        """pose [48] radians, translation [3] metres -> the mesh in that pose."""
-        from ...skeleton import forward_kinematics, linear_blend_skinning
-
-        kinematics = forward_kinematics(torch.as_tensor(pose, dtype=torch.float64)[None],
-                                        self.params.rest_joints.double()[None],
-                                        torch.as_tensor(translation, dtype=torch.float64)[None])
-        vertices = linear_blend_skinning(self._vertices[None], self._weights,
-                                         kinematics.transforms)[0]
-        return Mesh(vertices=vertices.float().numpy(), faces=self.rest.faces,
-                    colors=self.rest.colors)
 
 
 def hand_folder(fit: Any, hand: Any) -> str:
@@ -111,69 +80,17 @@ def track_record(fit: Any) -> dict[str, Any]:
             "frames": frames}
 
 
-def _crop_camera(camera: Any, box: tuple[int, int, int, int]) -> Any:
-    """``camera`` restricted to the pixel box (x0, y0, x1, y1)."""
-    from ...geometry.cameras import Camera
-
-    x0, y0, x1, y1 = box
-    K = camera.K.clone()
-    K[0, 2] -= x0
-    K[1, 2] -= y0
-    return Camera(K=K, R=camera.R, t=camera.t, width=int(x1 - x0), height=int(y1 - y0))
-
-
-def render_frame(model: Any, rgb: np.ndarray, camera: Any, meshes: list[Mesh], alpha: float,
-                 supersample: int = 1, max_side: int | None = None) -> np.ndarray:
-    """``rgb`` [H, W, 3] uint8 with ``meshes`` (camera frame) rendered over it at opacity
-    ``alpha``, each only in the box its vertices project to, at most ``max_side`` pixels a side
-    there (then resized: a hand filling a 4K frame costs what a small one does; None: at the
-    frame's resolution) -> [H, W, 3] uint8."""
-    from PIL import Image
-
-    from ...inference.mesh_render import render_mesh
-    from ...inference.render import scale_camera
-
-    out = rgb.copy()  # only the boxes around the hands are blended, in floats
-    height, width = rgb.shape[:2]
-    K = camera.K.double().cpu().numpy()
-    for mesh in meshes:
-        points = mesh.vertices.astype(np.float64)
-        in_front = points[:, 2] > 1e-3
-        if not in_front.any():
-            continue
-        pixels = (points[in_front] @ K.T)[:, :2] / points[in_front, 2:]
-        x0, y0 = np.floor(pixels.min(0)).astype(int) - 2
-        x1, y1 = np.ceil(pixels.max(0)).astype(int) + 2
-        x0, y0, x1, y1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
-        if x1 - x0 < 2 or y1 - y0 < 2:
-            continue
-        box = _crop_camera(camera, (x0, y0, x1, y1))
-        factor = 1.0 if max_side is None else min(1.0, max_side / max(x1 - x0, y1 - y0))
-        small = scale_camera(box, max(int(round((x1 - x0) * factor)), 1),
-                             max(int(round((y1 - y0) * factor)), 1))
-        shown = render_mesh(model, mesh, small, supersample)
-        colour, cover = shown.rgb, shown.alpha
-        if small is not box:
-            colour = np.stack([np.asarray(Image.fromarray(colour[..., c]).resize(
-                (x1 - x0, y1 - y0), Image.BILINEAR)) for c in range(3)], -1)
-            cover = np.asarray(Image.fromarray(cover).resize((x1 - x0, y1 - y0),
-                                                             Image.BILINEAR))
-        region = out[y0:y1, x0:x1].astype(np.float32) / 255.0
-        blended = region * (1.0 - alpha * cover[..., None]) + colour * alpha
-        out[y0:y1, x0:x1] = np.clip(blended * 255.0 + 0.5, 0, 255).astype(np.uint8)
-    return out
-
-
 class OverlayFrames:
     """The frames of ``overlay.mp4``, rendered once: iterating reads the clip again and yields
-    each frame with the fitted hands over it (:func:`render_frame`), keeping those of the rows
+    each frame with the fitted hands over it
+    (:func:`lisa_hand.inference.mesh_render.render_meshes_over`), keeping those of the rows
     ``keep`` (the report's pictures); :meth:`frame` gives a kept one (or renders it alone)."""
 
     def __init__(self, fit: Any, model: Any, config: Any, keep: set[int],
                  progress: bool = False) -> None:
         self.fit, self.model, self.config, self.keep = fit, model, config, set(keep)
         self.progress = progress
-        self.posers = [HandPoser(hand.keyframe.mesh, hand.params, config.overlay_faces)
+        self.posers = [SkinnedMesh(hand.keyframe.mesh, hand.params, config.overlay_faces)
                        for hand in fit.hands]
         self.kept: dict[int, np.ndarray] = {}
 
@@ -182,8 +99,9 @@ class OverlayFrames:
         meshes = [poser.posed(hand.motion.pose[row], hand.motion.translation[row])
                   for hand, poser in zip(self.fit.hands, self.posers, strict=True)
                   if np.isfinite(hand.motion.pose[row]).all()]
-        return render_frame(self.model, rgb, self.fit.camera, meshes, self.config.overlay_alpha,
-                            self.config.overlay_supersample, self.config.overlay_max_side)
+        return render_meshes_over(self.model, rgb, self.fit.camera, meshes,
+                                  self.config.overlay_alpha, self.config.overlay_supersample,
+                                  self.config.overlay_max_side)
 
     def __iter__(self):
         from ..stages import progress_bar
@@ -208,7 +126,7 @@ class OverlayFrames:
         return self.kept[row]
 
 
-def _glb_artefact(name: str, poser: HandPoser, hand: Any, times: np.ndarray) -> Artefact:
+def _glb_artefact(name: str, poser: SkinnedMesh, hand: Any, times: np.ndarray) -> Artefact:
     fitted = np.isfinite(hand.motion.pose).all(-1)
 
     def write(path: Path) -> Path:
@@ -257,7 +175,7 @@ def video_artefacts(fit: Any, model: Any, config: Any, metrics: dict, progress: 
         prefix = f"{folder}/" if folder else ""
         artefacts += [params_artefact(hand.params, prefix + "params.json"),
                       mesh_artefact(hand.keyframe.mesh, prefix + "mesh.ply"),
-                      _glb_artefact(prefix + "hand.glb", HandPoser(hand.keyframe.mesh,
+                      _glb_artefact(prefix + "hand.glb", SkinnedMesh(hand.keyframe.mesh,
                                                                     hand.params), hand, fit.times)]
     return artefacts + [json_artefact("track.json", track_record(fit)),
                         json_artefact("metrics.json", metrics),

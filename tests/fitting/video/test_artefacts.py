@@ -12,11 +12,13 @@ import pytest
 import torch
 
 from lisa_hand.fitting.sides import mirror_hand
-from lisa_hand.fitting.video.artefacts import VIDEO_FILES, HandPoser, render_frame, video_entry
+from lisa_hand.fitting.video.artefacts import VIDEO_FILES, video_entry
 from lisa_hand.geometry.cameras import Camera
 from lisa_hand.geometry.meshing import Mesh
 from lisa_hand.handmodel.template import load_template
 from lisa_hand.inference.mesh import repose_mesh
+from lisa_hand.inference.mesh_render import render_meshes_over
+from lisa_hand.inference.skinned import SkinnedMesh
 from lisa_hand.skeleton import forward_kinematics, linear_blend_skinning, mirror_points
 from lisa_hand.skeleton.params import HandParams
 
@@ -71,7 +73,7 @@ def hand_mesh(side: str) -> tuple[Mesh, HandParams, torch.Tensor, torch.Tensor]:
 def test_poser_equals_repose_mesh_and_skinning(side):
     mesh, params, points, weights = hand_mesh(side)
     assert params.side == side
-    poser = HandPoser(mesh, params)
+    poser = SkinnedMesh(mesh, params)
     np.testing.assert_allclose(poser.rest.vertices, points.numpy(), atol=1e-5)  # unposed
     generator = torch.Generator().manual_seed(3)
     for _ in range(3):
@@ -109,7 +111,7 @@ def test_poser_of_a_decimated_mesh_moves_it_rigidly_with_its_bone():
     mesh = Mesh(vertices=sphere.vertices, faces=sphere.faces, colors=colors,
                 skin_weights=weights)
     assert len(mesh.faces) > 400
-    poser = HandPoser(mesh, params, max_faces=200)
+    poser = SkinnedMesh(mesh, params, max_faces=200)
     assert 0 < len(poser.rest.faces) <= 200
     assert (poser.rest.skin_weights[:, 0] == 1.0).all()
     original = {tuple(colour) for colour in colors.tolist()}
@@ -127,7 +129,7 @@ def test_poser_of_a_decimated_mesh_moves_it_rigidly_with_its_bone():
     expected = (torch.from_numpy(kept).double() - old[:3, 3]) @ rotation.T + new[:3, 3]
     np.testing.assert_allclose(moved.vertices, expected.numpy(), atol=1e-5)
     np.testing.assert_array_equal(moved.faces, poser.rest.faces)
-    assert HandPoser(mesh, params, max_faces=10 ** 6).rest.faces.shape == mesh.faces.shape
+    assert SkinnedMesh(mesh, params, max_faces=10 ** 6).rest.faces.shape == mesh.faces.shape
 
 
 def test_video_entry(tmp_path):
@@ -176,6 +178,6 @@ def test_render_frame_without_a_drawable_hand_returns_the_frame():
     aside = Mesh(vertices=[[5.0, 0.0, 1.0], [5.1, 0.0, 1.0], [5.0, 0.1, 1.0]], faces=[[0, 1, 2]])
     for meshes in ([], [behind], [aside], [behind, aside]):
         # The model is never reached: a model=None would raise if it were.
-        out = render_frame(None, rgb, camera, meshes, alpha=0.75)
+        out = render_meshes_over(None, rgb, camera, meshes, alpha=0.75)
         assert out.dtype == np.uint8 and out.shape == rgb.shape
         np.testing.assert_array_equal(out, rgb)

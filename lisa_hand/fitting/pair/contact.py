@@ -1,0 +1,115 @@
+"""Where hands meet: each hand as a body the others must not enter (:class:`HandBody`), and
+how deep they do (:func:`penetration_depths`).
+
+A hand is LISA's field of its right hand (a left hand is fitted as its mirror image, as every
+fitter does: :mod:`lisa_hand.fitting.sides`), so its inside is known everywhere at once: the
+field's SDF at another hand's surface points says which of them are inside it and how deep.
+A hand's surface points are the vertices of its fitted mesh, skinned to its pose
+(:class:`lisa_hand.inference.skinned.SkinnedMesh`), so both are differentiable in both hands'
+poses, translations and (for the field) shape codes. Points outside a hand's bone regions
+(its box, :func:`lisa_hand.model.frame.region_bounds`) are outside it and cost no network.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from ...geometry.meshing import Mesh
+from ...skeleton import mirror_points
+from ...skeleton.params import HandParams
+from ..sides import mirror_hand
+
+__all__ = ["HandBody", "mirror_mesh", "penetration_depths"]
+
+
+def mirror_mesh(mesh: Mesh) -> Mesh:
+    """The mirror image of a mesh through x = 0 (faces reversed, so they still face out)."""
+    vertices = mesh.vertices.copy()
+    vertices[:, 0] *= -1.0
+    return Mesh(vertices=vertices, faces=np.ascontiguousarray(mesh.faces[:, ::-1]),
+                colors=mesh.colors, skin_weights=mesh.skin_weights)
+
+
+@dataclass
+class HandBody:
+    """One hand as the joint fit moves it: its RIGHT hand's parameters (``right``: a left
+    hand's mirror image), whether the world sees it mirrored (``flip``), its surface (the
+    right hand's mesh, skinned) and the rows of the surface samples."""
+
+    right: HandParams
+    flip: bool
+    surface: object
+    rows: torch.Tensor
+
+    @classmethod
+    def of(cls, params: HandParams, mesh: Mesh, samples: int, seed: int) -> HandBody:
+        """A hand (either side, world frame) and its mesh (with skinning weights, world) ->
+        its body with ``samples`` surface samples (a fixed random subset of the vertices)."""
+        from ...inference.skinned import SkinnedMesh
+
+        flip = params.side == "left"
+        right = mirror_hand(params) if flip else params
+        surface = SkinnedMesh(mirror_mesh(mesh) if flip else mesh, right)
+        count = surface.rest_vertices.shape[0]
+        generator = torch.Generator().manual_seed(seed)
+        rows = torch.randperm(count, generator=generator)[:min(samples, count)]
+        return cls(right=right, flip=flip, surface=surface, rows=rows)
+
+    def to_world(self, points: torch.Tensor) -> torch.Tensor:
+        """Points of the right hand's frame [..., 3] -> the world's (mirrored for a left hand);
+        its own inverse."""
+        return mirror_points(points) if self.flip else points
+
+    def surface_points(self, pose: torch.Tensor, translation: torch.Tensor,
+                       every: bool = False) -> torch.Tensor:
+        """The surface samples (every vertex with ``every``) in the world [S, 3] metres, float64,
+        for the right hand's ``pose`` [48] and ``translation`` [3]."""
+        rows = None if every else self.rows
+        points = self.surface.vertices(pose.double()[None], translation.double()[None], rows)[0]
+        return self.to_world(points)
+
+    def sdf(self, model: object, pose: torch.Tensor, translation: torch.Tensor,
+            shape_code: torch.Tensor, points: torch.Tensor, margin_m: float = 0.01
+            ) -> torch.Tensor:
+        """This hand's SDF at world ``points`` [N, 3] -> [N] metres (negative inside), for the
+        right hand's ``pose`` [48], ``translation`` [3] and ``shape_code`` [D]; points beyond
+        ``margin_m`` of its bone regions' box get the distance to that box (outside, no
+        network)."""
+        from ...model.frame import region_bounds
+
+        field = model.field
+        dtype = next(field.parameters()).dtype
+        state = field.prepare(pose.to(dtype)[None], translation.to(dtype)[None],
+                              self.right.rest_joints.to(dtype)[None], shape_code.to(dtype)[None],
+                              None if model.color_codes is None
+                              else self.right.color_code.to(dtype)[None])
+        local = self.to_world(points).to(dtype)
+        low, high = region_bounds(state, field)
+        outside = (torch.relu(low[0] - margin_m - local) + torch.relu(local - high[0] - margin_m))
+        far = outside.norm(dim=-1)
+        near = far == 0
+        sdf = far + margin_m
+        if bool(near.any()):
+            sdf = sdf.clone()
+            sdf[near] = field.field(state, local[near][None], with_color=False).sdf[0].reshape(-1)
+        return sdf
+
+
+@torch.no_grad()
+def penetration_depths(model: object, bodies: list[HandBody]) -> np.ndarray:
+    """[K, K] millimetres: entry (a, b) the deepest point of hand a's whole surface (every
+    vertex) inside hand b (0 when none is; the diagonal 0), at the bodies' own parameters."""
+    count = len(bodies)
+    depths = np.zeros((count, count))
+    for a, body in enumerate(bodies):
+        points = body.surface_points(body.right.pose, body.right.translation, every=True)
+        for b, other in enumerate(bodies):
+            if a == b:
+                continue
+            sdf = other.sdf(model, other.right.pose, other.right.translation,
+                            other.right.shape_code, points)
+            depths[a, b] = 1000.0 * float(torch.relu(-sdf).max()) if len(sdf) else 0.0
+    return depths
