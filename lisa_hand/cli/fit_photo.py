@@ -36,7 +36,8 @@ def fit_photo(
     out: Annotated[Path, typer.Option(
         "--out", help="Output folder: params.json, mesh.ply, keypoints.json, camera.json, "
                       "mask.png, overlay.png, report.html, metrics.json (DIR/handN/ per hand "
-                      "when a photo holds several).")],
+                      "when a photo holds several, fitted alone and then together, with "
+                      "DIR/hands.json, hands.ply and overlay.png of all).")],
     side: Annotated[AutoSide, typer.Option(
         "--side", help="auto (the detector's side; else both are tried), right or left.")
     ] = AutoSide.auto,
@@ -89,7 +90,10 @@ def fit_photo(
     '.[photo]'; or give them with --keypoints), choose the camera (--camera, --focal-px,
     --fov, EXIF, or a default field of view), mask the hand, fit pose, shape and colour, and
     write OUT/params.json, mesh.ply, keypoints.json (2D detected and fitted in the photo's
-    pixels, 3D in the camera frame), camera.json, mask.png, overlay.png and report.html."""
+    pixels, 3D in the camera frame), camera.json, mask.png, overlay.png and report.html.
+    Several hands in one photo are each fitted alone, then together so that they touch
+    without passing through each other (--set joint.iters=0: alone only); OUT/hands.json
+    gives their sides, the right-to-left wrist offset and the deepest penetration."""
     from ..fitting.photo.fit import FitPhotoConfig, fit_photo_folder, photo_fit_defaults
 
     overrides = image_fit_overrides(seed=seed, threads=threads, shape_fit=shape_fit,

@@ -287,6 +287,8 @@ def fit_photo_folder(
     if together is not None:
         artefacts += several.several_artefacts(model, together, alones)
     written = write_fit(out_dir, artefacts, photo_entry, PHOTO_DESCRIBED)
+    if together is not None:
+        log("all hands: " + ", ".join(str(path) for path in written if path.parent == out_dir))
     for outputs, report in outcomes:
         report.folder = out_dir / outputs.folder if outputs.folder else out_dir
         report.written = [path for path in written
