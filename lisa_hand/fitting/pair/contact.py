@@ -4,10 +4,12 @@ how deep they do (:func:`penetration_depths`).
 A hand is LISA's field of its right hand (a left hand is fitted as its mirror image, as every
 fitter does: :mod:`lisa_hand.fitting.sides`), so its inside is known everywhere at once: the
 field's SDF at another hand's surface points says which of them are inside it and how deep.
-A hand's surface points are the vertices of its fitted mesh, skinned to its pose
-(:class:`lisa_hand.inference.skinned.SkinnedMesh`), so both are differentiable in both hands'
-poses, translations and (for the field) shape codes. Points outside a hand's bone regions
-(its box, :func:`lisa_hand.model.frame.region_bounds`) are outside it and cost no network.
+A hand's surface points are the vertices of its fitted mesh (decimated to ``max_faces``, then
+moved onto the field's own zero level: marching cubes leaves them up to a millimetre inside it),
+skinned to its pose (:class:`lisa_hand.inference.skinned.SkinnedMesh`), so both are
+differentiable in both hands' poses, translations and (for the field) shape codes. Points
+outside a hand's bone regions (its box, :func:`lisa_hand.model.frame.region_bounds`) are outside
+it and cost no network.
 """
 
 from __future__ import annotations
@@ -45,18 +47,38 @@ class HandBody:
     rows: torch.Tensor
 
     @classmethod
-    def of(cls, params: HandParams, mesh: Mesh, samples: int, seed: int) -> HandBody:
+    def of(cls, model: object, params: HandParams, mesh: Mesh, samples: int, seed: int,
+           max_faces: int = 8000) -> HandBody:
         """A hand (either side, world frame) and its mesh (with skinning weights, world) ->
-        its body with ``samples`` surface samples (a fixed random subset of the vertices)."""
+        its body with ``samples`` surface samples (a fixed random subset of the vertices of the
+        mesh decimated to ``max_faces`` and moved onto the field's zero level)."""
+        from ...geometry.decimation import decimate_mesh
         from ...inference.skinned import SkinnedMesh
 
         flip = params.side == "left"
         right = mirror_hand(params) if flip else params
-        surface = SkinnedMesh(mirror_mesh(mesh) if flip else mesh, right)
+        mesh = decimate_mesh(mirror_mesh(mesh) if flip else mesh, max_faces)
+        body = cls(right=right, flip=False, surface=None, rows=torch.zeros(0, dtype=torch.long))
+        snapped = body.onto_surface(model, torch.as_tensor(mesh.vertices, dtype=torch.float64))
+        surface = SkinnedMesh(Mesh(vertices=snapped.numpy(), faces=mesh.faces,
+                                   colors=mesh.colors, skin_weights=mesh.skin_weights), right)
         count = surface.rest_vertices.shape[0]
         generator = torch.Generator().manual_seed(seed)
         rows = torch.randperm(count, generator=generator)[:min(samples, count)]
         return cls(right=right, flip=flip, surface=surface, rows=rows)
+
+    def onto_surface(self, model: object, points: torch.Tensor, steps: int = 2) -> torch.Tensor:
+        """World points [N, 3] near the hand moved onto its field's zero level (Newton steps
+        along the SDF's gradient, at the body's own parameters) -> [N, 3] float64."""
+        right = self.right
+        for _ in range(steps):
+            moving = points.detach().clone().requires_grad_(True)
+            sdf = self.sdf(model, right.pose, right.translation, right.shape_code, moving)
+            (gradient,) = torch.autograd.grad(sdf.sum(), moving)
+            gradient = gradient.double()
+            step = sdf.detach().double() / gradient.square().sum(-1).clamp_min(1e-6)
+            points = moving.detach() - step[:, None] * gradient
+        return points.detach()
 
     def to_world(self, points: torch.Tensor) -> torch.Tensor:
         """Points of the right hand's frame [..., 3] -> the world's (mirrored for a left hand);

@@ -64,7 +64,7 @@ def fit_together(model: Any, alones: list[Any], config: Any, progress: bool,
     results are replaced in place by the joint fit's -> :class:`Together`."""
     from ...utils.threads import cpu_threads
     from ..pair.contact import HandBody, penetration_depths
-    from ..pair.joint import HandInPhoto, fit_hands_together
+    from ..pair.joint import HandView, JointHand, fit_hands_together
     from ..stages import template_on
     from .fit import alone_mesh
 
@@ -73,19 +73,18 @@ def fit_together(model: Any, alones: list[Any], config: Any, progress: bool,
         meshes = [alone_mesh(model, alone, config) for alone in alones]
         report = None
         if config.joint.iters > 0:
-            hands = [HandInPhoto(params=alone.result.params, mesh=mesh,
-                                 keypoints=alone.hands[0].keypoints,
-                                 visible=alone.hands[0].visible, mask=alone.coarse[0])
-                     for alone, (mesh, _) in zip(alones, meshes, strict=True)]
+            K = alones[0].inputs[0].camera.K
+            hands = [JointHand(params=alone.result.params, mesh=mesh, views=(HandView(
+                K=K, keypoints=alone.hands[0].keypoints, visible=alone.hands[0].visible,
+                mask=alone.coarse[0]),)) for alone, (mesh, _) in zip(alones, meshes, strict=True)]
             template = template_on(None, torch.device("cpu"))
-            fitted, report = fit_hands_together(model, hands, alones[0].inputs[0].camera.K,
-                                                template, config.joint, progress)
+            fitted, report = fit_hands_together(model, hands, template, config.joint, progress)
             for alone, params in zip(alones, fitted, strict=True):
                 params.extra["joint"] = report.to_dict()
                 alone.result = dataclasses.replace(alone.result, params=params,
                                                    surface_meshes={})
             meshes = [alone_mesh(model, alone, config) for alone in alones]
-        bodies = [HandBody.of(alone.result.params, mesh, 1, 0)
+        bodies = [HandBody.of(model, alone.result.params, mesh, 1, 0)
                   for alone, (mesh, _) in zip(alones, meshes, strict=True)]
         depths = penetration_depths(model, bodies)
     if report is not None:

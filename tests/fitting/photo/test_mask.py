@@ -15,6 +15,7 @@ from lisa_hand.fitting.photo.mask import (
     keypoint_mask,
     mask_method,
     refine_mask,
+    split_masks,
 )
 from lisa_hand.handmodel.poses import named_pose
 from lisa_hand.handmodel.template import load_template
@@ -159,3 +160,98 @@ def test_bad_input_is_refused():
         coarse_mask(picture["image"][..., 0], picture["keypoints"])
     with pytest.raises(ValueError, match="must agree"):
         refine_mask(picture["image"], picture["silhouette"], picture["silhouette"][:10])
+
+
+# ------------------------------------------------------------------------------------------------
+# Several hands' masks made exclusive (split_masks).
+
+
+def skeleton_distance(pixels: np.ndarray, keypoints: np.ndarray) -> np.ndarray:
+    """[M] distance, pixels, of pixel centres [M, 2] to a keypoint skeleton [21, 2] (the bones
+    of HAND_BONES), from 2001 points along each bone (the reference; error < 0.05 px here)."""
+    along = np.linspace(0.0, 1.0, 2001)[:, None]
+    points = np.concatenate([keypoints[a] + along * (keypoints[b] - keypoints[a])
+                             for a, b in HAND_BONES])
+    from scipy.spatial import cKDTree
+
+    return cKDTree(points).query(pixels)[0]
+
+
+def disc(shape: tuple[int, int], centre: np.ndarray, radius: float) -> np.ndarray:
+    rows, columns = np.indices(shape)
+    return (columns + 0.5 - centre[0]) ** 2 + (rows + 0.5 - centre[1]) ** 2 <= radius ** 2
+
+
+def check_split(masks: list[np.ndarray], split: list[np.ndarray]) -> None:
+    """No pixel in two masks, the union kept, and each pixel given to a hand that claimed it
+    (a pixel claimed by one hand stays its own)."""
+    stack, parts = np.stack(masks), np.stack(split)
+    assert parts.dtype == bool and parts.shape == stack.shape
+    assert (parts.sum(0) <= 1).all()
+    np.testing.assert_array_equal(parts.any(0), stack.any(0))
+    assert not (parts & ~stack).any()
+    alone = stack.sum(0) == 1
+    np.testing.assert_array_equal(parts[:, alone], stack[:, alone])
+
+
+def test_split_masks_gives_an_overlap_pixel_to_the_nearer_skeleton():
+    keypoints = hand_picture("relaxed")["keypoints"]
+    hands = [keypoints, keypoints + [45.0, 10.0]]  # two hands of one size, side by side
+    shape = (240, 260)
+    masks = [disc(shape, points.mean(0), 75.0) for points in hands]
+    shared = masks[0] & masks[1]
+    assert shared.sum() > 5000
+    split = split_masks(masks, hands)
+    check_split(masks, split)
+    rows, columns = np.nonzero(shared)
+    pixels = np.stack([columns + 0.5, rows + 0.5], axis=1)
+    distance = np.stack([skeleton_distance(pixels, points) for points in hands])
+    clear = np.abs(distance[0] - distance[1]) > 0.1  # not a tie within the reference's error
+    owner = np.stack(split)[:, rows, columns].argmax(0)
+    np.testing.assert_array_equal(owner[clear], distance.argmin(0)[clear])
+    assert 0.2 < owner.mean() < 0.8  # both hands get part of the overlap
+
+
+def test_split_masks_measures_in_each_hands_size():
+    """A hand half the size of the other: an overlap pixel goes to it only when it is nearer
+    than half the large hand's distance (so the large hand does not take the small one's
+    pixels)."""
+    keypoints = hand_picture("relaxed")["keypoints"]
+    small = 0.5 * keypoints + [95.0, 70.0]
+    hands = [keypoints, small]
+    assert hand_scale_px(small) == pytest.approx(0.5 * hand_scale_px(keypoints))
+    shape = (240, 260)
+    masks = [disc(shape, keypoints.mean(0), 75.0), disc(shape, small.mean(0), 45.0)]
+    split = split_masks(masks, hands)
+    check_split(masks, split)
+    rows, columns = np.nonzero(masks[0] & masks[1])
+    pixels = np.stack([columns + 0.5, rows + 0.5], axis=1)
+    large_distance = skeleton_distance(pixels, keypoints)
+    small_distance = skeleton_distance(pixels, small)
+    clear = np.abs(large_distance - 2.0 * small_distance) > 0.2
+    to_small = split[1][rows, columns]
+    np.testing.assert_array_equal(to_small[clear], (2.0 * small_distance < large_distance)[clear])
+    # Some pixels nearer the small hand's skeleton still go to the large hand.
+    assert (~to_small & (small_distance < large_distance - 1.0)).sum() > 50
+    assert to_small.sum() > 50
+
+
+def test_split_masks_of_three_hands_and_of_one():
+    keypoints = hand_picture("flat")["keypoints"]
+    hands = [keypoints, keypoints + [40.0, 0.0], keypoints + [20.0, 30.0]]
+    shape = (240, 260)
+    masks = [disc(shape, points.mean(0), 70.0) for points in hands]
+    assert (np.stack(masks).sum(0) == 3).sum() > 1000
+    check_split(masks, split_masks(masks, hands))
+    # Hands whose masks do not meet keep them.
+    apart = [disc(shape, keypoints.mean(0), 30.0), disc(shape, keypoints.mean(0) + 80.0, 30.0)]
+    for got, mask in zip(split_masks(apart, [keypoints, keypoints + 80.0]), apart, strict=True):
+        np.testing.assert_array_equal(got, mask)
+    # One hand: its mask back (a copy), bool.
+    alone = masks[0].astype(np.uint8)
+    (got,) = split_masks([alone], [keypoints])
+    assert got.dtype == bool and got is not alone
+    np.testing.assert_array_equal(got, masks[0])
+    assert split_masks([], []) == []
+    with pytest.raises(ValueError, match="2 masks for 1 hands"):
+        split_masks(masks[:2], hands[:1])

@@ -1,0 +1,210 @@
+"""A scan of several hands that may touch (``lisa fit-points --hands N``): the points split
+between the hands by the hands' own fits, not only by connected pieces (:func:`fit_scan_hands`).
+
+Two clasped hands are one connected piece, so :func:`.others.split_hands` cannot tell them
+apart. Here the hand points (the scan without a support plane) are first split into N parts
+(:func:`initial_split`: a guess; where the hands meet it is wrong), each part is fitted as a
+hand (:func:`.fit.fit_points`, side "auto"), and then every point goes to the fitted hand whose
+surface is nearest (each hand's field's ``|SDF|`` at the point,
+:meth:`lisa_hand.fitting.pair.contact.HandBody.sdf`; points farther than ``far_mm`` from every
+hand are left out). The parts are fitted again from that split (``config.rounds`` times), and
+finally all hands are refined together (:func:`lisa_hand.fitting.pair.joint.fit_hands_together`:
+each hand's field at its own points, and at the other hands' surfaces: touching, not
+overlapping); the split is made once more from the result.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+
+from ...skeleton.params import HandParams
+from ..pair.config import JointConfig
+
+__all__ = ["ScanHandsConfig", "ScanHands", "kmeans_split", "initial_split", "assign_points",
+           "fit_scan_hands"]
+
+
+@dataclass(frozen=True)
+class ScanHandsConfig:
+    """How :func:`fit_scan_hands` splits and fits a scan of several hands."""
+
+    rounds: int = 1
+    """Fits of every hand again after the points were split by the previous fits."""
+    far_mm: float = 15.0
+    """Points farther than this from every fitted hand's surface belong to none."""
+    joint: JointConfig = field(default_factory=JointConfig)
+    """The joint fit of all hands at the end (``joint.iters=0``: none)."""
+    mesh_resolution: int = 64
+    """Marching-cubes samples a side of the meshes whose vertices are the joint fit's surface
+    samples."""
+
+    def __post_init__(self) -> None:
+        if isinstance(self.rounds, bool) or not isinstance(self.rounds, int) or self.rounds < 0:
+            raise ValueError(f"rounds must be an integer >= 0, got {self.rounds!r}")
+        if not self.far_mm > 0:
+            raise ValueError(f"far_mm must be positive, got {self.far_mm!r}")
+
+
+@dataclass
+class ScanHands:
+    """What :func:`fit_scan_hands` found: each hand (world metres, its own side), which hand
+    each input point belongs to (``labels`` [N]: -1 none), each hand's last
+    :class:`.fit.FitResult` alone, and the joint fit's report (None when it did not run)."""
+
+    hands: list[HandParams]
+    labels: np.ndarray
+    fits: list[Any]
+    joint: Any
+    seconds: float
+
+
+def _spread(points: np.ndarray) -> float:
+    """The area of ``points`` [N, 3] across its two longest principal axes, m^2 (the extents
+    between the 2nd and 98th percentiles: a few stray points do not count). A whole hand is
+    long and wide; half of two hands (their fingers, or their thumb sides) is not."""
+    centred = points - points.mean(0)
+    _, _, axes = np.linalg.svd(centred[:: max(1, len(points) // 4000)], full_matrices=False)
+    along = centred @ axes[:2].T
+    extent = np.percentile(along, 98, axis=0) - np.percentile(along, 2, axis=0)
+    return float(extent[0] * extent[1])
+
+
+def initial_split(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
+    """[N] labels 0..count-1: a first guess of which hand each point belongs to. Candidates:
+    k-means on the positions, and (two hands) the points cut in half by the median plane across
+    each principal axis; kept: the one whose smallest part spreads widest (:func:`_spread`: each
+    part should be a whole hand, not two hands' fingers and two hands' palms, which is how
+    k-means cuts two flat hands lying palm to palm)."""
+    points = np.asarray(points, np.float64)
+    if count < 1 or len(points) < count:
+        raise ValueError(f"cannot split {len(points)} points into {count} hands")
+    candidates = [kmeans_split(points, count, seed)]
+    if count == 2:
+        centred = points - points.mean(0)
+        _, _, axes = np.linalg.svd(centred[:: max(1, len(points) // 4000)], full_matrices=False)
+        for axis in axes:
+            along = centred @ axis
+            candidates.append((along > np.median(along)).astype(np.int64))
+    return max(candidates, key=lambda labels: min(_spread(points[labels == k])
+                                                  for k in range(count)))
+
+
+def kmeans_split(points: np.ndarray, count: int, seed: int = 0, tries: int = 8,
+                 iterations: int = 30) -> np.ndarray:
+    """[N] labels 0..count-1: k-means of ``points`` [N, 3], the lowest-inertia of ``tries``
+    starts (k-means++ seeding from ``seed``)."""
+    points = np.asarray(points, np.float64)
+    if count < 1 or len(points) < count:
+        raise ValueError(f"cannot split {len(points)} points into {count} hands")
+    rng = np.random.default_rng(seed)
+    best, best_inertia = None, np.inf
+    for _ in range(tries):
+        centres = [points[rng.integers(len(points))]]
+        for _ in range(count - 1):
+            distance = np.min([((points - c) ** 2).sum(1) for c in centres], axis=0)
+            centres.append(points[rng.choice(len(points), p=distance / distance.sum())])
+        centres = np.stack(centres)
+        for _ in range(iterations):
+            labels = ((points[:, None] - centres[None]) ** 2).sum(-1).argmin(1)
+            moved = np.stack([points[labels == k].mean(0) if (labels == k).any() else centres[k]
+                              for k in range(count)])
+            if np.allclose(moved, centres):
+                break
+            centres = moved
+        inertia = ((points - centres[labels]) ** 2).sum()
+        if inertia < best_inertia:
+            best, best_inertia = labels, inertia
+    return best
+
+
+@torch.no_grad()
+def assign_points(model: Any, hands: list[HandParams], points: np.ndarray, far_mm: float
+                  ) -> np.ndarray:
+    """[N] the hand whose surface is nearest each point (its field's ``|SDF|``), -1 where every
+    hand's is farther than ``far_mm``. hands: either side, world metres."""
+    from ..pair.contact import HandBody
+
+    cloud = torch.as_tensor(np.asarray(points), dtype=torch.float64)
+    distances = []
+    for hand in hands:
+        body = HandBody(right=_right(hand), flip=hand.side == "left", surface=None,
+                        rows=torch.zeros(0, dtype=torch.long))
+        sdf = body.sdf(model, body.right.pose, body.right.translation, body.right.shape_code,
+                       cloud, margin_m=far_mm / 1000.0)
+        distances.append(sdf.abs().double().numpy())
+    distances = np.stack(distances)  # [K, N] metres
+    labels = distances.argmin(0)
+    labels[distances.min(0) > far_mm / 1000.0] = -1
+    return labels
+
+
+def _right(hand: HandParams) -> HandParams:
+    from ..sides import mirror_hand
+
+    return mirror_hand(hand) if hand.side == "left" else hand
+
+
+def _fit_parts(model: Any, points: np.ndarray, labels: np.ndarray, count: int, config: Any,
+               sensor: np.ndarray | None, side: str, progress: bool,
+               log: Callable[[str], None]) -> list[Any]:
+    from .fit import fit_points
+
+    fits = []
+    for index in range(count):
+        part = points[labels == index]
+        if len(part) < config.min_points:
+            raise ValueError(f"hand {index} of {count} has {len(part)} points after the split "
+                             f"(at least {config.min_points} needed): does the scan hold "
+                             f"{count} hands?")
+        fits.append(fit_points(model, part, None, config, side=side,
+                               viewpoint=None if sensor is None else sensor,
+                               progress=progress))
+        log(f"hand {index}: {len(part)} points, a {fits[-1].params.side} hand, residual "
+            f"{fits[-1].residual_median_mm:.1f} mm (median)")
+    return fits
+
+
+def fit_scan_hands(model: Any, points: np.ndarray, count: int, config: Any = None,
+                   hands_config: ScanHandsConfig | None = None, *, side: str = "auto",
+                   sensor: np.ndarray | None = None, progress: bool = False,
+                   log: Callable[[str], None] | None = None) -> ScanHands:
+    """Fit ``count`` >= 2 hands to the hand points of one scan (module docstring).
+
+    points: [N, 3] world metres (a support plane and other objects already left out).
+    config: the point fit's :class:`.fit.FitPointsConfig` for each hand. side: each hand's
+    side ("auto": both tried per hand). sensor: [3] metres, a one-view scan's sensor position.
+    """
+    import time
+
+    from ...inference import mesh_hand
+    from ..pair.joint import JointHand, fit_hands_together
+    from ..stages import template_on
+    from .fit import FitPointsConfig
+
+    began = time.perf_counter()
+    log = log or (lambda line: None)
+    config = FitPointsConfig() if config is None else config
+    hands_config = ScanHandsConfig() if hands_config is None else hands_config
+    points = np.asarray(points, np.float64)
+    labels = initial_split(points, count, config.seed)
+    fits = _fit_parts(model, points, labels, count, config, sensor, side, progress, log)
+    for _ in range(hands_config.rounds):
+        labels = assign_points(model, [fit.params for fit in fits], points, hands_config.far_mm)
+        fits = _fit_parts(model, points, labels, count, config, sensor, side, progress, log)
+    hands = [fit.params for fit in fits]
+    labels = assign_points(model, hands, points, hands_config.far_mm)
+    report = None
+    if hands_config.joint.iters > 0:
+        joint = [JointHand(params=hand, mesh=mesh_hand(model, hand, hands_config.mesh_resolution),
+                           points=points[labels == index])
+                 for index, hand in enumerate(hands)]
+        hands, report = fit_hands_together(model, joint, template_on(None, torch.device("cpu")),
+                                           hands_config.joint, progress)
+        labels = assign_points(model, hands, points, hands_config.far_mm)
+    return ScanHands(hands=hands, labels=labels, fits=fits, joint=report,
+                     seconds=time.perf_counter() - began)
