@@ -61,6 +61,12 @@ HandOpt = Annotated[int | None, typer.Option(
     help="For a scan of several hands apart from each other (both hands, two people's): fit "
          "only hand N (0 = the one with the most points) into OUT; default: every hand, into "
          "OUT/hand0, OUT/hand1, ...")]
+HandsOpt = Annotated[int | None, typer.Option(
+    "--hands", min=2, metavar="N",
+    help="The scan holds N hands that may touch (clasped, crossed, one holding the other): the "
+         "points are split between them by their fits, the hands fitted together so that they "
+         "touch without overlapping, into OUT/hand0, OUT/hand1, ... with OUT/hands.json (sides, "
+         "right-to-left wrist offset, deepest penetration) and OUT/hands.ply.")]
 CameraOpt = Annotated[Path | None, typer.Option(
     "--camera", metavar="CAM.json",
     help="For a depth image: the camera that took it (cameras.json convention: K, width, "
@@ -124,6 +130,7 @@ def fit_points(
     support: SupportOpt = "auto",
     others: OthersOpt = "auto",
     hand: HandOpt = None,
+    hands: HandsOpt = None,
     camera: CameraOpt = None,
     depth_scale: DepthScaleOpt = 0.001,
     mask: MaskOpt = None,
@@ -154,12 +161,31 @@ def fit_points(
         refine_config = RefineConfig(seed=config.seed, **({} if refine_iters is None
                                                    else {"iters": refine_iters}))
     depth, side = _depth_frame(points, camera, depth_scale, mask, rgb, side)
+    if hands is not None:
+        _fit_together(points, out, hands, hand=hand, gt=gt, refine=refine, model_path=model,
+                      units=units.value, viewpoint=view, support=support_mode, depth=depth,
+                      resolution=res, config=config, device=device, side=side.value,
+                      progress=progress)
+        return
     count = 1 if hand is not None else count_hands(points, units.value, config, depth,
                                                    support_mode)
     _fit_each(points, out, count, hand, model_path=model, gt_path=gt,
               units=units.value, refine=refine_config, viewpoint=view, support=support_mode,
               others=others_mode, depth=depth, resolution=res, config=config, device=device,
               side=side.value, progress=progress, log=typer.echo, colours=colour_mode)
+
+
+def _fit_together(points: Path, out: Path, count: int, *, hand, gt, refine, **options):
+    """``--hands N``: the hands of the scan fitted together
+    (:func:`lisa_hand.fitting.points.io.fit_hands_file`)."""
+    from ..fitting.points.io import fit_hands_file
+
+    for name, value in (("--hand", hand), ("--gt", gt), ("--refine", refine or None)):
+        if value is not None:
+            raise ValueError(f"--hands {count} fits every hand of the scan together; {name} is "
+                             "for one hand: leave it out, or fit one hand with --hand N")
+    for path in fit_hands_file(points, out, count, log=typer.echo, **options):
+        typer.echo(f"wrote {path}")
 
 
 def _fit_each(points: Path, out: Path, count: int, hand: int | None, **options):

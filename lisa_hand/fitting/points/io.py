@@ -419,3 +419,91 @@ def _refined(model, fit, cloud: PointCloud, side: str, config, progress: bool, l
     fit.params.extra["refine"] = {"seconds": report.seconds, "mean_abs_sdf_before_mm": before,
                                   "mean_abs_sdf_after_mm": after}
     return refined, report
+
+
+# ---------------------------------------------------------------------------------------------
+# A scan of several hands that may touch (``lisa fit-points --hands N``)
+
+
+def _hands_entry(path: Path) -> bool:
+    """What a fit of several hands leaves in its folder: ``hands.json``, ``hands.ply`` and
+    ``handN/`` folders of a point fit's files."""
+    from ..outputs.folder import FIT_FILES
+
+    if path.is_symlink():
+        return False
+    if path.is_file():
+        return path.name in ("hands.json", "hands.ply")
+    return (path.is_dir() and path.name.startswith("hand") and path.name[4:].isdigit()
+            and all(entry.is_file() and entry.name in FIT_FILES for entry in path.iterdir()))
+
+
+@releases_output_locks
+def fit_hands_file(points_path: str | os.PathLike, out_dir: str | os.PathLike, count: int, *,
+                   model_path: str | os.PathLike | None = None, units: str = "auto",
+                   resolution: int = 128, config=None, hands_config=None, device: str = "auto",
+                   side: str = "auto", viewpoint=None, support: str | None = "auto",
+                   depth=None, progress: bool = False, log: Callable[[str], None] | None = None
+                   ) -> list[Path]:
+    """Fit ``count`` >= 2 hands that may touch to the scan in ``points_path``
+    (:func:`lisa_hand.fitting.points.hands.fit_scan_hands`) and write ``out_dir/handN/``
+    (each hand's ``params.json``, ``mesh.ply``, ``keypoints.json``), ``hands.json``
+    (:func:`lisa_hand.fitting.pair.record.hands_record`, world frame) and ``hands.ply`` (every
+    hand's mesh). Options as :func:`fit_point_file`'s. -> the written paths."""
+    import dataclasses
+
+    from ...model.trained import load_trained, model_label
+    from ...skeleton.wrist import wrist_plane
+    from ...utils.device import resolve_device
+    from ..outputs import hand_keypoints_3d, json_artefact, mesh_artefact, write_fit
+    from ..outputs.folder import claim_output_folder
+    from ..outputs.writer import fit_artefacts
+    from ..pair.contact import HandBody, penetration_depths
+    from ..pair.record import hands_record, joined_mesh
+    from .fit import FitPointsConfig
+    from .hands import ScanHandsConfig, fit_scan_hands
+
+    log = log or (lambda line: None)
+    if isinstance(count, bool) or not isinstance(count, int) or count < 2:
+        raise ValueError(f"--hands must be an integer >= 2, got {count!r}")
+    points_path, out_dir = Path(points_path), Path(out_dir)
+    config = FitPointsConfig() if config is None else config
+    hands_config = ScanHandsConfig() if hands_config is None else hands_config
+    claim_output_folder(out_dir, _hands_entry, "hands.json, hands.ply and hand0/, hand1/, ...")
+    cloud, sensor = read_cloud_file(points_path, units, config, None, log, depth, support)
+    view = _fit_viewpoint(viewpoint, sensor, cloud.unit)
+    analysis, model_path = _analysed(cloud, view, support, None, config, model_path, log)
+    model = load_trained(model_path, resolve_device(device))
+    points = np.asarray(cloud.points, np.float64)[analysis.keep]
+    found = fit_scan_hands(model, points, count, config, hands_config, side=side,
+                           sensor=analysis.sensor, progress=progress, log=log)
+    artefacts, meshes = [], []
+    for index, params in enumerate(found.hands):
+        params.model = model_label(model_path)
+        params.extra["input"] = {"path": str(points_path), "unit": cloud.unit,
+                                 "hand": index, "hands": count,
+                                 "points": int((found.labels == index).sum())}
+        params.extra["config"] = {"fit": dataclasses.asdict(config),
+                                  "hands": dataclasses.asdict(hands_config)}
+        clip = None if config.wrist_clip_m is None else wrist_plane(params, config.wrist_clip_m)
+        mesh = _mesh_without_specks(model, params, resolution, clip, out_dir / f"hand{index}",
+                                    log)
+        meshes.append(mesh)
+        artefacts += [dataclasses.replace(artefact, name=f"hand{index}/{artefact.name}")
+                      for artefact in fit_artefacts(params, mesh)]
+    bodies = [HandBody.of(model, params, mesh, 1, 0)
+              for params, mesh in zip(found.hands, meshes, strict=True)]
+    depths = penetration_depths(model, bodies)
+    roots = np.stack([hand_keypoints_3d(params)[0] for params in found.hands])
+    record = hands_record(found.hands, [f"hand{k}" for k in range(count)], roots, depths,
+                          "the scan's (metres)",
+                          None if found.joint is None else found.joint.to_dict(), [])
+    record["points_unassigned"] = int((found.labels < 0).sum())
+    artefacts += [json_artefact("hands.json", record),
+                  mesh_artefact(joined_mesh(meshes), "hands.ply")]
+    log(f"{count} hands fitted together in {found.seconds:.0f} s: "
+        + ", ".join(f"hand{k} {params.side} ({int((found.labels == k).sum())} points)"
+                    for k, params in enumerate(found.hands))
+        + f"; deepest penetration {depths.max():.1f} mm")
+    return write_fit(out_dir, artefacts, _hands_entry,
+                     "hands.json, hands.ply and hand0/, hand1/, ... folders")
