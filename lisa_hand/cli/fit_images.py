@@ -28,10 +28,13 @@ SetOpt = set_option("FitImagesConfig (lisa_hand/fitting/images/config.py)",
 
 
 def fit_images(
-    frame: Annotated[Path, typer.Argument(
-        metavar="DIR",
+    frames: Annotated[list[Path], typer.Argument(
+        metavar="DIR...",
         help="Frame folder: cameras.json, images/NAME.png, and optionally masks/NAME.png and "
-             "keypoints.json (the layout 'lisa synth' writes).")],
+             "keypoints.json (the layout 'lisa synth' writes). Several folders: one hand each, "
+             "seen by the same cameras (an interacting frame of 'lisa import interhand2.6m'), "
+             "fitted alone and then together, into OUT/hand0, OUT/hand1, ... with "
+             "OUT/hands.json and OUT/hands.ply; give one --side per folder.")],
     out: Annotated[Path, typer.Option(
         "--out", help="Output folder: params.json, mesh.ply and metrics.json.")],
     views: Annotated[str | None, typer.Option(
@@ -53,7 +56,9 @@ def fit_images(
              "5000; 0 skips it).")] = None,
     rays: Annotated[int | None, typer.Option(
         "--rays", min=1, help="Rays rendered per colour iteration (default 512).")] = None,
-    side: Annotated[Side, typer.Option("--side", help="right or left hand.")] = Side.right,
+    side: Annotated[list[Side] | None, typer.Option(
+        "--side", help="right or left hand (default right); several folders: one each, in "
+                       "order.")] = None,
     res: Annotated[int, typer.Option(
         "--res", min=16, max=1024, help="Marching-cubes samples per axis of the mesh.")] = 128,
     device: DeviceOpt = "auto",
@@ -84,9 +89,16 @@ def fit_images(
                                     color_iters=color_iters, rays=rays,
                                     view_calibration=view_calibration)
     config = with_settings(FitImagesConfig(**overrides), settings)
-    report = fit_image_folder(frame, out, views=names, model_path=model, gt_path=gt,
+    sides = [one.value for one in side] if side else ["right"]
+    if len(frames) > 1:
+        _fit_hands(frames, out, sides, gt=gt, views=names, model_path=model, resolution=res,
+                   config=config, device=device, progress=progress)
+        return
+    if len(sides) > 1:
+        raise ValueError(f"{len(sides)} --side options for one frame folder: give one")
+    report = fit_image_folder(frames[0], out, views=names, model_path=model, gt_path=gt,
                               units=units.value, resolution=res, config=config,
-                              side=side.value, device=device, psnr=psnr, progress=progress,
+                              side=sides[0], device=device, psnr=psnr, progress=progress,
                               log=typer.echo)
     fit, metrics = report.fit, report.metrics
 
@@ -104,6 +116,17 @@ def fit_images(
             unit = "dB" if key.startswith("psnr") else "mm"
             typer.echo(f"  {key}: {shown(metrics[key], unit)}")
     for path in report.written:
+        typer.echo(f"wrote {path}")
+
+
+def _fit_hands(frames: list[Path], out: Path, sides: list[str], *, gt, **options) -> None:
+    """Several frame folders: one hand each, fitted alone and together
+    (:func:`lisa_hand.fitting.images.hands.fit_image_folders`)."""
+    from ..fitting.images.hands import fit_image_folders
+
+    if gt is not None:
+        raise ValueError("--gt compares one hand: fit one frame folder with it")
+    for path in fit_image_folders(frames, out, sides, log=typer.echo, **options):
         typer.echo(f"wrote {path}")
 
 

@@ -92,7 +92,7 @@ def fit_photo(
     write OUT/params.json, mesh.ply, keypoints.json (2D detected and fitted in the photo's
     pixels, 3D in the camera frame), camera.json, mask.png, overlay.png and report.html.
     Several hands in one photo are each fitted alone, then together so that they touch
-    without passing through each other (--set joint.iters=0: alone only); OUT/hands.json
+    without passing through each other (--set fit.joint.iters=0: alone only); OUT/hands.json
     gives their sides, the right-to-left wrist offset and the deepest penetration."""
     from ..fitting.photo.fit import FitPhotoConfig, fit_photo_folder, photo_fit_defaults
 

@@ -4,30 +4,41 @@ extra: ``pip install -e '.[photo]'``, ``mediapipe==0.10.14``, whose wheel ships
 
 MediaPipe's legacy ``solutions.hands`` runs a palm detector on the whole input letterboxed to
 192 x 192 pixels, then a landmark model on a crop around each palm. Hands much smaller than about
-a tenth of the input's long side are missed, and so can be hands that fill it; large inputs also
-lose small hands to aliasing (the detector's own resize does not low-pass, so a small hand in a
-large photo can be missed at full size and found in the same photo averaged down). So
+a tenth of the input's long side are missed, and so can be hands that fill it; a small hand in a
+large input is also lost to aliasing (the detector's resize does not low-pass). So
 :func:`detect_hands` searches windows of the image, coarse to fine, each resized to a long side
 of :attr:`DetectConfig.window_side_px` (Pillow's bicubic, which low-passes when it shrinks), and
-stops at the first level that finds a hand:
-
-1. the whole image, and the whole image zoomed out (padded on every side with the median colour
-   of its border, for hands that fill it);
-2. a grid of 2 x 2 crops overlapping by half a crop (:attr:`DetectConfig.grid_overlap`);
-3. 3 x 3 crops; 4. 4 x 4 crops (:attr:`DetectConfig.grids`).
-
-Because the detector sees 192 pixels whatever it is given, rescaled copies of the whole image
-(640, 1280, 1920 px) would show it the same thing; crops are what make a small hand larger.
+stops at the first level that finds a hand: 1. the whole image, as it is and zoomed out (padded
+with the median colour of its border, for hands that fill it); 2. 2 x 2 crops overlapping by half
+a crop (:attr:`DetectConfig.grid_overlap`); 3. 3 x 3 crops; 4. 4 x 4 crops
+(:attr:`DetectConfig.grids`). Rescaled copies of the whole image would show the detector the
+same 192 pixels; crops are what make a small hand larger.
 
 Every hand found is **refined**: detected again in square windows 1.5 and 2.5 times its keypoint
 box (:attr:`DetectConfig.refine_contexts`), resized to :attr:`DetectConfig.refine_side_px`, each
 as it is and mirrored. Of these estimates and the first one, those within 10% of the hand's size
-(:attr:`DetectConfig.agreement`) of their medoid are averaged, keypoints and side votes alike.
-A hand found only in a crop must be found again around it, or it is dropped. Candidates of one
-level are merged largest first (a part of a hand cut by a crop's edge lies inside the whole
-one); refined hands whose keypoint boxes overlap by more than :attr:`DetectConfig.duplicate_iou`
-are one hand. A hand whose keypoint box spans about 5% of the photo's long side or more is
-found; smaller ones often are, less reliably on textured backgrounds.
+(:attr:`DetectConfig.agreement`) of their medoid are averaged, keypoints and side votes alike;
+their number is its support. A hand found only in a crop must have a support of 2 or more. A
+hand whose keypoint box spans about 5% of the photo's long side or more is found; smaller ones
+often are, less reliably on textured backgrounds.
+
+**One hand or two** is decided by the keypoints, not the boxes: hands one behind the other,
+clasped or crossed have overlapping boxes. Two estimates are one hand when their keypoints agree
+(:attr:`DetectConfig.same_hand`), when one is a part cut by a crop's edge (its keypoints
+squeezed into the part) inside the other, or when nearly all of one's keypoints lie inside the
+other's outline (:attr:`DetectConfig.same_outline`: MediaPipe's other reading of a hand, partial
+or mirrored; a hand wholly inside another's outline is lost). The better supported one is kept.
+
+**More hands.** The palm detector drops a palm next to a stronger one, and a smaller hand may
+need crops, so while fewer than ``max_hands`` are found (:attr:`DetectConfig.further_search`)
+the search goes on: (a) **beside** each hand, in windows 3 times its size shifted by its size
+left, right, up and down, as they are and mirrored, with what its refinement windows showed;
+(b) with the hands **painted out** (their keypoints' hull grown by 20% of their size, filled with
+the border's colour), whole and zoomed out; both again around the hands they find; (c) if neither
+finds one, in the coarsest crop level that shows a hand half the smallest one's size large enough
+(:attr:`DetectConfig.further_smallest`), not painted out (a painted patch can make a neck its
+best "palm"). A hand partly hidden by another is found when its fingers show (the tests); with
+only its thumb and the back of the hand showing MediaPipe misses it or calls it the other side.
 
 **Handedness.** MediaPipe labels a hand assuming a mirrored (selfie) image: its label is the
 opposite of the true side in an ordinary photo. In a photo of the palm side of a thumbs-up fist
@@ -50,20 +61,18 @@ ring and pinky MCP, PIP, DIP, tip) are exactly :data:`lisa_hand.skeleton.KEYPOIN
 reordering is needed (checked against ``mediapipe.solutions.hands.HandLandmark`` in the tests).
 
 **Wrist.** MediaPipe's wrist landmark is not the skeleton's wrist keypoint (the root joint, at
-the base of the palm, where the open hand model's palm ends): on photos of the open hand model's
-hands it lies about 0.16-0.17 of the wrist-to-middle-knuckle length nearer the fingers (``python
--m benchmarks photo --subjects train`` prints it as ``detector_wrist_shift``), while the
-other 20 landmarks lie within about a tenth of that length of the true ones.
-:func:`to_skeleton_wrist` moves the detected wrist back by such a fraction along the
-wrist-to-middle-knuckle line
-(:attr:`lisa_hand.fitting.photo.config.FitPhotoConfig.detector_wrist_shift`). It is OFF by
-default: the offset belongs to the generator's hands (the wrist keypoint at the end of a long,
-flat-cut palm), not to MediaPipe; on photos of real hands the moved wrist lies in the forearm,
-below the visible wrist, and the fitted hand does not follow it.
+the base of the palm): on photos of the open hand model's hands it lies about 0.16-0.17 of the
+wrist-to-middle-knuckle length nearer the fingers (``python -m benchmarks photo --subjects
+train``: ``detector_wrist_shift``), the other 20 landmarks within about a tenth of that length
+of the true ones. :func:`to_skeleton_wrist` moves it back
+(:attr:`lisa_hand.fitting.photo.config.FitPhotoConfig.detector_wrist_shift`), OFF by default:
+the offset belongs to the generator's long, flat-cut palms, not to MediaPipe; on photos of real
+hands the moved wrist lies in the forearm, and the fitted hand does not follow it.
 
-**Time.** One process call takes 20-60 ms; with refinement a photo whose hand is found in the
-whole image takes well under a second on one CPU core, a photo without a hand (every window
-searched) about a second. Importing MediaPipe takes about 1 s more, once.
+**Time.** One process call takes 15-60 ms on one CPU core, whatever the window's size (the
+models' inputs are fixed). A photo whose hand is found in the whole image takes about 0.2 s
+without the further search and 0.5-1 s with it (16-32 calls), a photo without a hand (every
+window searched) about 0.6 s. Importing MediaPipe takes about 1 s more, once.
 """
 
 from __future__ import annotations
@@ -72,25 +81,19 @@ import math
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..skeleton import KEYPOINT_NAMES, NUM_KEYPOINTS
 from ..utils.stderr import native_stderr_captured
 
-__all__ = [
-    "PHOTO_EXTRA_HINT",
-    "photo_extra_missing",
-    "DetectConfig",
-    "DetectedHand",
-    "detect_hands",
-    "MEDIAPIPE_LABEL_TO_SIDE",
-    "MEDIAPIPE_WRIST_SHIFT",
-    "MIDDLE_MCP",
-    "to_skeleton_wrist",
-    "VideoHandDetector",
-]
+if TYPE_CHECKING:  # at run time through __getattr__: detect_video imports this module
+    from .detect_video import VideoHandDetector
+
+__all__ = ["PHOTO_EXTRA_HINT", "photo_extra_missing", "DetectConfig", "DetectedHand",
+           "detect_hands", "MEDIAPIPE_LABEL_TO_SIDE", "MEDIAPIPE_WRIST_SHIFT", "MIDDLE_MCP",
+           "to_skeleton_wrist", "VideoHandDetector"]
 
 PHOTO_EXTRA_HINT = ("hand detection needs the photo extra (MediaPipe): pip install -e '.[photo]'; "
                     "or give the 21 keypoints with --keypoints KP.json")
@@ -170,30 +173,45 @@ class DetectConfig:
     """Long side, pixels, that each refinement window is resized to."""
     mirror: bool = True
     """Refine on the mirrored window too; average the keypoints and the side's votes."""
+    same_hand: float = 0.25
+    """Two estimates are one hand when their keypoints are this close on average, a fraction of
+    the larger one's box diagonal, whatever their boxes' overlap..."""
+    same_outline: float = 0.9
+    """...or when this share of one's keypoints lies inside the other's hull (grown by 5%)."""
     duplicate_iou: float = 0.5
-    """Hands whose keypoint boxes overlap more than this (IoU) are one hand."""
+    """A part cut by a crop's edge is one with a hand whose box overlaps it more than this."""
+    further_search: bool = True
+    """Once hands are found, look for more while fewer than ``max_hands`` are (module docstring)."""
+    beside_context: float = 3.0
+    """Side of the windows beside a found hand, in units of its keypoint box's long side..."""
+    beside_shift: float = 1.0
+    """...and how far they are shifted left, right, up and down from it, same units."""
+    further_smallest: float = 0.5
+    """The crop level searched after another hand finds hands down to this fraction of its size."""
+    paint_margin: float = 0.2
+    """A hand is painted out as its keypoints' hull grown by this fraction of its box diagonal."""
 
     def __post_init__(self) -> None:
-        if not 0.0 < self.min_detection_confidence < 1.0:
-            raise ValueError("min_detection_confidence must be in (0, 1), got "
-                             f"{self.min_detection_confidence}")
-        if self.model_complexity not in (0, 1):
-            raise ValueError(f"model_complexity must be 0 or 1, got {self.model_complexity}")
-        for name in ("window_side_px", "refine_side_px"):
-            if getattr(self, name) < 64:
-                raise ValueError(f"{name} must be at least 64 pixels, got {getattr(self, name)}")
-        if not self.zoom_out >= 1.0:
-            raise ValueError(f"zoom_out must be >= 1, got {self.zoom_out}")
-        if any(int(n) < 1 for n in self.grids):
-            raise ValueError(f"grids must be positive integers, got {self.grids}")
-        if not 0.0 <= self.grid_overlap < 1.0:
-            raise ValueError(f"grid_overlap must be in [0, 1), got {self.grid_overlap}")
-        if any(not context >= 1.0 for context in self.refine_contexts):
-            raise ValueError(f"refine_contexts must be >= 1, got {self.refine_contexts}")
-        if not self.agreement > 0.0:
-            raise ValueError(f"agreement must be positive, got {self.agreement}")
-        if not 0.0 < self.duplicate_iou <= 1.0:
-            raise ValueError(f"duplicate_iou must be in (0, 1], got {self.duplicate_iou}")
+        c = self
+        bad = [f"{name} must be {rule}, got {getattr(self, name)!r}" for name, ok, rule in (
+            ("min_detection_confidence", 0.0 < c.min_detection_confidence < 1.0, "in (0, 1)"),
+            ("model_complexity", c.model_complexity in (0, 1), "0 or 1"),
+            ("window_side_px", c.window_side_px >= 64, "at least 64 pixels"),
+            ("refine_side_px", c.refine_side_px >= 64, "at least 64 pixels"),
+            ("zoom_out", c.zoom_out >= 1.0, ">= 1"),
+            ("grids", all(int(n) >= 1 for n in c.grids), "positive integers"),
+            ("grid_overlap", 0.0 <= c.grid_overlap < 1.0, "in [0, 1)"),
+            ("refine_contexts", all(context >= 1.0 for context in c.refine_contexts), ">= 1"),
+            ("agreement", c.agreement > 0.0, "positive"),
+            ("same_hand", 0.0 < c.same_hand < 1.0, "in (0, 1)"),
+            ("same_outline", 0.0 < c.same_outline <= 1.0, "in (0, 1]"),
+            ("duplicate_iou", 0.0 < c.duplicate_iou <= 1.0, "in (0, 1]"),
+            ("beside_context", c.beside_context >= 1.0, ">= 1"),
+            ("beside_shift", c.beside_shift >= 0.0, ">= 0"),
+            ("further_smallest", c.further_smallest > 0.0, "positive"),
+            ("paint_margin", c.paint_margin >= 0.0, ">= 0")) if not ok]
+        if bad:
+            raise ValueError(bad[0])
 
 
 @dataclass(frozen=True)
@@ -213,8 +231,9 @@ class DetectedHand:
     """(x0, y0, x1, y1) pixels: the keypoints' bounding box."""
     found_by: str = ""
     """The search level that found it: "whole image" (as it is or zoomed out), "2x2 crops",
-    "3x3 crops", "4x4 crops"; in a greyscale photo found only once tinted, followed by ", greyscale
-    photo tinted skin-coloured, side unknown" (its :attr:`score` then 0.5)."""
+    "3x3 crops", "4x4 crops"; after another hand: "beside another hand", "another hand painted
+    out", "3x3 crops after another hand" (...); in a greyscale photo found only once tinted,
+    followed by ", greyscale photo tinted skin-coloured, side unknown" (:attr:`score` 0.5)."""
     side_votes: tuple[int, int] = (0, 0)
     """(right, left): how many of the agreeing estimates (plain and mirrored windows) call it
     each side; a split vote means MediaPipe's side changed with the window or the mirroring."""
@@ -232,6 +251,8 @@ class _Found:
     keypoints: np.ndarray  # [21, 2] image pixels
     p_right: float  # probability that it is a right hand (true side)
     votes: tuple[int, int] = (0, 0)  # (right, left) of the estimates averaged into it
+    cut: bool = False  # its box reaches a crop's edge inside the image: maybe a partial view
+    support: int = 1  # how many estimates agree on it (refined: :func:`_consensus`)
 
     @property
     def box(self) -> tuple[float, float, float, float]:
@@ -265,8 +286,7 @@ def _render(image: np.ndarray, window: Window, long_side: int, fill: np.ndarray)
     if (x0, y0, x1, y1) == (0, 0, width, height):
         crop = image
     else:
-        crop = np.empty((y1 - y0, x1 - x0, 3), np.uint8)
-        crop[:] = fill
+        crop = np.full((y1 - y0, x1 - x0, 3), fill, np.uint8)
         ix0, iy0, ix1, iy1 = max(x0, 0), max(y0, 0), min(x1, width), min(y1, height)
         if ix0 < ix1 and iy0 < iy1:
             crop[iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0] = image[iy0:iy1, ix0:ix1]
@@ -303,25 +323,35 @@ def _run(hands: Any, image: np.ndarray, window: Window, long_side: int, fill: np
         label = handedness.classification[0]
         # MediaPipe's label is mirrored; on a mirrored input it is the photo's own side.
         says_right = (label.label == "Right") if mirrored else (label.label == "Left")
-        score = float(label.score)
-        found.append(_Found(keypoints, score if says_right else 1.0 - score))
+        score = float(label.score) if says_right else 1.0 - float(label.score)
+        found.append(_Found(keypoints, score, cut=_cut(keypoints, window, *image.shape[1::-1])))
     return found
 
 
+Named = tuple[_Found, str]  # a hand and what found it
+
+
+def _cut(keypoints: np.ndarray, window: Window, width: int, height: int) -> bool:
+    """Whether the keypoints reach (within 2%) an edge of the window inside the image: a crop's."""
+    x0, y0, x1, y1 = window
+    margin = 0.02 * max(x1 - x0, y1 - y0)
+    low, high = keypoints.min(axis=0), keypoints.max(axis=0)
+    return bool((x0 > 0 and low[0] <= x0 + margin) or (y0 > 0 and low[1] <= y0 + margin)
+                or (x1 < width and high[0] >= x1 - margin)
+                or (y1 < height and high[1] >= y1 - margin))
+
+
 def _iou(a: Sequence[float], b: Sequence[float]) -> float:
-    inter_w = max(0.0, min(a[2], b[2]) - max(a[0], b[0]))
-    inter_h = max(0.0, min(a[3], b[3]) - max(a[1], b[1]))
-    inter = inter_w * inter_h
-    union = (a[2] - a[0]) * (a[3] - a[1]) + (b[2] - b[0]) * (b[3] - b[1]) - inter
+    inter = _area((max(a[0], b[0]), max(a[1], b[1]), min(a[2], b[2]), min(a[3], b[3])))
+    union = _area(a) + _area(b) - inter
     return inter / union if union > 0 else 0.0
 
 
 def _contained(inner: Sequence[float], outer: Sequence[float]) -> float:
     """Fraction of ``inner``'s area inside ``outer``."""
-    inter_w = max(0.0, min(inner[2], outer[2]) - max(inner[0], outer[0]))
-    inter_h = max(0.0, min(inner[3], outer[3]) - max(inner[1], outer[1]))
-    area = (inner[2] - inner[0]) * (inner[3] - inner[1])
-    return inter_w * inter_h / area if area > 0 else 1.0
+    inter = _area((max(inner[0], outer[0]), max(inner[1], outer[1]), min(inner[2], outer[2]),
+                   min(inner[3], outer[3])))
+    return inter / _area(inner) if _area(inner) > 0 else 1.0
 
 
 def _levels(width: int, height: int, config: DetectConfig) -> list[tuple[str, list[Window]]]:
@@ -346,40 +376,69 @@ def _levels(width: int, height: int, config: DetectConfig) -> list[tuple[str, li
     return levels
 
 
-def _merge(candidates: list[_Found], overlap: float) -> list[_Found]:
-    """Largest first; drop a candidate mostly inside (or overlapping) one already kept."""
+def _merge(candidates: list[_Found], config: DetectConfig) -> list[_Found]:
+    """Largest first; drop a candidate that is the same hand as one already kept."""
     kept: list[_Found] = []
     for candidate in sorted(candidates, key=lambda c: -_area(c.box)):
-        box = candidate.box
-        if all(_iou(box, k.box) <= overlap and _contained(box, k.box) <= 0.6 for k in kept):
+        if not any(_same_hand(candidate, k, config) for k in kept):
             kept.append(candidate)
     return kept
+
+
+def _same_hand(a: _Found, b: _Found, config: DetectConfig) -> bool:
+    """Whether two estimates are one hand (the module docstring, "One hand or two")."""
+    size = max(1.0, _diagonal(a.box), _diagonal(b.box))
+    if (_distance(a, b) < config.same_hand * size
+            or max(_inside(a, b), _inside(b, a)) >= config.same_outline):
+        return True
+    return any(part.cut and (_contained(part.box, whole.box) > 0.6
+                             or _iou(part.box, whole.box) > config.duplicate_iou)
+               for part, whole in ((a, b), (b, a)))
+
+
+def _inside(a: _Found, b: _Found) -> float:
+    """The share of ``a``'s keypoints inside ``b``'s convex hull grown by 5% of its diagonal."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        planes = ConvexHull(b.keypoints).equations  # [F, 3]: unit outward normal, offset
+    except (QhullError, ValueError):  # degenerate: the keypoints on a line
+        return 0.0
+    grown = 0.05 * _diagonal(b.box)
+    return float(np.mean((a.keypoints @ planes[:, :2].T + planes[:, 2] <= grown).all(axis=1)))
+
+
+def _distance(a: _Found, b: _Found) -> float:
+    """Mean distance between the keypoints of two estimates, pixels."""
+    return float(np.linalg.norm(a.keypoints - b.keypoints, axis=1).mean())
 
 
 def _area(box: Sequence[float]) -> float:
     return max(0.0, box[2] - box[0]) * max(0.0, box[3] - box[1])
 
 
+def _diagonal(box: Sequence[float]) -> float:
+    return math.hypot(box[2] - box[0], box[3] - box[1])
+
+
 def _refine(hands: Any, image: np.ndarray, candidate: _Found, fill: np.ndarray,
-            config: DetectConfig) -> tuple[_Found, int]:
+            config: DetectConfig) -> tuple[_Found, list[_Found]]:
     """Detect ``candidate`` again in square windows around it (each also mirrored) and keep the
-    estimates that agree with their medoid -> (their mean, how many agree, the candidate's own
-    estimate included)."""
+    estimates that agree with their medoid -> (their mean, its ``support`` how many agree, the
+    candidate's own estimate included; the other hands the windows showed)."""
     x0, y0, x1, y1 = candidate.box
     cx, cy = 0.5 * (x0 + x1), 0.5 * (y0 + y1)
-    estimates = [candidate]
+    estimates, others = [candidate], []
     for context in config.refine_contexts:
-        side = max(8.0, context * max(x1 - x0, y1 - y0))
-        left, top = math.floor(cx - side / 2), math.floor(cy - side / 2)
-        window = (left, top, left + math.ceil(side), top + math.ceil(side))
+        window = _square(cx, cy, max(8.0, context * max(x1 - x0, y1 - y0)))
         for mirrored in ((False, True) if config.mirror else (False,)):
             found = _run(hands, image, window, config.refine_side_px, fill, mirrored=mirrored)
-            # The candidate may be a partial view (a hand cut by a crop's edge): inside the match.
-            matches = [f for f in found if _iou(f.box, candidate.box) > 0.3
-                       or _contained(candidate.box, f.box) > 0.7]
+            # The candidate may be a part cut by a crop's edge; a hand overlapping it is another.
+            matches = [f for f in found if _same_hand(candidate, f, config)]
             if matches:
-                estimates.append(max(matches, key=lambda f: _iou(f.box, candidate.box)))
-    return _consensus(estimates, config.agreement)
+                estimates.append(min(matches, key=lambda f: _distance(f, candidate)))
+            others += [f for f in found if not any(f is match for match in matches)]
+    return _consensus(estimates, config.agreement)[0], others
 
 
 def _consensus(estimates: list[_Found], agreement: float) -> tuple[_Found, int]:
@@ -396,8 +455,8 @@ def _consensus(estimates: list[_Found], agreement: float) -> tuple[_Found, int]:
     agree = np.flatnonzero(distance[medoid] <= agreement)
     p_right = float(np.mean([estimates[i].p_right for i in agree]))
     right = int(sum(estimates[i].p_right >= 0.5 for i in agree))
-    return _Found(keypoints[agree].mean(axis=0), p_right, (right, int(agree.size) - right)), \
-        int(agree.size)
+    return _Found(keypoints[agree].mean(axis=0), p_right, (right, int(agree.size) - right),
+                  support=int(agree.size)), int(agree.size)
 
 
 _SKIN_TINT = (1.0, 0.78, 0.66)
@@ -415,24 +474,128 @@ def _greyscale(pixels: np.ndarray) -> bool:
     return bool(np.abs(wide - wide[..., :1]).max() <= _GREY_TOLERANCE)
 
 
-def _search(hands: Any, pixels: np.ndarray, config: DetectConfig) -> list[tuple[_Found, str]]:
-    """The coarse-to-fine search (the module docstring) with MediaPipe's ``hands`` -> the hands
-    of the first level that finds any, each with that level's name."""
+def _search(hands: Any, pixels: np.ndarray, config: DetectConfig,
+            max_hands: int) -> list[Named]:
+    """The coarse-to-fine search with MediaPipe's ``hands`` -> the hands of the first level that
+    finds any, with that level's name, and those the further search finds after them."""
     height, width = pixels.shape[:2]
     border = np.concatenate([pixels[0], pixels[-1], pixels[:, 0], pixels[:, -1]])
     fill = np.median(border, axis=0).astype(np.uint8)
-    hands_found: list[tuple[_Found, str]] = []
-    for level, windows in _levels(width, height, config):
-        candidates = [found for window in windows
-                      for found in _run(hands, pixels, window, config.window_side_px, fill)]
-        for candidate in _merge(candidates, config.duplicate_iou):
-            refined, support = _refine(hands, pixels, candidate, fill, config)
-            if support < 2 and level != _WHOLE:
-                continue  # seen in one crop only, not found again with more context
-            hands_found.append((refined, level))
-        if hands_found:
-            break
-    return hands_found
+    levels = _levels(width, height, config)
+    for index, (level, windows) in enumerate(levels):
+        found, around = _find(hands, pixels, windows, config.window_side_px, fill, config, [],
+                              confirm=level != _WHOLE)
+        if found:
+            further = (_search_further(hands, pixels, found, around, levels, index, fill, config,
+                                       max_hands)
+                       if config.further_search and len(found) < max_hands else [])
+            return [(hand, level) for hand in found] + further
+    return []
+
+
+def _find(hands: Any, pixels: np.ndarray, windows: list[Window], long_side: int,
+          fill: np.ndarray, config: DetectConfig, known: list[_Found], confirm: bool,
+          mirror: bool = False, extra: Sequence[_Found] = ()) -> tuple[list[_Found], list[_Found]]:
+    """MediaPipe on the windows (each also mirrored with ``mirror``), and the ``extra``
+    candidates -> (the hands other than the ``known`` ones, merged, refined, best supported first,
+    with ``confirm`` only those of support >= 2; the other hands the refinement windows showed)."""
+    flips = (False, True) if mirror else (False,)
+    candidates = list(extra) + [found for window in windows for flip in flips
+                                for found in _run(hands, pixels, window, long_side, fill, flip)]
+    refined, around = [], []
+    for candidate in _merge(candidates, config):
+        if not any(_same_hand(candidate, hand, config) for hand in known if hand.support > 1):
+            hand, others = _refine(hands, pixels, candidate, fill, config)
+            refined.append(hand)
+            around += others
+    new: list[_Found] = []
+    for hand in sorted(refined, key=lambda hand: (-hand.support, -_area(hand.box))):
+        # A better-supported estimate of a known hand is kept too: it replaces it (_unique).
+        if (hand.support >= 2 or not confirm) and not any(
+                _same_hand(hand, other, config) and other.support >= hand.support
+                for other in known + new):
+            new.append(hand)
+    return new, around
+
+
+_BESIDE, _PAINTED, _AFTER = "beside another hand", "another hand painted out", "after another hand"
+_DETECTABLE = 0.1  # the smallest hand the palm detector finds well, a share of its input's side
+
+
+def _search_further(hands: Any, pixels: np.ndarray, found: list[_Found], around: list[_Found],
+                    levels: list[tuple[str, list[Window]]], index: int, fill: np.ndarray,
+                    config: DetectConfig, max_hands: int) -> list[Named]:
+    """More hands after level ``index`` found ``found`` (the module docstring, "More hands"):
+    beside each hand (``around``: what its refinement windows showed besides it), with the hands
+    painted out, again around the new ones; if neither finds one, in the coarsest crop level
+    after ``index`` whose crops show a hand ``further_smallest`` times the smallest found one at
+    :data:`_DETECTABLE` of their long side (the finest where none does; none where the whole
+    image does)."""
+    known, fresh, more = list(found), list(found), []
+    while fresh and len(known) < max_hands:
+        windows = [window for hand in fresh for window in _beside(hand, config)]
+        beside, around = _find(hands, pixels, windows, config.refine_side_px, fill, config, known,
+                               True, config.mirror, around)
+        painted = _painted_out(pixels, known + beside, fill, config)
+        hidden, _ = _find(hands, painted, levels[0][1], config.window_side_px, fill, config,
+                          known + beside, True)
+        fresh = beside + hidden
+        known += fresh
+        more += [(hand, _BESIDE) for hand in beside] + [(hand, _PAINTED) for hand in hidden]
+    smallest = config.further_smallest * min(max(h.box[2] - h.box[0], h.box[3] - h.box[1])
+                                             for h in known)
+    if (more or len(known) >= max_hands or index + 1 >= len(levels)
+            or smallest >= _DETECTABLE * max(pixels.shape[:2])):
+        return more
+    name, windows = next(((name, windows) for name, windows in levels[index + 1:] if smallest
+                          >= _DETECTABLE * max(windows[0][2] - windows[0][0],
+                                               windows[0][3] - windows[0][1])), levels[-1])
+    # Not painted out: a flat patch beside a neck or a face can make a crop's best "palm" of it.
+    small, _ = _find(hands, pixels, windows, config.window_side_px, fill, config, known, True)
+    return [(hand, f"{name} {_AFTER}") for hand in small]
+
+
+def _beside(hand: _Found, config: DetectConfig) -> list[Window]:
+    """Square windows :attr:`DetectConfig.beside_context` times the hand's keypoint box, shifted
+    by :attr:`DetectConfig.beside_shift` of it left, right, up and down (the refinement windows
+    are the ones centred on it)."""
+    x0, y0, x1, y1 = hand.box
+    length = max(8.0, x1 - x0, y1 - y0)
+    shift, side = config.beside_shift * length, config.beside_context * length
+    return [_square(0.5 * (x0 + x1) + dx * shift, 0.5 * (y0 + y1) + dy * shift, side)
+            for dx, dy in ((-1, 0), (1, 0), (0, -1), (0, 1))]
+
+
+def _square(cx: float, cy: float, side: float) -> Window:
+    left, top = math.floor(cx - side / 2), math.floor(cy - side / 2)
+    return left, top, left + math.ceil(side), top + math.ceil(side)
+
+
+def _painted_out(pixels: np.ndarray, found: list[_Found], fill: np.ndarray,
+                 config: DetectConfig) -> np.ndarray:
+    """A copy of the image with each hand's grown keypoint hull filled with ``fill``."""
+    from PIL import Image, ImageDraw
+    from scipy.spatial import ConvexHull
+
+    mask = Image.new("L", (pixels.shape[1], pixels.shape[0]), 0)
+    angles = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
+    circle = np.stack([np.cos(angles), np.sin(angles)], axis=-1)
+    for hand in found:  # the hull of a circle around each keypoint
+        radius = max(1.0, config.paint_margin * _diagonal(hand.box))
+        points = (hand.keypoints[:, None] + radius * circle[None]).reshape(-1, 2)
+        ImageDraw.Draw(mask).polygon(list(map(tuple, points[ConvexHull(points).vertices])), 255)
+    painted = pixels.copy()
+    painted[np.asarray(mask) > 0] = fill
+    return painted
+
+
+def _unique(hands_found: list[Named], config: DetectConfig) -> list[Named]:
+    """Most often found again first, then most confident side; drop those the same as one kept."""
+    unique: list[Named] = []
+    for found, level in sorted(hands_found, key=lambda p: (-p[0].support, -abs(p[0].p_right - .5))):
+        if not any(_same_hand(found, other, config) for other, _ in unique):
+            unique.append((found, level))
+    return unique
 
 
 def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | None = None,
@@ -462,94 +625,25 @@ def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | N
             static_image_mode=True, max_num_hands=max_hands,
             model_complexity=config.model_complexity,
             min_detection_confidence=config.min_detection_confidence) as hands:
-        hands_found = _search(hands, pixels, config)
+        hands_found = _search(hands, pixels, config, max_hands)
         if not hands_found and _greyscale(pixels):  # no skin colour to go by: lend it one
             tinted = np.round(pixels * np.asarray(_SKIN_TINT)).astype(np.uint8)
             smallest = _MIN_TINTED_SIZE * max(pixels.shape[:2])
-            hands_found = [(replace(found, p_right=0.5, votes=(0, 0)),
-                            f"{level}, {_TINTED}")
-                           for found, level in _search(hands, tinted, config)
+            hands_found = [(replace(found, p_right=0.5, votes=(0, 0)), f"{level}, {_TINTED}")
+                           for found, level in _search(hands, tinted, config, max_hands)
                            if max(found.box[2] - found.box[0], found.box[3] - found.box[1])
                            >= smallest]
-    unique: list[tuple[_Found, str]] = []
-    for found, level in sorted(hands_found, key=lambda pair: -abs(pair[0].p_right - 0.5)):
-        if all(_iou(found.box, other.box) <= config.duplicate_iou for other, _ in unique):
-            unique.append((found, level))
-    unique = sorted(unique, key=lambda pair: -_area(pair[0].box))[:max_hands]
+    unique = sorted(_unique(hands_found, config), key=lambda p: -_area(p[0].box))[:max_hands]
     result = [DetectedHand(keypoints=found.keypoints, score=max(found.p_right, 1 - found.p_right),
                            side="right" if found.p_right >= 0.5 else "left", box=found.box,
                            found_by=level, side_votes=found.votes) for found, level in unique]
     return sorted(result, key=lambda hand: 0.5 * (hand.box[0] + hand.box[2]))
 
 
-class VideoHandDetector:
-    """Hands in the frames of a clip, one frame after the other, with MediaPipe's tracking mode
-    (``static_image_mode=False``): the palm detector runs only until a hand is found, then each
-    hand is followed by the landmark model on a crop around its previous keypoints (about 25 ms
-    a 720p frame on one core, where the photo search of :func:`detect_hands` takes up to a
-    second). It finds a hand again when it is lost. Frames must come in order.
+def __getattr__(name: str) -> Any:
+    """:class:`~lisa_hand.data.detect_video.VideoHandDetector`, imported on first use (PEP 562)."""
+    if name != "VideoHandDetector":
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    from .detect_video import VideoHandDetector
 
-    Use as a context manager: ``with VideoHandDetector(max_hands=2) as detector:
-    detector(frame_rgb)`` -> the frame's :class:`DetectedHand` list (``found_by`` "video",
-    ``side_votes`` (1, 0) or (0, 1)), left to right. hands_factory: as :func:`detect_hands`.
-    """
-
-    def __init__(self, max_hands: int = 2, min_detection_confidence: float = 0.5,
-                 min_tracking_confidence: float = 0.5, model_complexity: int = 1,
-                 hands_factory: Callable[..., Any] | None = None) -> None:
-        if isinstance(max_hands, bool) or not isinstance(max_hands, int) or max_hands < 1:
-            raise ValueError(f"max_hands must be a positive integer, got {max_hands!r}")
-        for name, value in (("min_detection_confidence", min_detection_confidence),
-                            ("min_tracking_confidence", min_tracking_confidence)):
-            if not 0.0 < value < 1.0:
-                raise ValueError(f"{name} must be in (0, 1), got {value}")
-        if hands_factory is None:
-            try:
-                hands_factory = _mediapipe_hands().Hands
-            except (ImportError, AttributeError):
-                raise ImportError(PHOTO_EXTRA_HINT) from None
-        self._arguments = dict(static_image_mode=False, max_num_hands=max_hands,
-                               model_complexity=model_complexity,
-                               min_detection_confidence=min_detection_confidence,
-                               min_tracking_confidence=min_tracking_confidence)
-        self._factory = hands_factory
-        self._hands: Any = None
-        self._context: Any = None
-        self._quiet_frames = 2
-
-    def __enter__(self) -> VideoHandDetector:
-        with native_stderr_captured():
-            self._context = self._factory(**self._arguments)
-            self._hands = self._context.__enter__()
-            # MediaPipe's threads log their start-up while the graph first runs: run it once on
-            # a blank frame here, so that those lines are held back too.
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")
-                self._hands.process(np.zeros((64, 64, 3), np.uint8))
-        return self
-
-    def __exit__(self, *exc: Any) -> None:
-        context, self._context, self._hands = self._context, None, None
-        if context is not None:
-            context.__exit__(*exc)
-
-    def __call__(self, frame: np.ndarray) -> list[DetectedHand]:
-        """frame: [H, W, 3] uint8 RGB (or float in [0, 1]) -> the hands found in it."""
-        if self._hands is None:
-            raise RuntimeError("VideoHandDetector is used inside a 'with' block")
-        pixels = _as_uint8(frame)
-        height, width = pixels.shape[:2]
-        window = (0, 0, width, height)
-        if self._quiet_frames > 0:  # the landmark model starts with the first hand found
-            with native_stderr_captured():
-                found = _run(self._hands, pixels, window, max(height, width),
-                             np.zeros(3, np.uint8))
-            self._quiet_frames -= bool(found)
-        else:
-            found = _run(self._hands, pixels, window, max(height, width), np.zeros(3, np.uint8))
-        hands = [DetectedHand(keypoints=one.keypoints, score=max(one.p_right, 1 - one.p_right),
-                              side="right" if one.p_right >= 0.5 else "left", box=one.box,
-                              found_by="video",
-                              side_votes=(1, 0) if one.p_right >= 0.5 else (0, 1))
-                 for one in found]
-        return sorted(hands, key=lambda hand: 0.5 * (hand.box[0] + hand.box[2]))
+    return VideoHandDetector

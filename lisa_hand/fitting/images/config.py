@@ -19,6 +19,7 @@ from typing import ClassVar
 
 from ...render import RenderConfig
 from ...utils.config import check_int_fields
+from ..pair.config import JointConfig
 from ..priors import PRIOR_POSES
 
 __all__ = ["IMAGE_STAGES", "SHAPE_FITS", "FitImagesConfig", "default_render"]
@@ -217,6 +218,10 @@ class FitImagesConfig:
     and vanish at 64."""
     max_area_change: float = 0.10
     """The guard's largest allowed relative change of the surface area."""
+    joint: JointConfig = field(default_factory=JointConfig)
+    """Several hands (of one photo, or seen by the same cameras): each fitted alone, then all
+    together (:class:`lisa_hand.fitting.pair.config.JointConfig`; ``joint.iters=0``: alone
+    only)."""
     num_threads: int | None = 1
     """CPU threads of torch during the fit (restored afterwards); None keeps torch's setting.
     The fit runs many small operations: on a busy 2-core machine one thread is 2x (colour

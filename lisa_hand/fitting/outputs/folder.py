@@ -44,6 +44,7 @@ __all__ = [
     "FIT_FILES",
     "Allowed",
     "fit_file",
+    "hands_entry",
     "check_output_folder",
     "claim_output_folder",
     "lock_output_folder",
@@ -63,6 +64,18 @@ picture of a point-cloud fit, :mod:`lisa_hand.fitting.points.preview`)."""
 Allowed = Callable[[Path], bool]
 """Which entries a fit's output folder may hold: called with each entry's path (a file or a
 folder) -> whether the fit writes it (and may replace it)."""
+
+
+def hands_entry(path: Path) -> bool:
+    """The :data:`Allowed` rule of a fit of several hands (``fit-points --hands``,
+    ``fit-images`` of several folders): ``hands.json``, ``hands.ply`` and ``handN/`` folders
+    of :data:`FIT_FILES`."""
+    if path.is_symlink():
+        return False
+    if path.is_file():
+        return path.name in ("hands.json", "hands.ply")
+    return (path.is_dir() and path.name.startswith("hand") and path.name[4:].isdigit()
+            and all(entry.is_file() and entry.name in FIT_FILES for entry in path.iterdir()))
 
 
 def fit_file(names: Sequence[str] = FIT_FILES) -> Allowed:

@@ -9,7 +9,6 @@ from typing import Any
 from ...data.photo import DEFAULT_MAX_SIDE
 from ...skeleton.wrist import WRIST_CLIP_M
 from ..images.config import FitImagesConfig
-from ..pair.config import JointConfig
 
 __all__ = ["photo_fit_defaults", "FitPhotoConfig"]
 
@@ -68,9 +67,6 @@ class FitPhotoConfig:
     render_max_side: int = 512
     """The fitted hand is rendered into each photo's crop at most this long side, pixels (then
     resized)."""
-    joint: JointConfig = field(default_factory=JointConfig)
-    """Several hands in one photo: fitted together after each alone
-    (:class:`lisa_hand.fitting.pair.config.JointConfig`; ``joint.iters=0``: alone only)."""
     inconsistent_fraction: float = 0.08
     """Several photos: a photo whose mean keypoint error after the joint fit exceeds this
     fraction of the hand's size in it gets a note."""

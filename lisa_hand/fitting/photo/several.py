@@ -72,13 +72,14 @@ def fit_together(model: Any, alones: list[Any], config: Any, progress: bool,
     with cpu_threads(config.fit.num_threads):
         meshes = [alone_mesh(model, alone, config) for alone in alones]
         report = None
-        if config.joint.iters > 0:
+        if config.fit.joint.iters > 0:
             K = alones[0].inputs[0].camera.K
             hands = [JointHand(params=alone.result.params, mesh=mesh, views=(HandView(
                 K=K, keypoints=alone.hands[0].keypoints, visible=alone.hands[0].visible,
                 mask=alone.coarse[0]),)) for alone, (mesh, _) in zip(alones, meshes, strict=True)]
             template = template_on(None, torch.device("cpu"))
-            fitted, report = fit_hands_together(model, hands, template, config.joint, progress)
+            fitted, report = fit_hands_together(model, hands, template, config.fit.joint,
+                                                progress)
             for alone, params in zip(alones, fitted, strict=True):
                 params.extra["joint"] = report.to_dict()
                 alone.result = dataclasses.replace(alone.result, params=params,

@@ -425,19 +425,6 @@ def _refined(model, fit, cloud: PointCloud, side: str, config, progress: bool, l
 # A scan of several hands that may touch (``lisa fit-points --hands N``)
 
 
-def _hands_entry(path: Path) -> bool:
-    """What a fit of several hands leaves in its folder: ``hands.json``, ``hands.ply`` and
-    ``handN/`` folders of a point fit's files."""
-    from ..outputs.folder import FIT_FILES
-
-    if path.is_symlink():
-        return False
-    if path.is_file():
-        return path.name in ("hands.json", "hands.ply")
-    return (path.is_dir() and path.name.startswith("hand") and path.name[4:].isdigit()
-            and all(entry.is_file() and entry.name in FIT_FILES for entry in path.iterdir()))
-
-
 @releases_output_locks
 def fit_hands_file(points_path: str | os.PathLike, out_dir: str | os.PathLike, count: int, *,
                    model_path: str | os.PathLike | None = None, units: str = "auto",
@@ -456,7 +443,7 @@ def fit_hands_file(points_path: str | os.PathLike, out_dir: str | os.PathLike, c
     from ...skeleton.wrist import wrist_plane
     from ...utils.device import resolve_device
     from ..outputs import hand_keypoints_3d, json_artefact, mesh_artefact, write_fit
-    from ..outputs.folder import claim_output_folder
+    from ..outputs.folder import claim_output_folder, hands_entry
     from ..outputs.writer import fit_artefacts
     from ..pair.contact import HandBody, penetration_depths
     from ..pair.record import hands_record, joined_mesh
@@ -469,7 +456,7 @@ def fit_hands_file(points_path: str | os.PathLike, out_dir: str | os.PathLike, c
     points_path, out_dir = Path(points_path), Path(out_dir)
     config = FitPointsConfig() if config is None else config
     hands_config = ScanHandsConfig() if hands_config is None else hands_config
-    claim_output_folder(out_dir, _hands_entry, "hands.json, hands.ply and hand0/, hand1/, ...")
+    claim_output_folder(out_dir, hands_entry, "hands.json, hands.ply and hand0/, hand1/, ...")
     cloud, sensor = read_cloud_file(points_path, units, config, None, log, depth, support)
     view = _fit_viewpoint(viewpoint, sensor, cloud.unit)
     analysis, model_path = _analysed(cloud, view, support, None, config, model_path, log)
@@ -505,5 +492,5 @@ def fit_hands_file(points_path: str | os.PathLike, out_dir: str | os.PathLike, c
         + ", ".join(f"hand{k} {params.side} ({int((found.labels == k).sum())} points)"
                     for k, params in enumerate(found.hands))
         + f"; deepest penetration {depths.max():.1f} mm")
-    return write_fit(out_dir, artefacts, _hands_entry,
+    return write_fit(out_dir, artefacts, hands_entry,
                      "hands.json, hands.ply and hand0/, hand1/, ... folders")
