@@ -15,6 +15,10 @@ keypoints of the Euclidean distance after alignment, in mm:
   patterns", Eqs. 40-42; :func:`procrustes_align`). It measures the articulation and the
   proportions of the hand alone.
 
+Two hands: :func:`mrrpe`, InterHand2.6M's mean relative-root position error: the error of the
+offset from the right hand's root to the left one's, which a root-aligned MPJPE of each hand
+leaves out.
+
 Pure functions: numpy arrays or torch tensors in, Python floats out, computed in float64 on the
 CPU. Nothing here is differentiable.
 """
@@ -27,7 +31,7 @@ import numpy as np
 
 from ..utils.arrays import as_numpy
 
-__all__ = ["mpjpe", "pa_mpjpe", "procrustes_align"]
+__all__ = ["mpjpe", "pa_mpjpe", "procrustes_align", "mrrpe"]
 
 _MM_PER_M = 1000.0
 
@@ -106,3 +110,19 @@ def pa_mpjpe(pred: Any, true: Any) -> float:
     """
     pred, true = _check_pair(pred, true)
     return _mean_distance_mm(procrustes_align(pred, true), true)
+
+
+def mrrpe(pred_right: Any, pred_left: Any, true_right: Any, true_left: Any, root: int = 0
+          ) -> float:
+    """The relative root position error of two hands, mm (InterHand2.6M's MRRPE).
+
+    pred_right, pred_left, true_right, true_left: [K, 3] metres, one frame. root: the keypoint
+    that is a hand's root (0: the wrist). -> ``|(pred_left_root - pred_right_root) -
+    (true_left_root - true_right_root)|`` in mm.
+    """
+    pred_right, true_right = _check_pair(pred_right, true_right)
+    pred_left, true_left = _check_pair(pred_left, true_left)
+    if not 0 <= root < pred_right.shape[0]:
+        raise ValueError(f"root must be in [0, {pred_right.shape[0]}), got {root}")
+    offset = (pred_left[root] - pred_right[root]) - (true_left[root] - true_right[root])
+    return float(np.linalg.norm(offset) * _MM_PER_M)

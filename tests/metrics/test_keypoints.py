@@ -141,3 +141,29 @@ def test_bad_root():
         mpjpe(true, true, root=21)
     with pytest.raises(TypeError, match="root must be an int"):
         mpjpe(true, true, root=1.0)
+
+
+def test_mrrpe_by_hand():
+    """Roots (wrists) 0 and 0.1 m apart in x: fitted offsets (0.1, 0.02, 0) against true
+    (0.09, 0, 0.01) differ by (0.01, 0.02, -0.01) m, 24.495 mm; moving both fitted hands alike
+    changes nothing; other keypoints do not count."""
+    from lisa_hand.metrics.keypoints import mrrpe
+
+    rng = np.random.default_rng(0)
+    true_right = rng.normal(size=(21, 3)) * 0.05
+    true_left = rng.normal(size=(21, 3)) * 0.05
+    true_right[0], true_left[0] = [0.0, 0.0, 0.5], [0.09, 0.0, 0.51]
+    pred_right, pred_left = true_right.copy(), true_left.copy()
+    pred_left[0] = [0.1, 0.02, 0.5]
+    expected = 1000.0 * math.sqrt(0.01 ** 2 + 0.02 ** 2 + 0.01 ** 2)
+    assert mrrpe(pred_right, pred_left, true_right, true_left) == pytest.approx(expected,
+                                                                                rel=1e-12)
+    shift = np.array([0.3, -0.1, 0.2])
+    assert mrrpe(pred_right + shift, pred_left + shift, true_right, true_left) == pytest.approx(
+        expected, rel=1e-9)
+    pred_left[1:] += 0.05  # not the root
+    assert mrrpe(pred_right, pred_left, true_right, true_left) == pytest.approx(expected,
+                                                                                rel=1e-12)
+    assert mrrpe(true_right, true_left, true_right, true_left) == 0.0
+    with pytest.raises(ValueError, match="root"):
+        mrrpe(pred_right, pred_left, true_right, true_left, root=21)

@@ -1,6 +1,6 @@
 """What a fit of several hands writes beside each hand's folder: ``hands.json``
-(:func:`hands_record`) and one mesh of every hand (:func:`joined_mesh`); the relative root
-position error of two hands (:func:`mrrpe_mm`, InterHand2.6M's MRRPE)."""
+(:func:`hands_record`) and one mesh of every hand (:func:`joined_mesh`). The relative root
+position error against a truth is :func:`lisa_hand.metrics.keypoints.mrrpe`."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import numpy as np
 from ...geometry.meshing import Mesh
 from ...skeleton.params import HandParams
 
-__all__ = ["hands_record", "joined_mesh", "right_to_left", "mrrpe_mm"]
+__all__ = ["hands_record", "joined_mesh", "right_to_left"]
 
 
 def right_to_left(sides: Sequence[str], roots: np.ndarray) -> np.ndarray | None:
@@ -21,16 +21,6 @@ def right_to_left(sides: Sequence[str], roots: np.ndarray) -> np.ndarray | None:
     if sorted(sides) != ["left", "right"]:
         return None
     return roots[list(sides).index("left")] - roots[list(sides).index("right")]
-
-
-def mrrpe_mm(sides: Sequence[str], roots: np.ndarray, true_roots: np.ndarray) -> float | None:
-    """The error of the right-to-left root offset, mm (InterHand2.6M's MRRPE): roots and
-    true_roots [2, 3] metres, in the order of ``sides`` (one right, one left); None
-    otherwise."""
-    fitted, true = right_to_left(sides, roots), right_to_left(sides, true_roots)
-    if fitted is None or true is None:
-        return None
-    return float(1000.0 * np.linalg.norm(fitted - true))
 
 
 def hands_record(hands: Sequence[HandParams], folders: Sequence[str], roots: np.ndarray,

@@ -5,13 +5,11 @@ record, and the meshes of all hands joined into one."""
 from __future__ import annotations
 
 import json
-import math
 
 import numpy as np
-import pytest
 import torch
 
-from lisa_hand.fitting.pair.record import hands_record, joined_mesh, mrrpe_mm, right_to_left
+from lisa_hand.fitting.pair.record import hands_record, joined_mesh, right_to_left
 from lisa_hand.geometry.meshing import Mesh
 from lisa_hand.skeleton.params import HandParams
 
@@ -26,21 +24,6 @@ def test_right_to_left_is_the_left_root_minus_the_right_one():
     assert right_to_left(["left", "left"], ROOTS) is None
     assert right_to_left(["right"], ROOTS[:1]) is None
     assert right_to_left(["right", "left", "right"], np.concatenate([ROOTS, ROOTS[:1]])) is None
-
-
-def test_mrrpe_by_hand():
-    # Offsets (0.1, 0.02, 0) and (0.09, 0, 0.01): their difference (0.01, 0.02, -0.01) m.
-    expected = 1000.0 * math.sqrt(0.01 ** 2 + 0.02 ** 2 + 0.01 ** 2)  # 24.495 mm
-    assert mrrpe_mm(["right", "left"], ROOTS, TRUE_ROOTS) == pytest.approx(expected, rel=1e-12)
-    # The same hands listed the other way round.
-    assert mrrpe_mm(["left", "right"], ROOTS[::-1], TRUE_ROOTS[::-1]) == pytest.approx(
-        expected, rel=1e-12)
-    # Only the offset between the hands counts: both fitted roots moved alike changes nothing.
-    assert mrrpe_mm(["right", "left"], ROOTS + [0.3, -0.1, 0.2], TRUE_ROOTS) == pytest.approx(
-        expected, rel=1e-9)
-    assert mrrpe_mm(["right", "left"], TRUE_ROOTS, TRUE_ROOTS) == 0.0
-    assert mrrpe_mm(["right", "right"], ROOTS, TRUE_ROOTS) is None
-    assert mrrpe_mm(["left", "left"], ROOTS, TRUE_ROOTS) is None
 
 
 def hand(side: str) -> HandParams:
