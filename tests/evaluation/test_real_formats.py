@@ -160,3 +160,51 @@ def test_lisa_eval_real_scores_an_imported_split(tmp_path, monkeypatch, capsys):
         main(["eval", "--real", "--out", str(out)])
     assert exit_.value.code == 2
     assert "--real needs DATA" in capsys.readouterr().err
+
+
+def test_interacting_frames_scored_per_hand_and_by_mrrpe(tmp_path):
+    """The imported InterHand2.6M fixture's interacting frame gives a pair of frames (right,
+    left): a predictor off by 10 mm along x for right hands and 4 mm along y for left ones
+    scores MRRPE sqrt(10^2 + 4^2) mm on that pair alone; a predictor with ``pair`` is given the
+    two hands at once, once."""
+    from lisa_hand.data.frame_table import read_frame_table
+    from lisa_hand.data.importers.interhand import InterHandConfig, import_interhand
+    from lisa_hand.evaluation.real_formats import interacting_pairs
+    from tests.data.importers.fixtures import interhand_fixture
+
+    interhand_fixture(tmp_path / "IH")
+    data = tmp_path / "DATA"
+    import_interhand(InterHandConfig(root=str(tmp_path / "IH")), data, progress=False)
+    frames = read_frame_table(data, "train").frames
+    pairs = interacting_pairs(frames)
+    assert len(pairs) == 2 and len(set(pairs.values())) == 1
+    right, left = next(iter(pairs.values()))
+    assert read_json(frames[right].params)["side"] == "right"
+    assert read_json(frames[left].params)["side"] == "left"
+    offsets = {"right": np.array([0.01, 0.0, 0.0]), "left": np.array([0.0, 0.004, 0.0])}
+
+    def shifted(paths):
+        params = read_json(paths.params)
+        return Prediction(keypoints=np.asarray(params["keypoints"]) + offsets[params["side"]])
+
+    scores = evaluate_split(data, "train", shifted)
+    assert len(scores.frames) == len(frames) and len(scores.pairs) == 1
+    assert scores.pairs[0]["mrrpe_mm"] == pytest.approx(np.hypot(10.0, 4.0), rel=1e-9)
+    assert scores.means["mrrpe_mm"] == pytest.approx(np.hypot(10.0, 4.0), rel=1e-9)
+    assert scores.means["mpjpe_mm"] < 1e-9  # root-aligned: a shift costs nothing
+
+    class Pairing:
+        def __init__(self):
+            self.calls = []
+
+        def __call__(self, paths):
+            return shifted(paths)
+
+        def pair(self, right_paths, left_paths):
+            self.calls.append((right_paths.root, left_paths.root))
+            return shifted(right_paths), shifted(left_paths)
+
+    pairing = Pairing()
+    again = evaluate_split(data, "train", pairing)
+    assert pairing.calls == [(frames[right].root, frames[left].root)]
+    assert again.pairs == scores.pairs
