@@ -143,16 +143,42 @@ def _find_hands(photo: Any, keypoints_json: Any, config: FitPhotoConfig,
         raise ValueError(f"{photo.path}: no hand found (searched the whole photo, zoomed out "
                          "and in crops); pass the 21 keypoints with --keypoints KP.json")
     shift = config.detector_wrist_shift
-    hands = [PhotoHand(keypoints=detect.to_skeleton_wrist(hand.keypoints, shift),
-                       visible=np.ones(len(hand.keypoints), bool), side=hand.side,
-                       score=float(hand.score), source="detected",
-                       detector_keypoints=np.asarray(hand.keypoints, np.float64) if shift else None,
-                       side_votes=tuple(hand.side_votes))
-             for hand in found]
+    hands = [hand for hand in (_detected_hand(photo, one, shift, log) for one in found)
+             if hand is not None]
+    if not hands:
+        raise ValueError(f"{photo.path}: every hand found is cut by the photo's border (too "
+                         "few of its keypoints inside); pass the 21 keypoints with --keypoints "
+                         "KP.json")
     log(f"{photo.path.name}: {len(hands)} hand(s) found ("
         + ", ".join(f"{hand.side} {hand.score:.2f}" + (
             f", split vote {_votes(hand)}" if hand.side_split else "") for hand in hands) + ")")
     return hands
+
+
+def _detected_hand(photo: Any, hand: Any, shift: float, log: Callable[[str], None]
+                   ) -> PhotoHand | None:
+    """A detected hand as the fit's input: keypoints outside the photo (a hand cut by its
+    border: the detector's guesses) are not visible, said in one line; None (said) when fewer
+    than :data:`MIN_VISIBLE` are inside."""
+    from ...data import detect
+    from .inputs import MIN_VISIBLE, fill_hidden
+
+    keypoints = detect.to_skeleton_wrist(hand.keypoints, shift)
+    height, width = photo.image.shape[:2]
+    inside = ((keypoints >= 0.0) & (keypoints <= [width, height])).all(axis=1)
+    where = f"{photo.path.name}: the {hand.side} hand at x {keypoints[:, 0].mean():.0f} px"
+    if inside.sum() < MIN_VISIBLE:
+        log(f"{where} is cut by the photo's border ({int(inside.sum())} of 21 keypoints inside): "
+            "not fitted")
+        return None
+    if not inside.all():
+        log(f"{where} is cut by the photo's border: its {int((~inside).sum())} keypoint(s) "
+            "outside are left to the fit's prior")
+        keypoints = fill_hidden(keypoints, inside)
+    return PhotoHand(keypoints=keypoints, visible=inside, side=hand.side,
+                     score=float(hand.score), source="detected",
+                     detector_keypoints=np.asarray(hand.keypoints, np.float64) if shift else None,
+                     side_votes=tuple(hand.side_votes))
 
 
 def _read_inputs(photos: list[Path], camera_json: Any, focal_px: float | None,

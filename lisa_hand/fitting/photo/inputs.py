@@ -40,8 +40,8 @@ from ...skeleton import NUM_KEYPOINTS
 from ..images.views import ImageView
 from .mask import hand_scale_px
 
-__all__ = ["MIN_VISIBLE", "OUTSIDE_MARGIN", "PhotoHand", "read_given_hands", "read_given_mask",
-           "check_hand_size", "CropView", "crop_view"]
+__all__ = ["fill_hidden", "MIN_VISIBLE", "OUTSIDE_MARGIN", "PhotoHand", "read_given_hands",
+           "read_given_mask", "check_hand_size", "CropView", "crop_view"]
 
 MIN_VISIBLE = 8
 """Fewest visible keypoints a given hand must have."""
@@ -85,7 +85,7 @@ def _image_factors(photo: Any) -> np.ndarray:
     return np.array([photo.image.shape[1] / width, photo.image.shape[0] / height])
 
 
-def _fill_hidden(keypoints: np.ndarray, visible: np.ndarray) -> np.ndarray:
+def fill_hidden(keypoints: np.ndarray, visible: np.ndarray) -> np.ndarray:
     """Keypoints with every hidden one replaced by its nearest visible ancestor (else the mean
     of the visible ones): harmless stand-ins for the mask's skeleton."""
     filled = keypoints.copy()
@@ -221,7 +221,7 @@ def read_given_hands(path: str | os.PathLike, photo: Any) -> list[PhotoHand]:
     for index, (keypoints, visible, side) in enumerate(entries):
         where = f"{path}: hand {index}" if len(entries) > 1 else str(path)
         _check_in_photo(keypoints, visible, photo, where)
-        filled = _fill_hidden(keypoints, visible)
+        filled = fill_hidden(keypoints, visible)
         hands.append(PhotoHand(keypoints=filled * _image_factors(photo), visible=visible,
                                side=side, score=None, source=str(path)))
     return hands
