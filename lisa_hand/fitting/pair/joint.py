@@ -21,7 +21,9 @@ fitted to stays its evidence (:class:`JointHand`): its 2D keypoints in each view
   ``order_radius_px``), along that view's rays; pseudo-Huber in mm, and only for samples at
   least ``order_margin_px`` inside that mask (a mask's edge is not exact).
 
-Adam under the one cosine schedule (:mod:`lisa_hand.fitting.optim`), every hand at once.
+Adam under the one cosine schedule (:mod:`lisa_hand.fitting.optim`), every hand at once. Hands
+that do not meet (no hand inside another, no surface in front where a mask says another hand
+is) are returned as fitted alone: there is nothing to resolve.
 """
 
 from __future__ import annotations
@@ -314,6 +316,13 @@ def fit_hands_together(model: Any, hands: list[JointHand], template: Any,
     with torch.no_grad():
         report.energy_start = {name: float(value) for name, value
                                in energy.parts(pose, translation, shape).items()}
+    if not _interacting(report, config):
+        report.iters = 0  # nothing to resolve: the hands as fitted alone
+        report.penetration_end_mm = report.penetration_start_mm
+        report.keypoint_error_end_px = report.keypoint_error_start_px
+        report.energy_end = dict(report.energy_start)
+        report.seconds = time.perf_counter() - began
+        return [hand.params for hand in hands], report
     if config.iters > 0:
         optimizer = adam([(pose, config.pose_lr), (translation, config.translation_lr),
                           (shape, config.shape_lr)])
@@ -339,6 +348,14 @@ def fit_hands_together(model: Any, hands: list[JointHand], template: Any,
                              in energy.parts(pose, translation, shape).items()}
     report.seconds = time.perf_counter() - began
     return fitted, report
+
+
+def _interacting(report: JointReport, config: JointConfig) -> bool:
+    """Whether the hands meet: one inside another beyond ``contact_mm``, or a hand's surface
+    in front where a mask says another hand is. Hands that do not are left as fitted alone
+    (the joint stage has nothing to resolve, and its keypoint term would only refit them)."""
+    deepest = float(report.penetration_start_mm.max(initial=0.0))
+    return deepest > config.contact_mm or report.energy_start.get("order", 0.0) > 0.0
 
 
 def _right(params: HandParams) -> HandParams:

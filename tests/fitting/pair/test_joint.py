@@ -128,6 +128,20 @@ def test_no_steps_give_the_hands_back(model, template, overlapping):
     assert report.to_dict()["iters"] == 0
 
 
+def test_hands_that_do_not_meet_stay_as_fitted_alone(model, template, crossing):
+    """Apart in depth, masks in the true order, keypoints 2 px off: nothing to resolve, so the
+    hands come back as they are (the keypoint term would only refit them), no step taken."""
+    hands, meshes, shapes = crossing
+    joint = joint_hands(hands, meshes, [shapes[0], shapes[1] & ~shapes[0]])
+    joint = [JointHand(params=hand.params, mesh=hand.mesh, views=tuple(
+        HandView(K=view.K, keypoints=view.keypoints + 2.0, visible=view.visible, mask=view.mask)
+        for view in hand.views)) for hand in joint]
+    fitted, report = fit_hands_together(model, joint, template, JointConfig())
+    assert report.iters == 0 and report.energy_start["keypoints"] > 0.0
+    assert report.energy_start["penetration"] == 0.0 and report.energy_start["order"] == 0.0
+    assert all(hand is start for hand, start in zip(fitted, hands, strict=True))
+
+
 # ------------------------------------------------------------------------------------------------
 # Depth order from the masks.
 
