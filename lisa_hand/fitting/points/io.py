@@ -486,6 +486,12 @@ def fit_hands_file(points_path: str | os.PathLike, out_dir: str | os.PathLike, c
                           "the scan's (metres)",
                           None if found.joint is None else found.joint.to_dict(), [])
     record["points_unassigned"] = int((found.labels < 0).sum())
+    sides = [params.side for params in found.hands]
+    for side in ("right", "left"):
+        if sides.count(side) > 1:
+            record["notes"].append(f"{sides.count(side)} {side} hands: fitted as found (two "
+                                   "people's hands, or a side the fit got wrong: --side)")
+            log(record["notes"][-1])
     artefacts += [json_artefact("hands.json", record),
                   mesh_artefact(joined_mesh(meshes), "hands.ply")]
     log(f"{count} hands fitted together in {found.seconds:.0f} s: "
