@@ -90,6 +90,9 @@ def fit_images(
                                     view_calibration=view_calibration)
     config = with_settings(FitImagesConfig(**overrides), settings)
     sides = [one.value for one in side] if side else ["right"]
+    if len(frames) > 1 and not side:
+        raise ValueError(f"{len(frames)} frame folders: give one --side per folder, in order "
+                         "(e.g. --side right --side left)")
     if len(frames) > 1:
         _fit_hands(frames, out, sides, gt=gt, views=names, model_path=model, resolution=res,
                    config=config, device=device, progress=progress)

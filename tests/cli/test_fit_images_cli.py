@@ -202,3 +202,25 @@ def test_shape_fit_and_guard_flags_reach_the_fit(lisa, files, tmp_path, monkeypa
     with pytest.raises(SystemExit):
         lisa(["fit-images", str(files["frame"]), "--out", str(tmp_path / "out"), *flags])
     assert (seen["config"].shape_fit, seen["config"].guard) == (shape_fit, guard)
+
+
+@pytest.mark.parametrize("frames, sides, message", [
+    (2, ["right"], "2 frame folder(s) and 1 side(s): give one --side per folder, in order"),
+    (2, [], "give one --side per folder, in order"),  # the one default side is not two
+    (1, ["right", "left"], "2 --side options for one frame folder: give one"),
+])
+def test_sides_must_match_the_frame_folders(lisa, files, tmp_path, capsys, frames, sides,
+                                            message):
+    second = tmp_path / "second"
+    shutil.copytree(files["frame"], second)
+    folders = [str(files["frame"]), str(second)][:frames]
+    out = tmp_path / "out"
+    argv = ["fit-images", *folders, "--out", str(out), "--model", str(files["model"]), *FAST]
+    for side in sides:
+        argv += ["--side", side]
+    with pytest.raises(SystemExit) as info:
+        lisa(argv)
+    assert info.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("lisa: error: ") and "\n" not in err and message in err, err
+    assert "Traceback" not in err and not out.exists()

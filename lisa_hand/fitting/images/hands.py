@@ -4,7 +4,7 @@ fitted alone (:func:`lisa_hand.fitting.images.fit.fit_images`), then all togethe
 (:func:`lisa_hand.fitting.pair.joint.fit_hands_together`: every hand's keypoints in every
 view, each hand's field at the other hands' surfaces, depth order from the views' masks split
 between the hands), and written as ``OUT/handN/`` (``params.json``, ``mesh.ply``,
-``keypoints.json``, ``metrics.json``), ``OUT/hands.json`` and ``OUT/hands.ply``
+``keypoints.json``), ``OUT/hands.json`` and ``OUT/hands.ply``
 (:func:`fit_image_folders`).
 """
 
@@ -46,6 +46,17 @@ def _joint_views(hands_views: list[list[Any]]) -> list[tuple[Any, ...]]:
                 keypoints=view.keypoints.double().cpu().numpy(),
                 visible=view.visible.cpu().numpy().astype(bool), mask=mask))
     return [tuple(views) for views in out]
+
+
+def _same_camera(first: Any, second: Any) -> bool:
+    """The same calibration: intrinsics within 0.01 px, pose within 1e-5 (rotation) and 0.01
+    mm, the same image size."""
+    import torch
+
+    return ((first.width, first.height) == (second.width, second.height)
+            and torch.allclose(first.K.double(), second.K.double(), atol=1e-2)
+            and torch.allclose(first.R.double(), second.R.double(), atol=1e-5)
+            and torch.allclose(first.t.double(), second.t.double(), atol=1e-5))
 
 
 @releases_output_locks
@@ -103,6 +114,12 @@ def fit_image_folders(
     if any(one != names[0] for one in names):
         raise ValueError(f"the frame folders {', '.join(map(str, frame_dirs))} must hold the "
                          f"same cameras (--views to choose), got {names}")
+    for frame, one in zip(frame_dirs[1:], hands_views[1:], strict=True):
+        for view, first in zip(one, hands_views[0], strict=True):
+            if not _same_camera(view.camera, first.camera):
+                raise ValueError(f"{frame}: camera {view.name} is not {frame_dirs[0]}'s "
+                                 f"{first.name} (other intrinsics or pose): the hands must be "
+                                 "seen by the same calibrated cameras")
     out_dir = claim_output_folder(out_dir, hands_entry, "hands.json, hands.ply and hand0/, "
                                   "hand1/, ... folders")
     model = load_trained(model_path, resolve_device(device))

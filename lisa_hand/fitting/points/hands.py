@@ -74,22 +74,43 @@ def _spread(points: np.ndarray) -> float:
     return float(extent[0] * extent[1])
 
 
+def _gap(points: np.ndarray, labels: np.ndarray) -> float:
+    """The distance between the two parts of a split, metres (their nearest points)."""
+    from scipy.spatial import cKDTree
+
+    first, second = points[labels == 0], points[labels == 1]
+    if not len(first) or not len(second):
+        return 0.0
+    return float(cKDTree(first).query(second)[0].min())
+
+
 def initial_split(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
     """[N] labels 0..count-1: a first guess of which hand each point belongs to. Candidates:
     k-means on the positions, and (two hands) the points cut in half by the median plane across
-    each principal axis; kept: the one whose smallest part spreads widest (:func:`_spread`: each
-    part should be a whole hand, not two hands' fingers and two hands' palms, which is how
-    k-means cuts two flat hands lying palm to palm)."""
+    each principal axis. Parts apart from each other (a gap of more than three times the
+    points' spacing) are two hands apart: the candidate with the widest gap wins. Otherwise
+    (touching hands) the one whose smallest part spreads widest (:func:`_spread`: each part
+    should be a whole hand, not two hands' fingers and two hands' palms, which is how k-means
+    cuts two flat hands lying palm to palm)."""
+    from scipy.spatial import cKDTree
+
     points = np.asarray(points, np.float64)
     if count < 1 or len(points) < count:
         raise ValueError(f"cannot split {len(points)} points into {count} hands")
     candidates = [kmeans_split(points, count, seed)]
-    if count == 2:
-        centred = points - points.mean(0)
-        _, _, axes = np.linalg.svd(centred[:: max(1, len(points) // 4000)], full_matrices=False)
-        for axis in axes:
-            along = centred @ axis
-            candidates.append((along > np.median(along)).astype(np.int64))
+    if count != 2:
+        return candidates[0]
+    centred = points - points.mean(0)
+    _, _, axes = np.linalg.svd(centred[:: max(1, len(points) // 4000)], full_matrices=False)
+    for axis in axes:
+        along = centred @ axis
+        candidates.append((along > np.median(along)).astype(np.int64))
+    sample = points[:: max(1, len(points) // 2000)]
+    spacing = float(np.median(cKDTree(sample).query(sample, k=2)[0][:, 1])) * max(
+        1.0, np.sqrt(len(sample) / len(points)))
+    gaps = [_gap(points, labels) for labels in candidates]
+    if max(gaps) > 3.0 * spacing:
+        return candidates[int(np.argmax(gaps))]
     return max(candidates, key=lambda labels: min(_spread(points[labels == k])
                                                   for k in range(count)))
 
