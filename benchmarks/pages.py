@@ -45,6 +45,8 @@ SECTIONS: dict[str, tuple[str, str]] = {
               "python -m benchmarks photo"),
     "video": ("Video: lisa fit-video tracked against every frame fitted alone",
               "python -m benchmarks video"),
+    "two_hands": ("Two hands: photos, scans and views of two hands fitted together against each "
+                  "hand alone", "python -m benchmarks two_hands --modes photo,scan,views"),
     "rgbd": ("RGB-D frames: depth with and without its colour image",
              "python -m benchmarks rgbd --frames 1 --threads 1"),
     "colours": ("Colours of a fit from a coloured scan",
@@ -338,10 +340,61 @@ def _video(data: dict) -> list[str]:
     return lines
 
 
+def _two_hands(data: dict) -> list[str]:
+    """Per input mode (photo, scan, views): the means per kind and fit, the targets, one row a
+    scene and fit; then the real photos. A file of before ``--modes`` is its photo mode."""
+    per_mode = data.get("per_mode") or ({"photo": data} if "means" in data else {})
+    lines = _scalars({key: value for key, value in data.items() if key != "work"})
+    if data.get("notes"):
+        lines += ["", *(f"- {note}" for note in data["notes"])]
+    header = ["kind", "fit", "both hands found", "MPJPE mm", "PA-MPJPE mm", "MRRPE mm",
+              "MRRPE (hands.json) mm", "penetration mm", "max penetration mm", "s / fit",
+              "failed"]
+    for mode, part in per_mode.items():
+        groups = [*(part.get("kinds") or {}).items(), ("all", part.get("means") or {})]
+        rows = [[kind, fit, f"{row['both_found']}/{row['scenes']}", row["mpjpe_mm"],
+                 row["pa_mpjpe_mm"], row["mrrpe_mm"], row.get("hands_json_mrrpe_mm"),
+                 row["penetration_mm"], row.get("max_penetration_mm"), row["seconds"],
+                 row["failed"]] for kind, fits in groups for fit, row in fits.items()]
+        if rows:
+            lines += ["", f"**From {_TWO_HAND_INPUTS.get(mode, mode)}** (`{mode}`): rendered "
+                      "two-hand scenes with truth (held-out subjects), means per kind and over "
+                      "all (MPJPE root-aligned; MRRPE from the matched hands' wrists; "
+                      "penetration: the fit's `hands.json`):", ""]
+            lines += _table(header, rows)
+        targets = part.get("targets") or {}
+        if targets:
+            lines += ["", f"Targets (`{mode}`, the fit together):", ""]
+            lines += _table(["target", "met", "measured"],
+                            [[f"`{name}`", "not measured" if t["met"] is None else t["met"],
+                              t["value"]] for name, t in targets.items()])
+    rows = [[mode, scene["scene"], scene["kind"], fit, f"{scene[fit]['hands_found']}/2",
+             scene[fit].get("mpjpe_mm"), scene[fit].get("pa_mpjpe_mm"),
+             scene[fit]["mrrpe_mm"], scene[fit]["penetration_mm"], scene[fit]["seconds"],
+             scene[fit].get("error")]
+            for mode, part in per_mode.items() for scene in part.get("scenes") or []
+            for fit in ("together", "alone")]
+    if rows:
+        lines += ["", "Per scene:", ""]
+        lines += _table(["mode", "scene", "kind", "fit", "hands found", "MPJPE mm",
+                         "PA-MPJPE mm", "MRRPE mm", "penetration mm", "s", "error"], rows)
+    real = data.get("real") or []
+    if real:
+        lines += ["", "Real photos (no truth): the hands fitted and the fit's overlay:", ""]
+        lines += _table(["photo", "hands", "overlay", "s", "error"],
+                        [[row["photo"], row["hands"], _here(row["overlay"] or "-"),
+                          row["seconds"], row.get("error")] for row in real])
+    return lines
+
+
+_TWO_HAND_INPUTS = {"photo": "one photo", "scan": "a scan of both hands",
+                    "views": "4 calibrated views"}
+
+
 RENDERERS: dict[str, Callable[[dict], list[str]]] = {
     "fit": _fit, "photo": _photo, "video": _video, "field": _field, "mesh": _mesh,
     "render": _render, "handmodel": _handmodel, "oneview": _oneview, "rgbd": _rgbd,
-    "colours": _colours,
+    "colours": _colours, "two_hands": _two_hands,
 }
 
 
