@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 __all__ = ["PhotoSceneConfig", "SyntheticPhoto", "held_out_subjects", "photo_orientation",
-           "make_photo"]
+           "save_photo", "make_photo"]
 
 _STREAM_PHOTO = 7
 # The split the shipped models were trained on (README, "Pretrained model"): the 203-subject
@@ -201,9 +201,25 @@ def _render(posed, hand_length: float, camera_2x, rng, config: PhotoSceneConfig)
     return view.rgb, view.mask, view.depth
 
 
+def save_photo(rgb: np.ndarray, mask: np.ndarray, textured: bool, rng: np.random.Generator,
+               config: PhotoSceneConfig, path: Path) -> Path:
+    """A rendering at twice the photo's size (``rgb`` [2H, 2W, 3], ``mask`` [2H, 2W]) over a
+    plain or ``textured`` background, averaged down, with sensor noise, saved as a JPEG without
+    EXIF at ``path`` -> ``path``."""
+    from PIL import Image
+
+    background = _background(rng, 2 * config.height, 2 * config.width, textured)
+    image = np.where(mask[..., None], rgb, background)
+    image = image.reshape(config.height, 2, config.width, 2, 3).mean(axis=(1, 3))
+    image = image + config.noise_std * rng.standard_normal(image.shape)
+    pixels = np.clip(np.round(255.0 * image), 0, 255).astype(np.uint8)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(pixels).save(path, "JPEG", quality=config.jpeg_quality)
+    return path
+
+
 def make_photo(config: PhotoSceneConfig, index: int, out_dir: Path) -> SyntheticPhoto:
     """Photo ``index`` (see the module docstring), written to ``out_dir/photo_INDEX.jpg``."""
-    from PIL import Image
 
     from lisa_hand.data.images import project_keypoints
     from lisa_hand.data.synth import SynthConfig, make_subject
@@ -233,16 +249,7 @@ def make_photo(config: PhotoSceneConfig, index: int, out_dir: Path) -> Synthetic
     camera_2x = Camera(K=K_2x, R=eye, t=zero, width=2 * config.width, height=2 * config.height)
     rgb, mask, depth = _render(posed, hand.shape.hand_length, camera_2x, rng, config)
     textured = (index // 2) % 2 == 1
-    background = _background(rng, 2 * config.height, 2 * config.width, textured)
-    image = np.where(mask[..., None], rgb, background)
-    image = image.reshape(config.height, 2, config.width, 2, 3).mean(axis=(1, 3))
-    image = image + config.noise_std * rng.standard_normal(image.shape)
-    pixels = np.clip(np.round(255.0 * image), 0, 255).astype(np.uint8)
-
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / f"photo_{index:03d}.jpg"
-    Image.fromarray(pixels).save(path, "JPEG", quality=config.jpeg_quality)
+    path = save_photo(rgb, mask, textured, rng, config, Path(out_dir) / f"photo_{index:03d}.jpg")
     keypoints = posed.keypoints.numpy()
     visible = project_keypoints(keypoints, camera_2x, depth=depth).visible
     projection = project_keypoints(keypoints, camera)

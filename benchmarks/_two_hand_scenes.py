@@ -25,8 +25,9 @@ left is measured exactly (:func:`lisa_hand.geometry.mesh_distance.mesh_distance`
 under 1 mm (pressing digits opened, or the moving hand stepped out). The pair is turned as a
 whole, put 0.35-0.5 m from a phone-like camera (60-70 degrees horizontal field of view; further
 if it would leave the view), rendered as one mesh by :func:`benchmarks._photo_scenes._render`
-(Embree at twice the size) over its ``_background`` (plain in even scenes, textured in odd ones),
-averaged down, with sensor noise, and saved as a JPEG without EXIF.
+(Embree at twice the size) over a background (plain in even scenes, textured in odd ones),
+averaged down, with sensor noise, and saved as a JPEG without EXIF
+(:func:`benchmarks._photo_scenes.save_photo`).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ._photo_scenes import _TRAINING_SEED, _background, _render, _rotation, held_out_subjects
+from ._photo_scenes import _TRAINING_SEED, _render, _rotation, held_out_subjects, save_photo
 
 __all__ = ["KINDS", "TwoHandSceneConfig", "TrueHand", "TwoHandPhoto", "make_two_hand_photo"]
 
@@ -606,7 +607,6 @@ def _true_hand(item: _Hand, camera, camera_2x, depth) -> TrueHand:
 
 def make_two_hand_photo(config: TwoHandSceneConfig, index: int, out_dir: Path) -> TwoHandPhoto:
     """Scene ``index`` (see the module docstring), written to ``out_dir/two_hands_INDEX.jpg``."""
-    from PIL import Image
 
     from lisa_hand.geometry.cameras import Camera, intrinsics_from_fov
     from lisa_hand.geometry.meshing import Mesh
@@ -631,15 +631,8 @@ def make_two_hand_photo(config: TwoHandSceneConfig, index: int, out_dir: Path) -
     length = max(item.hand.shape.hand_length for item in hands.values())
     rgb, mask, depth = _render(_meshed(meshes), length, camera_2x, rng, config)
     textured = index % 2 == 1
-    background = _background(rng, 2 * config.height, 2 * config.width, textured)
-    image = np.where(mask[..., None], rgb, background)
-    image = image.reshape(config.height, 2, config.width, 2, 3).mean(axis=(1, 3))
-    image = image + config.noise_std * rng.standard_normal(image.shape)
-    pixels = np.clip(np.round(255.0 * image), 0, 255).astype(np.uint8)
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    path = out_dir / f"two_hands_{index:03d}.jpg"
-    Image.fromarray(pixels).save(path, "JPEG", quality=config.jpeg_quality)
+    path = save_photo(rgb, mask, textured, rng, config,
+                      Path(out_dir) / f"two_hands_{index:03d}.jpg")
     truth = {side: _true_hand(item, camera, camera_2x, depth) for side, item in hands.items()}
     return TwoHandPhoto(path=path, index=index, kind=kind, right=truth["right"],
                         left=truth["left"], penetration_mm=penetration * 1000.0,

@@ -39,22 +39,13 @@ def scene(tmp_path_factory):
     """The shipped geometric model's mean right hand (palm to a camera at -z) and its mirror
     image as a left hand, 13 mm apart back to back; a scan of them (points on their meshes:
     800 of each, and 10 far from both) as ``scan.npy``."""
-    from lisa_hand.handmodel.template import load_template
     from lisa_hand.inference import mesh_hand
     from lisa_hand.model.trained import load_trained
-    from lisa_hand.skeleton.params import HandParams
-    from tests.fitting.pair.scene import BACK_M, FACING, mirrored_left, turned
+    from tests.fitting.pair.scene import BACK_M, mean_right_hand, mirrored_left
 
     root = tmp_path_factory.mktemp("fit_points_hands")
     model = load_trained("geometry_v2", torch.device("cpu"))
-    template = load_template()
-    betas = torch.zeros(1, template.num_betas, dtype=template.dtype)
-    rest = template.rest_joints(betas)[0].float()
-    right = turned(HandParams(pose=torch.zeros(48), translation=-rest[0], rest_joints=rest,
-                              shape_code=model.mean_shape_code().float(),
-                              betas=betas[0].float()), FACING)
-    right = dataclasses.replace(right, translation=right.translation
-                                + torch.tensor([0.04, 0.06, 0.45]))
+    right = mean_right_hand(model)
     hands = [right, mirrored_left(right, BACK_M + 0.01)]
     rng = np.random.default_rng(0)
     points = [mesh_hand(model, hand, 32).vertices for hand in hands]

@@ -189,19 +189,10 @@ def geometry():
 def apart(geometry):
     """The model's mean right hand (palm to a camera at -z) and the mirror image of it as a
     left hand, back to back 13 mm apart, and their meshes (64 samples a side)."""
-    from lisa_hand.handmodel.template import load_template
     from lisa_hand.inference import mesh_hand
-    from lisa_hand.skeleton.params import HandParams
-    from tests.fitting.pair.scene import BACK_M, FACING, mirrored_left, turned
+    from tests.fitting.pair.scene import BACK_M, mean_right_hand, mirrored_left
 
-    template = load_template()
-    betas = torch.zeros(1, template.num_betas, dtype=template.dtype)
-    rest = template.rest_joints(betas)[0].float()
-    right = turned(HandParams(pose=torch.zeros(48), translation=-rest[0], rest_joints=rest,
-                              shape_code=geometry.mean_shape_code().float(),
-                              betas=betas[0].float()), FACING)
-    right = dataclasses.replace(right, translation=right.translation
-                                + torch.tensor([0.04, 0.06, 0.45]))
+    right = mean_right_hand(geometry)
     left = mirrored_left(right, BACK_M + 0.01)
     hands = [right, left]
     return hands, [mesh_hand(geometry, hand, 64) for hand in hands]

@@ -39,15 +39,18 @@ def turned(hand: HandParams, rotation: torch.Tensor) -> HandParams:
 
 
 def mean_right_hand(model, wrist=(0.04, 0.06, 0.45)) -> HandParams:
-    """The model's mean hand, flat, turned by :data:`FACING`, its wrist at ``wrist``."""
+    """The model's mean hand, flat, turned by :data:`FACING`, its wrist at ``wrist`` (no
+    colour code for a geometry-only model)."""
     from lisa_hand.handmodel.template import load_template
 
+    colour = model.mean_color_code()
     template = load_template()
     betas = torch.zeros(1, template.num_betas, dtype=template.dtype)
     rest = template.rest_joints(betas)[0].float()
     hand = HandParams(pose=torch.zeros(48), translation=-rest[0], rest_joints=rest,
                       shape_code=model.mean_shape_code().float(),
-                      color_code=model.mean_color_code().float(), betas=betas[0].float())
+                      color_code=None if colour is None else colour.float(),
+                      betas=betas[0].float())
     hand = turned(hand, FACING)
     return replace(hand, translation=hand.translation + torch.tensor(wrist))
 
