@@ -249,7 +249,9 @@ def _keep_seeded(mask: np.ndarray, seeds: np.ndarray) -> np.ndarray:
 
 def _grabcut(image: np.ndarray, labels: np.ndarray) -> np.ndarray | None:
     """GrabCut on a uint8 RGB image with an initial label map (cv2.GC_* values) -> [h, w] bool
-    foreground, or None when the labels lack foreground or background pixels."""
+    foreground, or None when the labels lack foreground or background pixels. GrabCut's
+    k-means draws from OpenCV's global generator: it is seeded first, so the same photo gives
+    the same mask in any call of any process."""
     import cv2
 
     is_fg = (labels == cv2.GC_FGD) | (labels == cv2.GC_PR_FGD)
@@ -258,6 +260,7 @@ def _grabcut(image: np.ndarray, labels: np.ndarray) -> np.ndarray | None:
     work = labels.astype(np.uint8).copy()
     background_model = np.zeros((1, 65), np.float64)
     foreground_model = np.zeros((1, 65), np.float64)
+    cv2.setRNGSeed(0)
     try:
         cv2.grabCut(image, work, None, background_model, foreground_model,
                     GRABCUT_ITERATIONS, cv2.GC_INIT_WITH_MASK)
