@@ -82,15 +82,19 @@ def fit_together(model: Any, alones: list[Any], config: Any, progress: bool,
                                                 progress)
             for alone, params in zip(alones, fitted, strict=True):
                 params.extra["joint"] = report.to_dict()
-                alone.result = dataclasses.replace(alone.result, params=params,
-                                                   surface_meshes={})
-            meshes = [alone_mesh(model, alone, config) for alone in alones]
+                if report.iters > 0:  # moved: its surface is meshed again
+                    alone.result = dataclasses.replace(alone.result, params=params,
+                                                       surface_meshes={})
+            if report.iters > 0:
+                meshes = [alone_mesh(model, alone, config) for alone in alones]
         bodies = [HandBody.of(model, alone.result.params, mesh, 1, 0)
                   for alone, (mesh, _) in zip(alones, meshes, strict=True)]
         depths = penetration_depths(model, bodies)
-    if report is not None:
+    if report is not None and report.iters > 0:
         log(f"hands fitted together: deepest penetration {report.penetration_start_mm.max():.1f}"
             f" -> {depths.max():.1f} mm ({report.seconds:.1f} s)")
+    elif report is not None:
+        log("the hands do not meet: each kept as fitted alone")
     for note in notes:
         log(note)
     return Together(meshes=meshes, penetration_mm=depths, report=report, notes=notes)
