@@ -24,15 +24,7 @@ from ...skeleton import mirror_points
 from ...skeleton.params import HandParams
 from ..sides import mirror_hand
 
-__all__ = ["HandBody", "mirror_mesh", "penetration_depths"]
-
-
-def mirror_mesh(mesh: Mesh) -> Mesh:
-    """The mirror image of a mesh through x = 0 (faces reversed, so they still face out)."""
-    vertices = mesh.vertices.copy()
-    vertices[:, 0] *= -1.0
-    return Mesh(vertices=vertices, faces=np.ascontiguousarray(mesh.faces[:, ::-1]),
-                colors=mesh.colors, skin_weights=mesh.skin_weights)
+__all__ = ["HandBody", "penetration_depths"]
 
 
 @dataclass
@@ -53,6 +45,7 @@ class HandBody:
         its body with ``samples`` surface samples (a fixed random subset of the vertices of the
         mesh decimated to ``max_faces`` and moved onto the field's zero level)."""
         from ...geometry.decimation import decimate_mesh
+        from ...inference.mesh import mirror_mesh
         from ...inference.skinned import SkinnedMesh
 
         flip = params.side == "left"

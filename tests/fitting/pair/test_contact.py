@@ -12,12 +12,11 @@ import numpy as np
 import pytest
 import torch
 
-from lisa_hand.fitting.pair.contact import HandBody, mirror_mesh, penetration_depths
+from lisa_hand.fitting.pair.contact import HandBody, penetration_depths
 from lisa_hand.geometry.mesh_distance import mesh_distance
 from lisa_hand.geometry.meshing import Mesh
 from lisa_hand.inference import mesh_hand
 from lisa_hand.inference.hand_field import hand_field
-from lisa_hand.inference.mesh import mirror_mesh as inference_mirror_mesh
 
 from .scene import BACK_M, mean_right_hand, mirrored_left
 
@@ -43,36 +42,12 @@ def hands(model):
             for side, hand in (("right", right), ("left", left))}
 
 
-def signed_volume(mesh: Mesh) -> float:
-    v = mesh.vertices.astype(np.float64)[mesh.faces]
-    return float(np.einsum("fi,fi->f", v[:, 0], np.cross(v[:, 1], v[:, 2])).sum() / 6.0)
-
-
 def near_points(mesh: Mesh, seed: int) -> torch.Tensor:
     """[600, 3] world points within about 1 cm of the hand's surface (inside and out)."""
     rng = np.random.default_rng(seed)
     rows = rng.choice(len(mesh.vertices), 600, replace=False)
     points = mesh.vertices[rows].astype(np.float64) + rng.normal(0.0, 0.004, (600, 3))
     return torch.from_numpy(points).float()
-
-
-def test_mirror_mesh_twice_is_the_identity_and_keeps_faces_outward(hands):
-    _, mesh = hands["right"]
-    mirrored = mirror_mesh(mesh)
-    np.testing.assert_array_equal(mirrored.vertices[:, 1:], mesh.vertices[:, 1:])
-    np.testing.assert_array_equal(mirrored.vertices[:, 0], -mesh.vertices[:, 0])
-    volume = signed_volume(mesh)
-    assert volume > 1e-4  # m^3: outward faces, a hand holds a few hundred cm^3
-    assert signed_volume(mirrored) == pytest.approx(volume, rel=1e-6)  # still outward
-    again = mirror_mesh(mirrored)
-    np.testing.assert_array_equal(again.vertices, mesh.vertices)
-    np.testing.assert_array_equal(again.faces, mesh.faces)
-    np.testing.assert_array_equal(again.colors, mesh.colors)
-    np.testing.assert_array_equal(again.skin_weights, mesh.skin_weights)
-    # The inference's own mirror agrees.
-    other = inference_mirror_mesh(mesh)
-    np.testing.assert_array_equal(mirrored.vertices, other.vertices)
-    np.testing.assert_array_equal(mirrored.faces, other.faces)
 
 
 @pytest.mark.parametrize("side", ["right", "left"])
