@@ -89,16 +89,11 @@ def fit_images(
                                     color_iters=color_iters, rays=rays,
                                     view_calibration=view_calibration)
     config = with_settings(FitImagesConfig(**overrides), settings)
-    sides = [one.value for one in side] if side else ["right"]
-    if len(frames) > 1 and not side:
-        raise ValueError(f"{len(frames)} frame folders: give one --side per folder, in order "
-                         "(e.g. --side right --side left)")
+    sides = _sides(frames, side)
     if len(frames) > 1:
         _fit_hands(frames, out, sides, gt=gt, views=names, model_path=model, resolution=res,
                    config=config, device=device, progress=progress)
         return
-    if len(sides) > 1:
-        raise ValueError(f"{len(sides)} --side options for one frame folder: give one")
     report = fit_image_folder(frames[0], out, views=names, model_path=model, gt_path=gt,
                               units=units.value, resolution=res, config=config,
                               side=sides[0], device=device, psnr=psnr, progress=progress,
@@ -120,6 +115,18 @@ def fit_images(
             typer.echo(f"  {key}: {shown(metrics[key], unit)}")
     for path in report.written:
         typer.echo(f"wrote {path}")
+
+
+def _sides(frames: list[Path], side: list | None) -> list[str]:
+    """The side of each frame folder: ``--side`` once per folder (one folder: right by
+    default)."""
+    sides = [one.value for one in side] if side else ["right"]
+    if len(frames) > 1 and not side:
+        raise ValueError(f"{len(frames)} frame folders: give one --side per folder, in order "
+                         "(e.g. --side right --side left)")
+    if len(frames) == 1 and len(sides) > 1:
+        raise ValueError(f"{len(sides)} --side options for one frame folder: give one")
+    return sides
 
 
 def _fit_hands(frames: list[Path], out: Path, sides: list[str], *, gt, **options) -> None:

@@ -59,6 +59,31 @@ def _same_camera(first: Any, second: Any) -> bool:
             and torch.allclose(first.t.double(), second.t.double(), atol=1e-5))
 
 
+def _read_folders(frame_dirs: list[Path], sides: Sequence[str], views: Sequence[str] | None
+                  ) -> list[list[Any]]:
+    """Each folder's views, checked: one side each, the same calibrated cameras."""
+    from .views import read_views
+
+    if len(frame_dirs) < 2 or len(sides) != len(frame_dirs):
+        raise ValueError(f"{len(frame_dirs)} frame folder(s) and {len(sides)} side(s): give "
+                         "one --side per folder, in order (right or left)")
+    for side in sides:
+        if side not in ("right", "left"):
+            raise ValueError(f"side must be 'right' or 'left', got {side!r}")
+    hands_views = [read_views(frame, views) for frame in frame_dirs]
+    names = [[view.name for view in one] for one in hands_views]
+    if any(one != names[0] for one in names):
+        raise ValueError(f"the frame folders {', '.join(map(str, frame_dirs))} must hold the "
+                         f"same cameras (--views to choose), got {names}")
+    for frame, one in zip(frame_dirs[1:], hands_views[1:], strict=True):
+        for view, first in zip(one, hands_views[0], strict=True):
+            if not _same_camera(view.camera, first.camera):
+                raise ValueError(f"{frame}: camera {view.name} is not {frame_dirs[0]}'s "
+                                 f"{first.name} (other intrinsics or pose): the hands must be "
+                                 "seen by the same calibrated cameras")
+    return hands_views
+
+
 @releases_output_locks
 def fit_image_folders(
     frame_dirs: Sequence[str | os.PathLike],
@@ -98,28 +123,11 @@ def fit_image_folders(
     from .config import FitImagesConfig
     from .fit import fit_images
     from .folder import fitted_mesh
-    from .views import read_views
 
     log = log or (lambda line: None)
     config = FitImagesConfig() if config is None else config
     frame_dirs = [Path(frame) for frame in frame_dirs]
-    if len(frame_dirs) < 2 or len(sides) != len(frame_dirs):
-        raise ValueError(f"{len(frame_dirs)} frame folder(s) and {len(sides)} side(s): give "
-                         "one --side per folder, in order (right or left)")
-    for side in sides:
-        if side not in ("right", "left"):
-            raise ValueError(f"side must be 'right' or 'left', got {side!r}")
-    hands_views = [read_views(frame, views) for frame in frame_dirs]
-    names = [[view.name for view in one] for one in hands_views]
-    if any(one != names[0] for one in names):
-        raise ValueError(f"the frame folders {', '.join(map(str, frame_dirs))} must hold the "
-                         f"same cameras (--views to choose), got {names}")
-    for frame, one in zip(frame_dirs[1:], hands_views[1:], strict=True):
-        for view, first in zip(one, hands_views[0], strict=True):
-            if not _same_camera(view.camera, first.camera):
-                raise ValueError(f"{frame}: camera {view.name} is not {frame_dirs[0]}'s "
-                                 f"{first.name} (other intrinsics or pose): the hands must be "
-                                 "seen by the same calibrated cameras")
+    hands_views = _read_folders(frame_dirs, sides, views)
     out_dir = claim_output_folder(out_dir, hands_entry, "hands.json, hands.ply and hand0/, "
                                   "hand1/, ... folders")
     model = load_trained(model_path, resolve_device(device))
