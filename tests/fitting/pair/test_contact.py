@@ -24,15 +24,6 @@ RESOLUTION = 64
 
 
 @pytest.fixture(scope="module")
-def model():
-    from lisa_hand.model.trained import load_trained
-    from lisa_hand.utils.threads import cpu_threads
-
-    with cpu_threads(1):
-        yield load_trained(None, torch.device("cpu"))
-
-
-@pytest.fixture(scope="module")
 def hands(model):
     """{side: (params, mesh)}: the mean right hand (palm to the camera) and the left hand that
     is its mirror image through z = BACK_M - 2.5 mm (the two overlap back to back)."""

@@ -25,15 +25,6 @@ RESOLUTION = 48
 
 
 @pytest.fixture(scope="module")
-def model():
-    from lisa_hand.model.trained import load_trained
-    from lisa_hand.utils.threads import cpu_threads
-
-    with cpu_threads(1):
-        yield load_trained(None, torch.device("cpu"))
-
-
-@pytest.fixture(scope="module")
 def template():
     from lisa_hand.handmodel.template import load_template
 
