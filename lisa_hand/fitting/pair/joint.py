@@ -128,6 +128,9 @@ class _JointEnergy:
         self.code_scale = shape_code_scale(model)
         self.size_px = [[max(hand_scale_px(view.keypoints), 1.0) for view in hand.views]
                         for hand in hands]
+        self.targets = [[(torch.as_tensor(view.keypoints, dtype=torch.float64),
+                          torch.as_tensor(view.visible, dtype=torch.bool)) for view in hand.views]
+                        for hand in hands]  # per hand and view: (keypoints [21, 2], visible)
         generator = torch.Generator().manual_seed(config.seed)
         self.points = [None if hand.points is None else _subset(
             torch.as_tensor(hand.points, dtype=torch.float64), config.scan_points, generator)
@@ -155,9 +158,9 @@ class _JointEnergy:
                    ) -> list[torch.Tensor]:
         """Per view, hand ``index``'s visible keypoints' distances [V_k] pixels."""
         points = self.keypoints_3d(index, pose, translation)
-        return [(view.pixels(points) - torch.as_tensor(view.keypoints, dtype=torch.float64))
-                .norm(dim=-1)[torch.as_tensor(view.visible, dtype=torch.bool)]
-                for view in self.hands[index].views]
+        return [(view.pixels(points) - target).norm(dim=-1)[visible]
+                for view, (target, visible) in zip(self.hands[index].views,
+                                                   self.targets[index], strict=True)]
 
     def keypoint_errors(self, pose: torch.Tensor, translation: torch.Tensor) -> list[float]:
         """Each hand's mean distance to its visible keypoints over its views, pixels (NaN
