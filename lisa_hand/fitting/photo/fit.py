@@ -65,7 +65,7 @@ from ...skeleton.params import HandParams
 from ..outputs import releases_output_locks
 from .artefacts import PhotoOfHand, build_hand_outputs, photo_report_html
 from .config import FitPhotoConfig, photo_fit_defaults
-from .inputs import PhotoHand
+from .inputs import PhotoHand, find_hands, votes_text
 
 __all__ = ["photo_fit_defaults", "FitPhotoConfig", "PhotoFitReport", "fit_photo_folder",
            "keypoint_hand"]
@@ -126,61 +126,6 @@ def _per_photo(value: Any, photos: list[Path], option: str, shared_ok: bool) -> 
                      f"photo, in the photos' order" + (" (or one for all)" if shared_ok else ""))
 
 
-def _find_hands(photo: Any, keypoints_json: Any, config: FitPhotoConfig,
-                log: Callable[[str], None]) -> list[PhotoHand]:
-    """The hands of a photo: from ``keypoints_json`` or detected (errors: no photo extra, no
-    hand found)."""
-    from ...data import detect
-    from .inputs import read_given_hands
-
-    if keypoints_json is not None:
-        return read_given_hands(keypoints_json, photo)
-    hint = detect.photo_extra_missing()
-    if hint is not None:
-        raise ValueError(hint)
-    found = detect.detect_hands(photo.image, max_hands=config.max_hands)
-    if not found:
-        raise ValueError(f"{photo.path}: no hand found (searched the whole photo, zoomed out "
-                         "and in crops); pass the 21 keypoints with --keypoints KP.json")
-    shift = config.detector_wrist_shift
-    hands = [hand for hand in (_detected_hand(photo, one, shift, log) for one in found)
-             if hand is not None]
-    if not hands:
-        raise ValueError(f"{photo.path}: every hand found is cut by the photo's border (too "
-                         "few of its keypoints inside); pass the 21 keypoints with --keypoints "
-                         "KP.json")
-    log(f"{photo.path.name}: {len(hands)} hand(s) found ("
-        + ", ".join(f"{hand.side} {hand.score:.2f}" + (
-            f", split vote {_votes(hand)}" if hand.side_split else "") for hand in hands) + ")")
-    return hands
-
-
-def _detected_hand(photo: Any, hand: Any, shift: float, log: Callable[[str], None]
-                   ) -> PhotoHand | None:
-    """A detected hand as the fit's input: keypoints outside the photo (a hand cut by its
-    border: the detector's guesses) are not visible, said in one line; None (said) when fewer
-    than :data:`MIN_VISIBLE` are inside."""
-    from ...data import detect
-    from .inputs import MIN_VISIBLE, fill_hidden
-
-    keypoints = detect.to_skeleton_wrist(hand.keypoints, shift)
-    height, width = photo.image.shape[:2]
-    inside = ((keypoints >= 0.0) & (keypoints <= [width, height])).all(axis=1)
-    where = f"{photo.path.name}: the {hand.side} hand at x {keypoints[:, 0].mean():.0f} px"
-    if inside.sum() < MIN_VISIBLE:
-        log(f"{where} is cut by the photo's border ({int(inside.sum())} of 21 keypoints inside): "
-            "not fitted")
-        return None
-    if not inside.all():
-        log(f"{where} is cut by the photo's border: its {int((~inside).sum())} keypoint(s) "
-            "outside are left to the fit's prior")
-        keypoints = fill_hidden(keypoints, inside)
-    return PhotoHand(keypoints=keypoints, visible=inside, side=hand.side,
-                     score=float(hand.score), source="detected",
-                     detector_keypoints=np.asarray(hand.keypoints, np.float64) if shift else None,
-                     side_votes=tuple(hand.side_votes))
-
-
 def _read_inputs(photos: list[Path], camera_json: Any, focal_px: float | None,
                  fov_deg: float | None, keypoints_json: Any, mask_path: Any,
                  config: FitPhotoConfig, log: Callable[[str], None]) -> list[_PhotoInput]:
@@ -203,7 +148,7 @@ def _read_inputs(photos: list[Path], camera_json: Any, focal_px: float | None,
         name = path.name if path.name not in names else f"{index}_{path.name}"
         names.add(name)
         inputs.append(_PhotoInput(photo=photo, camera=camera, camera_source=source,
-                                  hands=_find_hands(photo, keypoints[index], config, log),
+                                  hands=find_hands(photo, keypoints[index], config, log),
                                   mask=mask, name=name))
     return inputs
 
@@ -337,19 +282,13 @@ def keypoint_hand(views: list[Any], side: str, config: FitPhotoConfig, template:
     return fit_keypoints(views, config.fit, template, progress)
 
 
-def _votes(hand: PhotoHand) -> str:
-    """The detector's side votes in words: "3 right : 1 left"."""
-    right, left = hand.side_votes
-    return f"{right} right : {left} left"
-
-
 def _choose_side(views: list[Any], side: str, hands: list[PhotoHand], config: FitPhotoConfig,
                  template: Any, progress: bool, notes: list[str]
                  ) -> tuple[str, str, HandParams | None]:
     """(side, where it came from, the keypoint-stage hand when choosing it needed one)."""
     if side != "auto":
         return side, "--side", None
-    split = [f"{one.side} {_votes(one)}" for one in hands if one.side_split]
+    split = [f"{one.side} {votes_text(one)}" for one in hands if one.side_split]
     if split:
         notes.append(f"the detector's estimates disagree on the side ({', '.join(split)}, plain "
                      "and mirrored windows): it may be wrong; pass --side to choose")

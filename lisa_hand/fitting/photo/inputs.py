@@ -1,5 +1,7 @@
-"""The inputs of a photo fit besides the photo: the hand's 2D keypoints (:class:`PhotoHand`:
-detected, or read from a ``--keypoints`` file by :func:`read_given_hands`), a ``--mask``
+"""The inputs of a photo fit besides the photo: the hands' 2D keypoints (:class:`PhotoHand`:
+detected, :func:`find_hands`; a hand cut by the photo's border has its keypoints outside left
+to the fit, :func:`detected_hand`; or read from a ``--keypoints`` file by
+:func:`read_given_hands`), a ``--mask``
 (:func:`read_given_mask`), and the view the fit sees (:func:`crop_view`: the region around the
 hand, as an :class:`~lisa_hand.fitting.images.views.ImageView` with its own camera).
 
@@ -28,6 +30,7 @@ are refused with a hint.
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -40,7 +43,8 @@ from ...skeleton import NUM_KEYPOINTS
 from ..images.views import ImageView
 from .mask import hand_scale_px
 
-__all__ = ["fill_hidden", "MIN_VISIBLE", "OUTSIDE_MARGIN", "PhotoHand", "read_given_hands",
+__all__ = ["find_hands", "detected_hand", "votes_text", "fill_hidden",
+           "MIN_VISIBLE", "OUTSIDE_MARGIN", "PhotoHand", "read_given_hands",
            "read_given_mask", "check_hand_size", "CropView", "crop_view"]
 
 MIN_VISIBLE = 8
@@ -318,3 +322,62 @@ def crop_view(photo: Any, camera: Camera, hand: PhotoHand, mask: np.ndarray | No
                      keypoints=torch.as_tensor(keypoints, dtype=torch.float32),
                      visible=torch.from_numpy(hand.visible.copy()))
     return CropView(view=view, box=(x0, y0, x1, y1), factors=factors)
+
+
+def votes_text(hand: PhotoHand) -> str:
+    """The detector's side votes in words: "3 right : 1 left"."""
+    right, left = hand.side_votes
+    return f"{right} right : {left} left"
+
+
+def find_hands(photo: Any, keypoints_json: Any, config: Any,
+                log: Callable[[str], None]) -> list[PhotoHand]:
+    """The hands of a photo: from ``keypoints_json`` or detected (errors: no photo extra, no
+    hand found)."""
+    from ...data import detect
+
+    if keypoints_json is not None:
+        return read_given_hands(keypoints_json, photo)
+    hint = detect.photo_extra_missing()
+    if hint is not None:
+        raise ValueError(hint)
+    found = detect.detect_hands(photo.image, max_hands=config.max_hands)
+    if not found:
+        raise ValueError(f"{photo.path}: no hand found (searched the whole photo, zoomed out "
+                         "and in crops); pass the 21 keypoints with --keypoints KP.json")
+    shift = config.detector_wrist_shift
+    hands = [hand for hand in (detected_hand(photo, one, shift, log) for one in found)
+             if hand is not None]
+    if not hands:
+        raise ValueError(f"{photo.path}: every hand found is cut by the photo's border (too "
+                         "few of its keypoints inside); pass the 21 keypoints with --keypoints "
+                         "KP.json")
+    log(f"{photo.path.name}: {len(hands)} hand(s) found ("
+        + ", ".join(f"{hand.side} {hand.score:.2f}" + (
+            f", split vote {votes_text(hand)}" if hand.side_split else "") for hand in hands) + ")")
+    return hands
+
+
+def detected_hand(photo: Any, hand: Any, shift: float, log: Callable[[str], None]
+                   ) -> PhotoHand | None:
+    """A detected hand as the fit's input: keypoints outside the photo (a hand cut by its
+    border: the detector's guesses) are not visible, said in one line; None (said) when fewer
+    than :data:`MIN_VISIBLE` are inside."""
+    from ...data import detect
+
+    keypoints = detect.to_skeleton_wrist(hand.keypoints, shift)
+    height, width = photo.image.shape[:2]
+    inside = ((keypoints >= 0.0) & (keypoints <= [width, height])).all(axis=1)
+    where = f"{photo.path.name}: the {hand.side} hand at x {keypoints[:, 0].mean():.0f} px"
+    if inside.sum() < MIN_VISIBLE:
+        log(f"{where} is cut by the photo's border ({int(inside.sum())} of 21 keypoints inside): "
+            "not fitted")
+        return None
+    if not inside.all():
+        log(f"{where} is cut by the photo's border: its {int((~inside).sum())} keypoint(s) "
+            "outside are left to the fit's prior")
+        keypoints = fill_hidden(keypoints, inside)
+    return PhotoHand(keypoints=keypoints, visible=inside, side=hand.side,
+                     score=float(hand.score), source="detected",
+                     detector_keypoints=np.asarray(hand.keypoints, np.float64) if shift else None,
+                     side_votes=tuple(hand.side_votes))

@@ -9,7 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from lisa_hand.data.detect import DetectedHand
-from lisa_hand.fitting.photo.fit import _detected_hand
+from lisa_hand.fitting.photo.inputs import detected_hand
 
 
 def _hand(keypoints: np.ndarray) -> DetectedHand:
@@ -25,7 +25,7 @@ def test_keypoints_outside_the_photo_are_not_visible():
     keypoints = rng.uniform([20, 20], [180, 80], size=(21, 2))
     keypoints[[4, 8, 12]] = [[205.0, 50.0], [230.0, 40.0], [199.0, 101.0]]  # past the border
     lines = []
-    hand = _detected_hand(photo, _hand(keypoints), 0.0, lines.append)
+    hand = detected_hand(photo, _hand(keypoints), 0.0, lines.append)
     assert hand is not None and hand.visible.sum() == 18
     assert not hand.visible[[4, 8, 12]].any()
     # the hidden ones stand in at their nearest visible ancestor (inside the photo)
@@ -36,7 +36,7 @@ def test_keypoints_outside_the_photo_are_not_visible():
     inside = keypoints.copy()
     inside[[4, 8, 12]] = [[150.0, 50.0], [160.0, 40.0], [170.0, 60.0]]
     lines.clear()
-    whole = _detected_hand(photo, _hand(inside), 0.0, lines.append)
+    whole = detected_hand(photo, _hand(inside), 0.0, lines.append)
     assert whole.visible.all() and not lines
     np.testing.assert_allclose(whole.keypoints, inside)
 
@@ -46,5 +46,5 @@ def test_a_hand_mostly_outside_is_not_fitted():
     keypoints = np.random.default_rng(1).uniform([210, 20], [300, 80], size=(21, 2))
     keypoints[:5, 0] = 190.0  # five inside
     lines = []
-    assert _detected_hand(photo, _hand(keypoints), 0.0, lines.append) is None
+    assert detected_hand(photo, _hand(keypoints), 0.0, lines.append) is None
     assert len(lines) == 1 and "not fitted" in lines[0] and "5 of 21" in lines[0]
