@@ -3,9 +3,11 @@ between the hands by the hands' own fits, not only by connected pieces (:func:`f
 
 Two clasped hands are one connected piece, so :func:`.others.split_hands` cannot tell them
 apart. Here the hand points (the scan without a support plane) are first split into N parts
-(:func:`initial_split`: a guess; where the hands meet it is wrong), each part is fitted as a
-hand (:func:`.fit.fit_points`, side "auto"), and then every point goes to the fitted hand whose
-surface is nearest (each hand's field's ``|SDF|`` at the point,
+(:func:`choose_split`: parts apart from each other are the hands; touching hands are cut in
+several ways, :func:`split_candidates`, each cut's parts fitted quickly as hands, and the cut
+whose hands lie nearest the scan wins: the hands' fits decide, not the cut's shape), each part
+is fitted as a hand (:func:`.fit.fit_points`, side "auto"), and then every point goes to the
+fitted hand whose surface is nearest (each hand's field's ``|SDF|`` at the point,
 :meth:`lisa_hand.fitting.pair.contact.HandBody.sdf`; points farther than ``far_mm`` from every
 hand are left out). The parts are fitted again from that split (``config.rounds`` times), and
 finally all hands are refined together (:func:`lisa_hand.fitting.pair.joint.fit_hands_together`:
@@ -15,6 +17,8 @@ overlapping); the split is made once more from the result.
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -25,8 +29,8 @@ import torch
 from ...skeleton.params import HandParams
 from ..pair.config import JointConfig
 
-__all__ = ["ScanHandsConfig", "ScanHands", "kmeans_split", "initial_split", "assign_points",
-           "fit_scan_hands"]
+__all__ = ["ScanHandsConfig", "ScanHands", "kmeans_split", "split_candidates", "initial_split",
+           "choose_split", "surface_distances", "assign_points", "fit_scan_hands"]
 
 
 @dataclass(frozen=True)
@@ -37,6 +41,9 @@ class ScanHandsConfig:
     """Fits of every hand again after the points were split by the previous fits."""
     far_mm: float = 15.0
     """Points farther than this from every fitted hand's surface belong to none."""
+    candidate_iters: int = 30
+    """Field-stage iterations of the quick fits that choose between the cuts of touching hands
+    (:func:`choose_split`; 0: no quick fits, the cut :func:`initial_split` guesses)."""
     joint: JointConfig = field(default_factory=JointConfig)
     """The joint fit of all hands at the end (``joint.iters=0``: none)."""
     mesh_resolution: int = 64
@@ -46,6 +53,10 @@ class ScanHandsConfig:
     def __post_init__(self) -> None:
         if isinstance(self.rounds, bool) or not isinstance(self.rounds, int) or self.rounds < 0:
             raise ValueError(f"rounds must be an integer >= 0, got {self.rounds!r}")
+        if isinstance(self.candidate_iters, bool) or not isinstance(self.candidate_iters, int) \
+                or self.candidate_iters < 0:
+            raise ValueError(f"candidate_iters must be an integer >= 0, got "
+                             f"{self.candidate_iters!r}")
         if not self.far_mm > 0:
             raise ValueError(f"far_mm must be positive, got {self.far_mm!r}")
 
@@ -84,35 +95,97 @@ def _gap(points: np.ndarray, labels: np.ndarray) -> float:
     return float(cKDTree(first).query(second)[0].min())
 
 
-def initial_split(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
-    """[N] labels 0..count-1: a first guess of which hand each point belongs to. Candidates:
-    k-means on the positions, and (two hands) the points cut in half by the median plane across
-    each principal axis. Parts apart from each other (a gap of more than three times the
-    points' spacing) are two hands apart: the candidate with the widest gap wins. Otherwise
-    (touching hands) the one whose smallest part spreads widest (:func:`_spread`: each part
-    should be a whole hand, not two hands' fingers and two hands' palms, which is how k-means
-    cuts two flat hands lying palm to palm)."""
+def _spacing(points: np.ndarray) -> float:
+    """The points' typical spacing, metres (median nearest-neighbour distance, of a sample
+    corrected to all points)."""
     from scipy.spatial import cKDTree
 
+    sample = points[:: max(1, len(points) // 2000)]
+    return float(np.median(cKDTree(sample).query(sample, k=2)[0][:, 1])) * max(
+        1.0, np.sqrt(len(sample) / len(points)))
+
+
+def split_candidates(points: np.ndarray, count: int, seed: int = 0) -> list[np.ndarray]:
+    """Ways to cut ``points`` [N, 3] into ``count`` parts, each [N] labels 0..count-1: k-means
+    on the positions, and (two hands) the points cut in half by the median plane across each
+    principal axis."""
     points = np.asarray(points, np.float64)
     if count < 1 or len(points) < count:
         raise ValueError(f"cannot split {len(points)} points into {count} hands")
     candidates = [kmeans_split(points, count, seed)]
     if count != 2:
-        return candidates[0]
+        return candidates
     centred = points - points.mean(0)
     _, _, axes = np.linalg.svd(centred[:: max(1, len(points) // 4000)], full_matrices=False)
     for axis in axes:
         along = centred @ axis
         candidates.append((along > np.median(along)).astype(np.int64))
-    sample = points[:: max(1, len(points) // 2000)]
-    spacing = float(np.median(cKDTree(sample).query(sample, k=2)[0][:, 1])) * max(
-        1.0, np.sqrt(len(sample) / len(points)))
+    return candidates
+
+
+def _apart(points: np.ndarray, candidates: list[np.ndarray]) -> np.ndarray | None:
+    """Of two-part ``candidates``, the one whose parts lie apart (the widest gap, more than three
+    times the points' spacing), or None (the hands touch)."""
+    if len(candidates) < 2:
+        return None
     gaps = [_gap(points, labels) for labels in candidates]
-    if max(gaps) > 3.0 * spacing:
-        return candidates[int(np.argmax(gaps))]
+    return candidates[int(np.argmax(gaps))] if max(gaps) > 3.0 * _spacing(points) else None
+
+
+def initial_split(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
+    """[N] labels 0..count-1: a guess, from the points alone, of which hand each point belongs
+    to (:func:`split_candidates`). Parts apart from each other are two hands apart: the
+    candidate with the widest gap wins. Otherwise (touching hands) the one whose smallest part
+    spreads widest (:func:`_spread`: each part should be a whole hand, not two hands' fingers
+    and two hands' palms, which is how k-means cuts two flat hands lying palm to palm)."""
+    points = np.asarray(points, np.float64)
+    candidates = split_candidates(points, count, seed)
+    apart = _apart(points, candidates)
+    if apart is not None or len(candidates) == 1:
+        return candidates[0] if apart is None else apart
     return max(candidates, key=lambda labels: min(_spread(points[labels == k])
                                                   for k in range(count)))
+
+
+def choose_split(model: Any, points: np.ndarray, count: int, config: Any,
+                 hands_config: ScanHandsConfig, sensor: np.ndarray | None = None,
+                 side: str = "auto", log: Callable[[str], None] | None = None) -> np.ndarray:
+    """[N] labels (-1: near no hand): the first split of a scan of ``count`` hands. Parts apart
+    from each other are the hands. Touching hands: each of :func:`split_candidates` is tried,
+    its parts fitted quickly as hands (:func:`.fit.fit_points` with the stages before the
+    size search and ``hands_config.candidate_iters`` field iterations), and the candidate whose
+    hands lie nearest the scan (the mean distance of every point to its nearest hand's surface,
+    capped at ``far_mm``) wins, its points given to its nearest hand. A cut through two
+    interlaced hands' fingers gives two misshapen hands far from half the points; the cut
+    between the hands, two hands on the scan."""
+    from .fit import fit_points
+
+    log = log or (lambda line: None)
+    points = np.asarray(points, np.float64)
+    candidates = split_candidates(points, count, config.seed)
+    apart = _apart(points, candidates)
+    if apart is not None or hands_config.candidate_iters == 0 or len(candidates) == 1:
+        return initial_split(points, count, config.seed) if apart is None else apart
+    quick = dataclasses.replace(
+        config, stages=tuple(stage for stage in config.stages
+                             if stage in ("align", "pose", "unseen", "field")),
+        field_iters=hands_config.candidate_iters, second_pass_iters=0, tries=1)
+    far = hands_config.far_mm / 1000.0
+    best, best_score = candidates[0], math.inf
+    for number, labels in enumerate(candidates):
+        if min(int((labels == k).sum()) for k in range(count)) < config.min_points:
+            continue
+        hands = [fit_points(model, points[labels == k], None, quick, side=side,
+                            viewpoint=sensor).params for k in range(count)]
+        distances = surface_distances(model, hands, points, hands_config.far_mm)
+        score = float(np.minimum(distances.min(0), far).mean())
+        log(f"cut {number + 1} of {len(candidates)}: the hands {1000 * score:.2f} mm from the "
+            "scan (mean)")
+        if score < best_score:
+            best_score = score
+            best = distances.argmin(0)
+            best[distances.min(0) > far] = -1
+    return best
 
 
 def kmeans_split(points: np.ndarray, count: int, seed: int = 0, tries: int = 8,
@@ -144,10 +217,10 @@ def kmeans_split(points: np.ndarray, count: int, seed: int = 0, tries: int = 8,
 
 
 @torch.no_grad()
-def assign_points(model: Any, hands: list[HandParams], points: np.ndarray, far_mm: float
-                  ) -> np.ndarray:
-    """[N] the hand whose surface is nearest each point (its field's ``|SDF|``), -1 where every
-    hand's is farther than ``far_mm``. hands: either side, world metres."""
+def surface_distances(model: Any, hands: list[HandParams], points: np.ndarray, far_mm: float
+                      ) -> np.ndarray:
+    """[K, N] metres: each hand's distance to each point (its field's ``|SDF|``; beyond its
+    bone regions, at least ``far_mm``). hands: either side, world metres."""
     from ..pair.contact import HandBody
 
     cloud = torch.as_tensor(np.asarray(points), dtype=torch.float64)
@@ -158,7 +231,14 @@ def assign_points(model: Any, hands: list[HandParams], points: np.ndarray, far_m
         sdf = body.sdf(model, body.right.pose, body.right.translation, body.right.shape_code,
                        cloud, margin_m=far_mm / 1000.0)
         distances.append(sdf.abs().double().numpy())
-    distances = np.stack(distances)  # [K, N] metres
+    return np.stack(distances)
+
+
+def assign_points(model: Any, hands: list[HandParams], points: np.ndarray, far_mm: float
+                  ) -> np.ndarray:
+    """[N] the hand whose surface is nearest each point (:func:`surface_distances`), -1 where
+    every hand's is farther than ``far_mm``. hands: either side, world metres."""
+    distances = surface_distances(model, hands, points, far_mm)  # [K, N] metres
     labels = distances.argmin(0)
     labels[distances.min(0) > far_mm / 1000.0] = -1
     return labels
@@ -212,7 +292,7 @@ def fit_scan_hands(model: Any, points: np.ndarray, count: int, config: Any = Non
     config = FitPointsConfig() if config is None else config
     hands_config = ScanHandsConfig() if hands_config is None else hands_config
     points = np.asarray(points, np.float64)
-    labels = initial_split(points, count, config.seed)
+    labels = choose_split(model, points, count, config, hands_config, sensor, side, log)
     fits = _fit_parts(model, points, labels, count, config, sensor, side, progress, log)
     for _ in range(hands_config.rounds):
         labels = assign_points(model, [fit.params for fit in fits], points, hands_config.far_mm)
