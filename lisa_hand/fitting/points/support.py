@@ -9,7 +9,7 @@ Such a surface is the largest plane of the cloud, and it is not part of a hand:
 * **found** by RANSAC (:func:`find_support`: planes through three random points, the one with
   the most points within ``threshold_m``, refined by least squares on them), and taken only when
   it is a support and not a flat part of the hand: at least ``min_fraction`` of the points on it,
-  the points clearly off it (more than three thresholds) nearly all on one side of it (a hand on
+  the points clearly off it (more than two thresholds) nearly all on one side of it (a hand on
   a desk lies above it), and its points spread over an area (convex hull, in the plane) at least
   ``min_spread`` times that of the points off it, and they surround those: in ``min_surround``
   of ``sectors`` directions round them (in the plane) they reach ``reach_m`` past them. The last
@@ -60,7 +60,11 @@ class SupportConfig:
     """Share of the points the plane must hold (fewer cost the fit little: its robust penalty
     takes them for outliers)."""
     one_side: float = 0.97
-    """Share of the points clearly off the plane that must lie on one side of it."""
+    """Share of the points clearly off the plane (beyond twice its threshold, five standard
+    deviations of its noise) that must lie on one side of it. Nothing lies behind a desk; a
+    plane through a flat hand, its threshold widened by the hand's own thickness, has the hand
+    on both sides of it, if only just beyond the threshold (two flat hands side by side, whose
+    plane reaches round the few points farther off it)."""
     min_spread: float = 1.5
     """The plane's points must spread over this many times the area of the points off it."""
     min_hand_points: int = 200
@@ -236,7 +240,8 @@ def find_support(points, config: SupportConfig | None = None, seed: int = 0
     off = np.abs(distance) > 3.0 * threshold
     if on.mean() < config.min_fraction or off.sum() < config.min_hand_points:
         return None
-    above = float((distance[off] > 0).mean())
+    clear = np.abs(distance) > 2.0 * threshold  # beyond the plane's noise (5 sigmas of it)
+    above = float((distance[clear] > 0).mean())
     if max(above, 1.0 - above) < config.one_side:
         return None
     if above < 0.5:  # the normal towards the hand
