@@ -4,9 +4,8 @@
 * **scan**: a full scan of both posed meshes joined
   (:func:`lisa_hand.data.scans.simulate_scan`: 8000 points, 0.5 mm of noise along the normal),
   in the scene's camera frame (the truth compares directly), written as a PLY and fitted by
-  :func:`lisa_hand.fitting.points.io.fit_hands_file` (two hands, their sides found by the fit;
-  ``support=None``: the scans have no surface the hands rest on, and its search, on by default,
-  takes two flat hands side by side for one): together (the default) and alone
+  :func:`lisa_hand.fitting.points.io.fit_hands_file` as a user runs it (two hands, their sides
+  found by the fit, the support search on: it must find none): together (the default) and alone
   (``hands_config=ScanHandsConfig(joint=JointConfig(iters=0))``).
 * **views**: 4 calibrated views round the pair (:func:`lisa_hand.geometry.cameras.make_rig`:
   0.45 m away, 320x240, 45 degrees, the image's up the scene's), both meshes rendered as one
@@ -68,8 +67,8 @@ def mode_notes(modes: tuple[str, ...]) -> list[str]:
     if "scan" in modes:
         notes.append(f"scan: a full scan of both hands ({SCAN_POINTS} points, "
                      f"{SCAN_NOISE_M * 1000:g} mm noise), camera frame, fitted by "
-                     "fit_hands_file (2 hands, their sides found by the fit; support=None: "
-                     "no support surface searched)")
+                     "fit_hands_file (2 hands, their sides found by the fit, the support "
+                     "search on)")
     if "views" in modes:
         notes.append(f"views: {NUM_VIEWS} calibrated views, {VIEW_SIZE[0]}x{VIEW_SIZE[1]}, "
                      f"{VIEW_FOV_DEG:g} degrees, {VIEW_RADIUS_M} m away, each hand's true "
@@ -176,8 +175,8 @@ def _fit_scan(ply: Path, out_dir: Path, fit: str, options: dict) -> None:
         from lisa_hand.fitting.points.hands import ScanHandsConfig
 
         hands_config = ScanHandsConfig(joint=JointConfig(iters=0))
-    fit_hands_file(ply, out_dir, 2, hands_config=hands_config, support=None,
-                   device=options["device"], progress=False, log=None)
+    fit_hands_file(ply, out_dir, 2, hands_config=hands_config, device=options["device"],
+                   progress=False, log=None)
 
 
 def _fit_views(folders: list[Path], out_dir: Path, fit: str, options: dict) -> None:

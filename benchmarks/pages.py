@@ -415,6 +415,20 @@ def _benchmark_section(name: str, data: dict | None) -> list[str]:
     return lines + _recorded(data, f"{command} --json {json_path}") + [""] + body + [""]
 
 
+def _part_section(name: str, part: str, data: dict) -> list[str]:
+    """A later run of benchmark ``name`` on part of its inputs
+    (``benchmarks/results/NAME.PART.json``, e.g. ``two_hands.scan.json``: one mode run again
+    after a change that touched only it), shown after the whole run's section with its own
+    command, date and commit."""
+    title = SECTIONS.get(name, (name, ""))[0]
+    try:
+        body = RENDERERS.get(name, _scalars)(data)
+    except (KeyError, TypeError, ValueError, StopIteration) as exc:
+        body = [f"(its JSON does not have the expected layout: {exc!r})"]
+    return ([f"#### {title}: `{part.split('.', 1)[1]}`, run again", ""]
+            + _recorded(data, None) + [""] + body + [""])
+
+
 # ------------------------------------------------------------------------------------------------
 # lisa eval's tables
 
@@ -502,6 +516,8 @@ def render_page(results_dir: Path = RESULTS_DIR) -> str:
     names += [name for name in benchmark_names() if name not in SECTIONS and name != "pages"]
     for name in names:
         lines += _benchmark_section(name, records.get(name))
+        for part in sorted(key for key in records if key.startswith(f"{name}.")):
+            lines += _part_section(name, part, records[part])
     return "\n".join(lines).rstrip() + "\n"
 
 
