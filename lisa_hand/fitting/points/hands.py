@@ -152,12 +152,12 @@ def choose_split(model: Any, points: np.ndarray, count: int, config: Any,
                  side: str = "auto", log: Callable[[str], None] | None = None) -> np.ndarray:
     """[N] labels (-1: near no hand): the first split of a scan of ``count`` hands. Parts apart
     from each other are the hands. Touching hands: each of :func:`split_candidates` is tried,
-    its parts fitted quickly as hands (:func:`.fit.fit_points` with the stages before the
-    size search and ``hands_config.candidate_iters`` field iterations), and the candidate whose
-    hands lie nearest the scan (the mean distance of every point to its nearest hand's surface,
-    capped at ``far_mm``) wins, its points given to its nearest hand. A cut through two
-    interlaced hands' fingers gives two misshapen hands far from half the points; the cut
-    between the hands, two hands on the scan."""
+    its parts fitted quickly as hands (:func:`.fit.fit_points` with only its align, pose,
+    unseen and field stages, ``hands_config.candidate_iters`` field iterations: no size search,
+    no finger restarts), and the candidate whose hands lie nearest the scan (the mean distance
+    of every point to its nearest hand's surface, capped at ``far_mm``) wins, its points given
+    to their nearest hand. A cut through two interlaced hands' fingers gives two misshapen
+    hands far from half the points; the cut between the hands, two hands on the scan."""
     from .fit import fit_points
 
     log = log or (lambda line: None)
