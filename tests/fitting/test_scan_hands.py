@@ -270,6 +270,7 @@ def test_assign_points_follows_the_exact_distances_to_the_hands(geometry, apart)
     ({"far_mm": float("nan")}, "far_mm must be positive, got nan"),
     ({"candidate_iters": -1}, "candidate_iters must be an integer >= 0, got -1"),
     ({"candidate_iters": 2.5}, "candidate_iters must be an integer >= 0, got 2.5"),
+    ({"candidate_rounds": -2}, "candidate_rounds must be an integer >= 0, got -2"),
 ])
 def test_scan_hands_config_refuses_bad_values(settings, message):
     with pytest.raises(ValueError, match=message):
@@ -312,9 +313,11 @@ def test_choose_split_lets_the_hands_fits_choose_the_cut(geometry, palms):
     points, truth = points[::2], truth[::2]
     said = []
     labels = choose_split(geometry, points, 2, FitPointsConfig(**QUICK),
-                          ScanHandsConfig(candidate_iters=10), log=said.append)
-    assert [line.split(":")[0] for line in said] == [f"cut {k} of 4" for k in range(1, 5)]
-    scores = [float(line.split("the hands ")[1].split(" mm")[0]) for line in said]
+                          ScanHandsConfig(candidate_iters=10, candidate_rounds=1),
+                          log=said.append)
+    assert [line.split(":")[0] for line in said] == [f"cut {k} of 4" for k in range(1, 5)] + [
+        "refit 1"]
+    scores = [float(line.split("the hands ")[1].split(" mm")[0]) for line in said[:4]]
     assigned = labels >= 0
     assert assigned.mean() > 0.98
     assert agreement(labels[assigned], truth[assigned]) > 0.98
@@ -348,13 +351,14 @@ def test_fit_scan_hands_finds_both_hands_palm_to_palm(geometry, palms):
                              second_pass_iters=0)
     said = []
     found = fit_scan_hands(geometry, points, 2, config,
-                           ScanHandsConfig(rounds=0, candidate_iters=10,
+                           ScanHandsConfig(rounds=0, candidate_iters=10, candidate_rounds=1,
                                            joint=JointConfig(iters=40),
                                            mesh_resolution=40), log=said.append)
     assert sorted(hand.side for hand in found.hands) == ["left", "right"]
     assert [line[:10] for line in said[:4]] == [f"cut {k} of 4" for k in range(1, 5)]
-    assert len(said) == 6 and all(line.startswith(f"hand {k}: ")
-                                  for k, line in enumerate(said[4:]))
+    assert said[4].startswith("refit 1: ")
+    assert len(said) == 7 and all(line.startswith(f"hand {k}: ")
+                                  for k, line in enumerate(said[5:]))
     assert found.joint is not None and found.joint.iters == 40 and len(found.fits) == 2
     fitted = {hand.side: hand_keypoints_3d(hand) for hand in found.hands}
     true = hands.keypoints(offset)

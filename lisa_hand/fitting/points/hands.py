@@ -5,7 +5,8 @@ Two clasped hands are one connected piece, so :func:`.others.split_hands` cannot
 apart. Here the hand points (the scan without a support plane) are first split into N parts
 (:func:`choose_split`: parts apart from each other are the hands; touching hands are cut in
 several ways, :func:`split_candidates`, each cut's parts fitted quickly as hands, and the cut
-whose hands lie nearest the scan wins: the hands' fits decide, not the cut's shape), each part
+whose hands lie nearest the scan wins, its hands refitted quickly on the points they claim: the
+hands' fits decide, not the cut's shape), each part
 is fitted as a hand (:func:`.fit.fit_points`, side "auto"), and then every point goes to the
 fitted hand whose surface is nearest (each hand's field's ``|SDF|`` at the point,
 :meth:`lisa_hand.fitting.pair.contact.HandBody.sdf`; points farther than ``far_mm`` from every
@@ -44,6 +45,9 @@ class ScanHandsConfig:
     candidate_iters: int = 30
     """Field-stage iterations of the quick fits that choose between the cuts of touching hands
     (:func:`choose_split`; 0: no quick fits, the cut :func:`initial_split` guesses)."""
+    candidate_rounds: int = 3
+    """At most this many quick fits again of the chosen cut's hands, each on the points the
+    last gave it, while the hands come nearer the scan (:func:`choose_split`)."""
     joint: JointConfig = field(default_factory=JointConfig)
     """The joint fit of all hands at the end (``joint.iters=0``: none)."""
     mesh_resolution: int = 64
@@ -53,10 +57,10 @@ class ScanHandsConfig:
     def __post_init__(self) -> None:
         if isinstance(self.rounds, bool) or not isinstance(self.rounds, int) or self.rounds < 0:
             raise ValueError(f"rounds must be an integer >= 0, got {self.rounds!r}")
-        if isinstance(self.candidate_iters, bool) or not isinstance(self.candidate_iters, int) \
-                or self.candidate_iters < 0:
-            raise ValueError(f"candidate_iters must be an integer >= 0, got "
-                             f"{self.candidate_iters!r}")
+        for name in ("candidate_iters", "candidate_rounds"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
         if not self.far_mm > 0:
             raise ValueError(f"far_mm must be positive, got {self.far_mm!r}")
 
@@ -157,35 +161,57 @@ def choose_split(model: Any, points: np.ndarray, count: int, config: Any,
     no finger restarts), and the candidate whose hands lie nearest the scan (the mean distance
     of every point to its nearest hand's surface, capped at ``far_mm``) wins, its points given
     to their nearest hand. A cut through two interlaced hands' fingers gives two misshapen
-    hands far from half the points; the cut between the hands, two hands on the scan."""
-    from .fit import fit_points
-
+    hands far from half the points; the cut between the hands, two hands on the scan. The
+    winner's hands are then fitted quickly again on the points they were given, up to
+    ``candidate_rounds`` times while they come nearer the scan (two clasped hands: no cut
+    separates the fingers wrapped round the other hand, but the hands fitted to most of their
+    own points claim them)."""
     log = log or (lambda line: None)
     points = np.asarray(points, np.float64)
     candidates = split_candidates(points, count, config.seed)
     apart = _apart(points, candidates)
     if apart is not None or hands_config.candidate_iters == 0 or len(candidates) == 1:
         return initial_split(points, count, config.seed) if apart is None else apart
+    best_score, best = math.inf, candidates[0]
+    for number, labels in enumerate(candidates):
+        score, given = _quick_split(model, points, labels, count, config, hands_config, sensor,
+                                    side)
+        log(f"cut {number + 1} of {len(candidates)}: " + (
+            f"the hands {1000 * score:.2f} mm from the scan (mean)" if math.isfinite(score)
+            else "a part too small to fit"))
+        if score < best_score:
+            best_score, best = score, given
+    for number in range(hands_config.candidate_rounds if math.isfinite(best_score) else 0):
+        score, given = _quick_split(model, points, best, count, config, hands_config, sensor,
+                                    side)
+        log(f"refit {number + 1}: the hands {1000 * score:.2f} mm from the scan (mean)")
+        if not score < best_score:
+            break
+        best_score, best = score, given
+    return best
+
+
+def _quick_split(model: Any, points: np.ndarray, labels: np.ndarray, count: int, config: Any,
+                 hands_config: ScanHandsConfig, sensor: np.ndarray | None, side: str
+                 ) -> tuple[float, np.ndarray]:
+    """Each part of ``labels`` [N] fitted quickly as a hand (:func:`choose_split`) -> (the mean
+    distance of the points to their nearest hand, capped at ``far_mm``, metres; inf when a part
+    is too small to fit; [N] each point's nearest hand, -1 beyond ``far_mm``)."""
+    from .fit import fit_points
+
+    if min(int((labels == k).sum()) for k in range(count)) < config.min_points:
+        return math.inf, labels
     quick = dataclasses.replace(
         config, stages=tuple(stage for stage in config.stages
                              if stage in ("align", "pose", "unseen", "field")),
         field_iters=hands_config.candidate_iters, second_pass_iters=0, tries=1)
+    hands = [fit_points(model, points[labels == k], None, quick, side=side,
+                        viewpoint=sensor).params for k in range(count)]
+    distances = surface_distances(model, hands, points, hands_config.far_mm)
     far = hands_config.far_mm / 1000.0
-    best, best_score = candidates[0], math.inf
-    for number, labels in enumerate(candidates):
-        if min(int((labels == k).sum()) for k in range(count)) < config.min_points:
-            continue
-        hands = [fit_points(model, points[labels == k], None, quick, side=side,
-                            viewpoint=sensor).params for k in range(count)]
-        distances = surface_distances(model, hands, points, hands_config.far_mm)
-        score = float(np.minimum(distances.min(0), far).mean())
-        log(f"cut {number + 1} of {len(candidates)}: the hands {1000 * score:.2f} mm from the "
-            "scan (mean)")
-        if score < best_score:
-            best_score = score
-            best = distances.argmin(0)
-            best[distances.min(0) > far] = -1
-    return best
+    given = distances.argmin(0)
+    given[distances.min(0) > far] = -1
+    return float(np.minimum(distances.min(0), far).mean()), given
 
 
 def kmeans_split(points: np.ndarray, count: int, seed: int = 0, tries: int = 8,
