@@ -155,12 +155,13 @@ def choose_split(model: Any, points: np.ndarray, count: int, config: Any,
                  hands_config: ScanHandsConfig, sensor: np.ndarray | None = None,
                  side: str = "auto", log: Callable[[str], None] | None = None) -> np.ndarray:
     """[N] labels (-1: near no hand): the first split of a scan of ``count`` hands. Parts apart
-    from each other are the hands. Touching hands: each of :func:`split_candidates` is tried,
-    its parts fitted quickly as hands (:func:`.fit.fit_points` with only its align, pose,
-    unseen and field stages, ``hands_config.candidate_iters`` field iterations: no size search,
-    no finger restarts), and the candidate whose hands lie nearest the scan (the mean distance
-    of every point to its nearest hand's surface, capped at ``far_mm``) wins, its points given
-    to their nearest hand. A cut through two interlaced hands' fingers gives two misshapen
+    from each other are the hands. Touching hands: each of :func:`split_candidates` is tried
+    (three hands or more: k-means alone), its parts fitted quickly as hands
+    (:func:`.fit.fit_points` with only its align, pose, unseen and field stages,
+    ``hands_config.candidate_iters`` field iterations: no size search, no finger restarts), and
+    the candidate whose hands lie nearest the scan (the mean distance of every point to its
+    nearest hand's surface, capped at ``far_mm``) wins, its points given to their nearest
+    hand. A cut through two interlaced hands' fingers gives two misshapen
     hands far from half the points; the cut between the hands, two hands on the scan. The
     winner's hands are then fitted quickly again on the points they were given, up to
     ``candidate_rounds`` times while they come nearer the scan (two clasped hands: no cut
@@ -170,7 +171,7 @@ def choose_split(model: Any, points: np.ndarray, count: int, config: Any,
     points = np.asarray(points, np.float64)
     candidates = split_candidates(points, count, config.seed)
     apart = _apart(points, candidates)
-    if apart is not None or hands_config.candidate_iters == 0 or len(candidates) == 1:
+    if apart is not None or hands_config.candidate_iters == 0:
         return initial_split(points, count, config.seed) if apart is None else apart
     best_score, best = math.inf, candidates[0]
     for number, labels in enumerate(candidates):
