@@ -421,6 +421,12 @@ def _diagonal(box: Sequence[float]) -> float:
     return math.hypot(box[2] - box[0], box[3] - box[1])
 
 
+def _square(cx: float, cy: float, side: float) -> Window:
+    """The square window of ``side`` pixels centred on (cx, cy)."""
+    left, top = math.floor(cx - side / 2), math.floor(cy - side / 2)
+    return left, top, left + math.ceil(side), top + math.ceil(side)
+
+
 def _refine(hands: Any, image: np.ndarray, candidate: _Found, fill: np.ndarray,
             config: DetectConfig) -> tuple[_Found, list[_Found]]:
     """Detect ``candidate`` again in square windows around it (each also mirrored) and keep the
@@ -486,9 +492,12 @@ def _search(hands: Any, pixels: np.ndarray, config: DetectConfig,
         found, around = _find(hands, pixels, windows, config.window_side_px, fill, config, [],
                               confirm=level != _WHOLE)
         if found:
-            further = (_search_further(hands, pixels, found, around, levels, index, fill, config,
-                                       max_hands)
-                       if config.further_search and len(found) < max_hands else [])
+            further = []
+            if config.further_search and len(found) < max_hands:
+                from .detect_further import search_further
+
+                further = search_further(hands, pixels, found, around, levels, index, fill,
+                                         config, max_hands)
             return [(hand, level) for hand in found] + further
     return []
 
@@ -516,77 +525,6 @@ def _find(hands: Any, pixels: np.ndarray, windows: list[Window], long_side: int,
                 for other in known + new):
             new.append(hand)
     return new, around
-
-
-_BESIDE, _PAINTED, _AFTER = "beside another hand", "another hand painted out", "after another hand"
-_DETECTABLE = 0.1  # the smallest hand the palm detector finds well, a share of its input's side
-
-
-def _search_further(hands: Any, pixels: np.ndarray, found: list[_Found], around: list[_Found],
-                    levels: list[tuple[str, list[Window]]], index: int, fill: np.ndarray,
-                    config: DetectConfig, max_hands: int) -> list[Named]:
-    """More hands after level ``index`` found ``found`` (the module docstring, "More hands"):
-    beside each hand (``around``: what its refinement windows showed besides it), with the hands
-    painted out, again around the new ones; if neither finds one, in the coarsest crop level
-    after ``index`` whose crops show a hand ``further_smallest`` times the smallest found one at
-    :data:`_DETECTABLE` of their long side (the finest where none does; none where the whole
-    image does)."""
-    known, fresh, more = list(found), list(found), []
-    while fresh and len(known) < max_hands:
-        windows = [window for hand in fresh for window in _beside(hand, config)]
-        beside, around = _find(hands, pixels, windows, config.refine_side_px, fill, config, known,
-                               True, config.mirror, around)
-        painted = _painted_out(pixels, known + beside, fill, config)
-        hidden, _ = _find(hands, painted, levels[0][1], config.window_side_px, fill, config,
-                          known + beside, True)
-        fresh = beside + hidden
-        known += fresh
-        more += [(hand, _BESIDE) for hand in beside] + [(hand, _PAINTED) for hand in hidden]
-    smallest = config.further_smallest * min(max(h.box[2] - h.box[0], h.box[3] - h.box[1])
-                                             for h in known)
-    if (more or len(known) >= max_hands or index + 1 >= len(levels)
-            or smallest >= _DETECTABLE * max(pixels.shape[:2])):
-        return more
-    name, windows = next(((name, windows) for name, windows in levels[index + 1:] if smallest
-                          >= _DETECTABLE * max(windows[0][2] - windows[0][0],
-                                               windows[0][3] - windows[0][1])), levels[-1])
-    # Not painted out: a flat patch beside a neck or a face can make a crop's best "palm" of it.
-    small, _ = _find(hands, pixels, windows, config.window_side_px, fill, config, known, True)
-    return [(hand, f"{name} {_AFTER}") for hand in small]
-
-
-def _beside(hand: _Found, config: DetectConfig) -> list[Window]:
-    """Square windows :attr:`DetectConfig.beside_context` times the hand's keypoint box, shifted
-    by :attr:`DetectConfig.beside_shift` of it left, right, up and down (the refinement windows
-    are the ones centred on it)."""
-    x0, y0, x1, y1 = hand.box
-    length = max(8.0, x1 - x0, y1 - y0)
-    shift, side = config.beside_shift * length, config.beside_context * length
-    return [_square(0.5 * (x0 + x1) + dx * shift, 0.5 * (y0 + y1) + dy * shift, side)
-            for dx, dy in ((-1, 0), (1, 0), (0, -1), (0, 1))]
-
-
-def _square(cx: float, cy: float, side: float) -> Window:
-    left, top = math.floor(cx - side / 2), math.floor(cy - side / 2)
-    return left, top, left + math.ceil(side), top + math.ceil(side)
-
-
-def _painted_out(pixels: np.ndarray, found: list[_Found], fill: np.ndarray,
-                 config: DetectConfig) -> np.ndarray:
-    """A copy of the image with each hand's grown keypoint hull filled with ``fill``."""
-    from PIL import Image, ImageDraw
-    from scipy.spatial import ConvexHull
-
-    mask = Image.new("L", (pixels.shape[1], pixels.shape[0]), 0)
-    angles = np.linspace(0.0, 2.0 * math.pi, 16, endpoint=False)
-    circle = np.stack([np.cos(angles), np.sin(angles)], axis=-1)
-    for hand in found:  # the hull of a circle around each keypoint
-        radius = max(1.0, config.paint_margin * _diagonal(hand.box))
-        points = (hand.keypoints[:, None] + radius * circle[None]).reshape(-1, 2)
-        ImageDraw.Draw(mask).polygon(list(map(tuple, points[ConvexHull(points).vertices])), 255)
-    painted = pixels.copy()
-    painted[np.asarray(mask) > 0] = fill
-    return painted
 
 
 def _unique(hands_found: list[Named], config: DetectConfig) -> list[Named]:
