@@ -144,7 +144,13 @@ def initial_split(points: np.ndarray, count: int, seed: int = 0) -> np.ndarray:
     and two hands' palms, which is how k-means cuts two flat hands lying palm to palm)."""
     points = np.asarray(points, np.float64)
     candidates = split_candidates(points, count, seed)
-    apart = _apart(points, candidates)
+    return _guess(points, candidates, count, _apart(points, candidates))
+
+
+def _guess(points: np.ndarray, candidates: list[np.ndarray], count: int,
+           apart: np.ndarray | None) -> np.ndarray:
+    """:func:`initial_split`'s choice among ``candidates`` (``apart``: the one whose parts lie
+    apart, or None)."""
     if apart is not None or len(candidates) == 1:
         return candidates[0] if apart is None else apart
     return max(candidates, key=lambda labels: min(_spread(points[labels == k])
@@ -172,7 +178,7 @@ def choose_split(model: Any, points: np.ndarray, count: int, config: Any,
     candidates = split_candidates(points, count, config.seed)
     apart = _apart(points, candidates)
     if apart is not None or hands_config.candidate_iters == 0:
-        return initial_split(points, count, config.seed) if apart is None else apart
+        return _guess(points, candidates, count, apart)
     best_score, best = math.inf, candidates[0]
     for number, labels in enumerate(candidates):
         score, given = _quick_split(model, points, labels, count, config, hands_config, sensor,
