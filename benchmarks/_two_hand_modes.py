@@ -84,7 +84,7 @@ def _seed(seed: int, stream: int, index: int) -> int:
 
 def match_hands_3d(fitted: list, truths: list) -> list[int | None]:
     """Per true hand (:class:`benchmarks._two_hand_scenes.TrueHand`), the index of the fitted
-    hand (:class:`benchmarks.two_hands.FittedHand`) matched to it: the assignment of least total
+    hand (:class:`benchmarks._two_hand_scores.FittedHand`) matched to it: the assignment of least total
     wrist distance, a fitted hand of the other side costing 1 m more (so by side, else the
     nearest wrist); None: unmatched, or its wrist farther than half the true hand's size (the
     longest side of its keypoints' box)."""
@@ -199,7 +199,7 @@ def fit_scene_input(mode: str, photo, work_dir: Path, options: dict,
     """Make ``photo``'s scene's ``mode`` input ("scan" or "views") in ``work_dir``, fit it
     together and alone, and score both -> ({"together": ModeResult, "alone": ...}, seconds
     making the input)."""
-    from .two_hands import FITS, failed_fit, read_fit_output, score_fit
+    from ._two_hand_scores import FITS, failed_fit, read_fit_output, score_fit
 
     start = time.perf_counter()
     stem = photo.path.stem
