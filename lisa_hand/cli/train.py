@@ -83,6 +83,13 @@ def _report(result, out: Path) -> None:
 def train_prior(
     data: DataArg,
     out: OutOpt,
+    init: Annotated[Path | None, typer.Option(
+        "--init", help="Start from this prior instead of the geometric initialisation: a "
+                       "'lisa train-prior' run folder (or checkpoint), an exported model or a "
+                       "shipped model's name (e.g. 'geometry_mix'), to go on training it on "
+                       "more or other hands. Its field's architecture is taken; subjects it "
+                       "has not seen start from its mean shape code. Ignored when the run "
+                       "resumes from its own checkpoint.")] = None,
     steps: StepsOpt = None,
     overrides: SetOpt = None,
     config: ConfigOpt = None,
@@ -94,7 +101,7 @@ def train_prior(
     from ..training.prior import train_prior as run
 
     resolved = _resolve(PriorConfig, config, overrides, steps, device)
-    _report(run(data, out, resolved, resume=resume), out)
+    _report(run(data, out, resolved, resume=resume, init=init), out)
 
 
 def train(

@@ -23,7 +23,7 @@ from ..render import LaplaceDensity, RenderConfig, calibrate, ray_sphere_bounds,
 from ..render.samplers import GroupGenerators
 from ..render.shading import SHADING_MODES, HeadlightShading, surface_normals
 from ..skeleton import POSE_DIM
-from .prior import PriorModel
+from .prior import PriorModel, copy_geometry
 
 __all__ = [
     "NON_GEOMETRY_FIELDS",
@@ -170,23 +170,7 @@ class ImageModel(nn.Module):
         mismatch = geometry_mismatch(prior.field.config, self.field.config)
         if mismatch:
             raise ValueError(f"the prior's field differs from this model's in {mismatch}")
-        prior_state = prior.field.state_dict()
-        geometry = {k: v for k, v in prior_state.items() if not k.startswith("color_mlp.")}
-        missing, unexpected = self.field.load_state_dict(geometry, strict=False)
-        missing = [k for k in missing if not k.startswith("color_mlp.")]
-        if missing or unexpected:
-            raise ValueError(f"the prior's weights do not fit: missing {missing}, unexpected "
-                             f"{unexpected}")
-        mean = prior.shape_codes.mean_code()
-        unseen = []
-        for row, subject in enumerate(self.subject_ids):
-            if subject in prior.subject_ids:
-                code = prior.shape_codes.weight[prior.subject_ids.index(subject)]
-            else:
-                code = mean
-                unseen.append(subject)
-            self.shape_codes.weight[row] = code.to(self.shape_codes.weight)
-        return unseen
+        return copy_geometry(prior, self.field, self.shape_codes, self.subject_ids)
 
     def frame_parameters(
         self, frame_index: torch.Tensor, pose: torch.Tensor, translation: torch.Tensor,

@@ -185,6 +185,13 @@ class PriorModel(nn.Module):
         self.shape_codes = LatentTable(len(subject_ids), field_config.shape_dim, latent_init_std)
         self.subject_ids = list(subject_ids)
 
+    @torch.no_grad()
+    def start_from(self, prior: PriorModel) -> list[str]:
+        """Copy ``prior``'s SDF and skinning networks and the shape codes of the subjects it
+        knows (the others get its mean code) -> the subjects it did not know. The fields'
+        configs must match (:func:`train_prior` takes the prior's)."""
+        return copy_geometry(prior, self.field, self.shape_codes, self.subject_ids)
+
     def subject_index(self, subject_id: str) -> int:
         """Row of ``subject_id`` in the code table."""
         try:
@@ -224,6 +231,32 @@ class PriorModel(nn.Module):
         }
 
 
+@torch.no_grad()
+def copy_geometry(prior: PriorModel, field: LisaModel, codes: LatentTable,
+                  subject_ids: list[str]) -> list[str]:
+    """Copy ``prior``'s SDF and skinning networks into ``field`` (its colour network, if any, is
+    left as it is) and its shape codes into ``codes`` (rows in ``subject_ids`` order; a subject
+    the prior has not seen gets the prior's mean code) -> the subjects it had not seen. Raises
+    ValueError when the networks do not fit."""
+    geometry = {k: v for k, v in prior.field.state_dict().items()
+                if not k.startswith("color_mlp.")}
+    missing, unexpected = field.load_state_dict(geometry, strict=False)
+    missing = [k for k in missing if not k.startswith("color_mlp.")]
+    if missing or unexpected:
+        raise ValueError(f"the prior's weights do not fit: missing {missing}, unexpected "
+                         f"{unexpected}")
+    mean = prior.shape_codes.mean_code()
+    unseen = []
+    for row, subject in enumerate(subject_ids):
+        if subject in prior.subject_ids:
+            code = prior.shape_codes.weight[prior.subject_ids.index(subject)]
+        else:
+            code = mean
+            unseen.append(subject)
+        codes.weight[row] = code.to(codes.weight)
+    return unseen
+
+
 # ------------------------------------------------------------------------------------------------
 # Training
 
@@ -234,6 +267,7 @@ def train_prior(
     config: PriorConfig | None = None,
     resume: bool | str | os.PathLike = True,
     *,
+    init: str | os.PathLike | PriorModel | None = None,
     hooks=(),
     dist: DistContext | None = None,
 ) -> TrainResult:
@@ -243,6 +277,12 @@ def train_prior(
     config: the run's settings (default ``PriorConfig()``), saved to ``out_dir/config.json``.
     resume: True: continue from ``out_dir/last.pt`` if present; False: start afresh; a path:
         continue from that checkpoint. hooks, dist: see :class:`lisa_hand.training.engine.Trainer`.
+    init: a prior to start from instead of the geometric initialisation (a run folder or
+        checkpoint, an exported model or a shipped model's name, as :func:`load_prior` takes;
+        e.g. to go on training a prior on more or other hands): its networks, its field's
+        architecture (``config.field`` is replaced by it) and the codes of the subjects it
+        knows (:meth:`PriorModel.start_from`). A run that resumes from its own checkpoint
+        ignores it.
     Launch under ``torchrun`` for several processes (each draws the same global batch and keeps
     its share of the frames). -> :class:`TrainResult`; the model is in ``out_dir/last.pt``
     (:func:`load_prior`).
@@ -250,6 +290,10 @@ def train_prior(
     config = PriorConfig() if config is None else config
     if not isinstance(config, PriorConfig):
         raise TypeError(f"config must be a PriorConfig, got {type(config).__name__}")
+    start, source = _start(init)
+    if start is not None:
+        config = dataclasses.replace(
+            config, field=dataclasses.replace(start.field.config, use_color=False))
     if config.stream:
         from .streaming import StreamingScanFrames
 
@@ -260,6 +304,8 @@ def train_prior(
     model = seeded(config.trainer.seed, lambda: PriorModel(
         config.field, scans.subject_ids, latent_init_std=config.latent_init_std,
         init_rest_joints=scans.table.rest_joints.mean(dim=0)))
+    if start is not None:
+        model.start_from(start)
     weights = config.loss_weights()
     if not weights:
         raise ValueError("every loss weight is 0: nothing to train")
@@ -276,6 +322,8 @@ def train_prior(
 
     extra = {"kind": PRIOR_KIND, "subject_ids": list(scans.subject_ids),
              "data_dir": str(Path(data_dir))}
+    if source is not None:
+        extra["init"] = source
     group_lrs = {("shape_codes",): config.latent_lr}
     trainer = Trainer(model, step_fn, config.trainer, out_dir, run_config=config,
                       optimizer_fn=lambda bare: build_optimizer(bare, config.trainer, group_lrs),
@@ -283,6 +331,15 @@ def train_prior(
                       name="lisa train-prior")
     check_resumed_extra(trainer, extra)
     return trainer.run()
+
+
+def _start(init: str | os.PathLike | PriorModel | None) -> tuple[PriorModel | None, str | None]:
+    """The prior a run starts from and where it came from (None, None: no ``init``)."""
+    if init is None:
+        return None, None
+    if isinstance(init, PriorModel):
+        return init, "<in memory>"
+    return load_prior(init), str(init)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -59,7 +59,7 @@ def check_resumed_extra(trainer: Trainer, expected: Mapping[str, Any]) -> None:
     if trainer.resumed_from is None:
         return
     for key, value in expected.items():
-        if key in ("data_dir", "prior"):
+        if key in ("data_dir", "prior", "init"):
             continue
         saved = trainer.resumed_extra.get(key)
         if saved is not None and saved != value:

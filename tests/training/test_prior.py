@@ -3,6 +3,7 @@ and refuses bad settings."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import os
 import signal
@@ -13,7 +14,7 @@ import torch
 from lisa_hand.fields.config import FieldConfig
 from lisa_hand.model.checkpoint import PRIOR_KIND, load_checkpoint
 from lisa_hand.training.distributed import DistContext
-from lisa_hand.training.prior import PriorConfig, load_prior, train_prior
+from lisa_hand.training.prior import PriorConfig, PriorModel, load_prior, train_prior
 from lisa_hand.training.runs import batch_mean
 from lisa_hand.utils.config import apply_overrides, load_config
 
@@ -94,6 +95,34 @@ def test_an_exported_prior_loads_as_the_same_prior(tiny_data, tmp_path):
     bad.write_bytes(b"not a torch file")
     with pytest.raises(ValueError, match="notes.pt"):
         load_prior(bad)
+
+
+def test_a_prior_started_from_another_takes_its_networks_codes_and_architecture(tiny_data,
+                                                                                 tmp_path):
+    from lisa_hand.data.datasets import read_frame_table
+
+    table = read_frame_table(tiny_data, "train")
+    first = tiny_prior_config(trainer=tiny_trainer(steps=6))
+    train_prior(tiny_data, tmp_path / "first", first)
+    before = load_prior(tmp_path / "first")
+    # Another architecture asked for: the start's is taken (its weights would not fit).
+    wider = dataclasses.replace(first.field, sdf_hidden=first.field.sdf_hidden * 2)
+    config = tiny_prior_config(field=wider, trainer=tiny_trainer(steps=1, lr=1e-12))
+    train_prior(tiny_data, tmp_path / "second", config, init=tmp_path / "first")
+    second = load_prior(tmp_path / "second")
+    assert second.field.config == first.field
+    assert load_config(PriorConfig, tmp_path / "second/config.json").field == first.field
+    assert load_checkpoint(tmp_path / "second/last.pt").extra["init"] == str(tmp_path / "first")
+    # lr 1e-12: one step moves nothing measurable; the same field and codes as the start.
+    assert torch.allclose(second.shape_codes.weight, before.shape_codes.weight, atol=1e-9)
+    assert torch.allclose(_probe_sdf(second, table), _probe_sdf(before, table), atol=1e-7)
+
+    # The val split's subject is new to the start: it begins at the start's mean code.
+    third = load_prior(tmp_path / "first")
+    fresh = PriorModel(first.field, ["s000", "s999"])
+    assert fresh.start_from(third) == ["s999"]
+    assert torch.equal(fresh.shape_codes.weight[0], third.shape_codes.weight[0])
+    assert torch.allclose(fresh.shape_codes.weight[1], third.shape_codes.weight.mean(0))
 
 
 def _stop_at(step: int):

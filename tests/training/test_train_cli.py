@@ -63,6 +63,13 @@ def test_train_prior_then_train_with_the_prior(app, tiny_data, tmp_path):
     assert load_checkpoint(image_run / "last.pt").extra["prior"] == str(prior_run)
     assert load_config(ImageTrainConfig, image_run / "config.json").trainer.steps == 2
 
+    again = tmp_path / "prior_again"
+    result = runner.invoke(app, ["train-prior", str(tiny_data), "--out", str(again),
+                                 "--init", str(prior_run), "--config", prior_config,
+                                 "--steps", "1"])
+    assert result.exit_code == 0, result.output
+    assert load_checkpoint(again / "last.pt").extra["init"] == str(prior_run)
+
     result = runner.invoke(app, ["train", str(tiny_data), "--out", str(image_run), "--config",
                                  image_config, "--steps", "1", "--no-resume"])
     assert result.exit_code == 0, result.output
@@ -75,6 +82,11 @@ def test_bad_options_raise_clear_errors(app, tiny_data, tmp_path):
                                  "--set", "lambda_surface=3"])
     assert isinstance(result.exception, ValueError)
     assert "unknown key 'lambda_surface'" in str(result.exception)
+    result = runner.invoke(app, ["train-prior", str(tiny_data), "--out", str(tmp_path / "run"),
+                                 "--init", str(tmp_path / "no_such_prior")])
+    assert isinstance(result.exception, (ValueError, FileNotFoundError))
+    assert "no_such_prior" in str(result.exception)
+    assert not (tmp_path / "run" / "last.pt").exists()
     result = runner.invoke(app, ["train", str(tmp_path / "missing"), "--out",
                                  str(tmp_path / "run"), "--set", "num_rays=7",
                                  "--set", "num_frames=2"])
