@@ -6,7 +6,7 @@
   in the scene's camera frame (the truth compares directly), written as a PLY and fitted by
   :func:`lisa_hand.fitting.points.io.fit_hands_file` as a user runs it (two hands, their sides
   found by the fit, the support search on: it must find none): together (the default) and alone
-  (``hands_config=ScanHandsConfig(joint=JointConfig(iters=0))``).
+  (``FitPointsConfig(hands=ScanHandsConfig(joint=JointConfig(iters=0)))``).
 * **views**: 4 calibrated views round the pair (:func:`lisa_hand.geometry.cameras.make_rig`:
   0.45 m away, 320x240, 45 degrees, the image's up the scene's), both meshes rendered as one
   (:func:`lisa_hand.data.images.render_views`, the scene's colours); per hand a frame folder
@@ -84,10 +84,10 @@ def _seed(seed: int, stream: int, index: int) -> int:
 
 def match_hands_3d(fitted: list, truths: list) -> list[int | None]:
     """Per true hand (:class:`benchmarks._two_hand_scenes.TrueHand`), the index of the fitted
-    hand (:class:`benchmarks._two_hand_scores.FittedHand`) matched to it: the assignment of least total
-    wrist distance, a fitted hand of the other side costing 1 m more (so by side, else the
-    nearest wrist); None: unmatched, or its wrist farther than half the true hand's size (the
-    longest side of its keypoints' box)."""
+    hand (:class:`benchmarks._two_hand_scores.FittedHand`) matched to it: the assignment of
+    least total wrist distance, a fitted hand of the other side costing 1 m more (so by side,
+    else the nearest wrist); None: unmatched, or its wrist farther than half the true hand's
+    size (the longest side of its keypoints' box)."""
     from scipy.optimize import linear_sum_assignment
 
     matched: list[int | None] = [None] * len(truths)
@@ -169,13 +169,13 @@ def write_views(photo, folder: Path, seed: int) -> list[Path]:
 def _fit_scan(ply: Path, out_dir: Path, fit: str, options: dict) -> None:
     from lisa_hand.fitting.points.io import fit_hands_file
 
-    hands_config = None
+    config = None
     if fit == "alone":
         from lisa_hand.fitting.pair.config import JointConfig
-        from lisa_hand.fitting.points.hands import ScanHandsConfig
+        from lisa_hand.fitting.points.config import FitPointsConfig, ScanHandsConfig
 
-        hands_config = ScanHandsConfig(joint=JointConfig(iters=0))
-    fit_hands_file(ply, out_dir, 2, hands_config=hands_config, device=options["device"],
+        config = FitPointsConfig(hands=ScanHandsConfig(joint=JointConfig(iters=0)))
+    fit_hands_file(ply, out_dir, 2, config=config, device=options["device"],
                    progress=False, log=None)
 
 

@@ -66,7 +66,9 @@ HandsOpt = Annotated[int | None, typer.Option(
     help="The scan holds N hands that may touch (clasped, crossed, one holding the other): the "
          "points are split between them by their fits, the hands fitted together so that they "
          "touch without overlapping, into OUT/hand0, OUT/hand1, ... with OUT/hands.json (sides, "
-         "right-to-left wrist offset, deepest penetration) and OUT/hands.ply.")]
+         "right-to-left wrist offset, deepest penetration) and OUT/hands.ply. Its settings are "
+         "FitPointsConfig.hands, e.g. --set hands.candidate_iters=60 --set hands.joint.iters=0 "
+         "(each hand fitted alone).")]
 CameraOpt = Annotated[Path | None, typer.Option(
     "--camera", metavar="CAM.json",
     help="For a depth image: the camera that took it (cameras.json convention: K, width, "

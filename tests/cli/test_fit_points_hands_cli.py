@@ -122,8 +122,8 @@ def test_hands_writes_each_hand_and_the_pair(scene, capsys, monkeypatch):
 
     seen = {}
 
-    def stub(model, points, count, config, hands_config, *, side, sensor, progress, log):
-        seen.update(points=points, count=count, side=side)
+    def stub(model, points, count, config, *, side, sensor, progress, log):
+        seen.update(points=points, count=count, side=side, config=config)
         return hands_module.ScanHands(
             hands=[dataclasses.replace(hand, extra={}) for hand in scene["hands"]],
             labels=scene["labels"].copy(), fits=[], joint=None, seconds=1.0)
@@ -131,9 +131,11 @@ def test_hands_writes_each_hand_and_the_pair(scene, capsys, monkeypatch):
     monkeypatch.setattr(hands_module, "fit_scan_hands", stub)
     out = scene["root"] / "pair"
     assert lisa(["fit-points", str(scene["root"] / "scan.npy"), "--out", str(out), "--hands",
-                 "2", "--model", "geometry_v2", "--support", "none", *FAST]) == 0
+                 "2", "--model", "geometry_v2", "--support", "none", *FAST,
+                 "--set", "hands.candidate_iters=7", "--set", "hands.joint.iters=0"]) == 0
     printed = capsys.readouterr().out
     assert seen["count"] == 2 and seen["side"] == "auto" and len(seen["points"]) == 1610
+    assert seen["config"].hands.candidate_iters == 7 and seen["config"].hands.joint.iters == 0
     assert ("2 hands fitted together in 1 s: hand0 right (800 points), hand1 left (800 points)"
             in printed), printed
     assert sorted(p.name for p in out.iterdir()) == ["hand0", "hand1", "hands.json",
@@ -148,6 +150,7 @@ def test_hands_writes_each_hand_and_the_pair(scene, capsys, monkeypatch):
         assert torch.allclose(params.pose, true.pose, atol=1e-6)
         assert params.extra["input"]["hand"] == index and params.extra["input"]["hands"] == 2
         assert params.extra["input"]["points"] == 800
+        assert params.extra["config"]["fit"]["hands"]["candidate_iters"] == 7
         keypoints = json.loads((folder / "keypoints.json").read_text())
         assert keypoints["side"] == side
         assert np.allclose(keypoints["keypoints_3d"], hand_keypoints_3d(true), atol=1e-6)

@@ -346,14 +346,13 @@ def test_fit_scan_hands_finds_both_hands_palm_to_palm(geometry, palms):
 
     hands, offset, points, truth = palms
     points, truth = points[::2], truth[::2]  # 2000 points: the fit's time grows with them
+    hands_config = ScanHandsConfig(rounds=0, candidate_iters=10, candidate_rounds=1,
+                                   joint=JointConfig(iters=40), mesh_resolution=40)
     config = FitPointsConfig(align_iters=25, align_keep=8, restarts=2, pose_iters=40,
                              sizes=(0.9, 1.0, 1.1), finger_iters=15, field_iters=20,
-                             second_pass_iters=0)
+                             second_pass_iters=0, hands=hands_config)
     said = []
-    found = fit_scan_hands(geometry, points, 2, config,
-                           ScanHandsConfig(rounds=0, candidate_iters=10, candidate_rounds=1,
-                                           joint=JointConfig(iters=40),
-                                           mesh_resolution=40), log=said.append)
+    found = fit_scan_hands(geometry, points, 2, config, log=said.append)
     assert sorted(hand.side for hand in found.hands) == ["left", "right"]
     assert [line[:10] for line in said[:4]] == [f"cut {k} of 4" for k in range(1, 5)]
     assert said[4].startswith("refit 1: ")

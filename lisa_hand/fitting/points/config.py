@@ -9,14 +9,49 @@ from dataclasses import dataclass, field
 from typing import ClassVar
 
 from ...utils.config import check_int_fields
+from ..pair.config import JointConfig
 from ..priors import PRIOR_POSES
 from ..robust import ROBUST_LOSSES
 from .analysis import AnalysisConfig
 
-__all__ = ["POINT_STAGES", "FitPointsConfig"]
+__all__ = ["POINT_STAGES", "ScanHandsConfig", "FitPointsConfig"]
 
 POINT_STAGES = ("align", "pose", "size", "unseen", "fingers", "coverage", "field", "second")
 """The point fit's stages in the one order they may run (:mod:`.stages`)."""
+
+
+@dataclass(frozen=True)
+class ScanHandsConfig:
+    """How :func:`lisa_hand.fitting.points.hands.fit_scan_hands` splits and fits a scan of
+    several hands (``FitPointsConfig.hands``)."""
+
+    rounds: int = 1
+    """Fits of every hand again after the points were split by the previous fits."""
+    far_mm: float = 15.0
+    """Points farther than this from every fitted hand's surface belong to none."""
+    candidate_iters: int = 30
+    """Field-stage iterations of the quick fits that choose between the cuts of touching hands
+    (:func:`~lisa_hand.fitting.points.hands.choose_split`; 0: no quick fits, the cut
+    :func:`~lisa_hand.fitting.points.hands.initial_split` guesses)."""
+    candidate_rounds: int = 3
+    """At most this many quick fits again of the chosen cut's hands, each on the points the
+    last gave it, while the hands come nearer the scan
+    (:func:`~lisa_hand.fitting.points.hands.choose_split`)."""
+    joint: JointConfig = field(default_factory=JointConfig)
+    """The joint fit of all hands at the end (``joint.iters=0``: none)."""
+    mesh_resolution: int = 64
+    """Marching-cubes samples a side of the meshes whose vertices are the joint fit's surface
+    samples."""
+
+    def __post_init__(self) -> None:
+        if isinstance(self.rounds, bool) or not isinstance(self.rounds, int) or self.rounds < 0:
+            raise ValueError(f"rounds must be an integer >= 0, got {self.rounds!r}")
+        for name in ("candidate_iters", "candidate_rounds"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
+        if not self.far_mm > 0:
+            raise ValueError(f"far_mm must be positive, got {self.far_mm!r}")
 
 
 @dataclass(frozen=True)
@@ -36,6 +71,10 @@ class FitPointsConfig:
     analysis: AnalysisConfig = field(default_factory=AnalysisConfig)
     """How the scan is analysed before the stages (:mod:`.analysis`: the support plane, the
     sensor position, other pieces)."""
+    hands: ScanHandsConfig = field(default_factory=ScanHandsConfig)
+    """A scan of several hands that may touch (``lisa fit-points --hands N``,
+    :func:`lisa_hand.fitting.points.hands.fit_scan_hands`): how its points are split and its
+    hands fitted together, e.g. ``--set hands.candidate_iters=60 --set hands.joint.iters=0``."""
     align_iters: int = 40
     """Adam steps of the rigid alignment of the 24 candidate orientations (proxy, no network)."""
     align_keep: int = 16

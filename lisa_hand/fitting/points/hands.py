@@ -21,48 +21,17 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 import torch
 
 from ...skeleton.params import HandParams
-from ..pair.config import JointConfig
+from .config import ScanHandsConfig
 
 __all__ = ["ScanHandsConfig", "ScanHands", "kmeans_split", "split_candidates", "initial_split",
            "choose_split", "surface_distances", "assign_points", "fit_scan_hands"]
-
-
-@dataclass(frozen=True)
-class ScanHandsConfig:
-    """How :func:`fit_scan_hands` splits and fits a scan of several hands."""
-
-    rounds: int = 1
-    """Fits of every hand again after the points were split by the previous fits."""
-    far_mm: float = 15.0
-    """Points farther than this from every fitted hand's surface belong to none."""
-    candidate_iters: int = 30
-    """Field-stage iterations of the quick fits that choose between the cuts of touching hands
-    (:func:`choose_split`; 0: no quick fits, the cut :func:`initial_split` guesses)."""
-    candidate_rounds: int = 3
-    """At most this many quick fits again of the chosen cut's hands, each on the points the
-    last gave it, while the hands come nearer the scan (:func:`choose_split`)."""
-    joint: JointConfig = field(default_factory=JointConfig)
-    """The joint fit of all hands at the end (``joint.iters=0``: none)."""
-    mesh_resolution: int = 64
-    """Marching-cubes samples a side of the meshes whose vertices are the joint fit's surface
-    samples."""
-
-    def __post_init__(self) -> None:
-        if isinstance(self.rounds, bool) or not isinstance(self.rounds, int) or self.rounds < 0:
-            raise ValueError(f"rounds must be an integer >= 0, got {self.rounds!r}")
-        for name in ("candidate_iters", "candidate_rounds"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
-                raise ValueError(f"{name} must be an integer >= 0, got {value!r}")
-        if not self.far_mm > 0:
-            raise ValueError(f"far_mm must be positive, got {self.far_mm!r}")
 
 
 @dataclass
@@ -303,15 +272,17 @@ def _fit_parts(model: Any, points: np.ndarray, labels: np.ndarray, count: int, c
     return fits
 
 
-def fit_scan_hands(model: Any, points: np.ndarray, count: int, config: Any = None,
-                   hands_config: ScanHandsConfig | None = None, *, side: str = "auto",
+def fit_scan_hands(model: Any, points: np.ndarray, count: int, config: Any = None, *,
+                   side: str = "auto",
                    sensor: np.ndarray | None = None, progress: bool = False,
                    log: Callable[[str], None] | None = None) -> ScanHands:
     """Fit ``count`` >= 2 hands to the hand points of one scan (module docstring).
 
     points: [N, 3] world metres (a support plane and other objects already left out).
-    config: the point fit's :class:`.fit.FitPointsConfig` for each hand. side: each hand's
-    side ("auto": both tried per hand). sensor: [3] metres, a one-view scan's sensor position.
+    config: the point fit's :class:`.fit.FitPointsConfig` for each hand; its ``hands``
+    (:class:`.config.ScanHandsConfig`): how the scan is split and the hands fitted together.
+    side: each hand's side ("auto": both tried per hand). sensor: [3] metres, a one-view scan's
+    sensor position.
     """
     import time
 
@@ -323,7 +294,7 @@ def fit_scan_hands(model: Any, points: np.ndarray, count: int, config: Any = Non
     began = time.perf_counter()
     log = log or (lambda line: None)
     config = FitPointsConfig() if config is None else config
-    hands_config = ScanHandsConfig() if hands_config is None else hands_config
+    hands_config = config.hands
     points = np.asarray(points, np.float64)
     labels = choose_split(model, points, count, config, hands_config, sensor, side, log)
     fits = _fit_parts(model, points, labels, count, config, sensor, side, progress, log)

@@ -428,7 +428,7 @@ def _refined(model, fit, cloud: PointCloud, side: str, config, progress: bool, l
 @releases_output_locks
 def fit_hands_file(points_path: str | os.PathLike, out_dir: str | os.PathLike, count: int, *,
                    model_path: str | os.PathLike | None = None, units: str = "auto",
-                   resolution: int = 128, config=None, hands_config=None, device: str = "auto",
+                   resolution: int = 128, config=None, device: str = "auto",
                    side: str = "auto", viewpoint=None, support: str | None = "auto",
                    depth=None, progress: bool = False, log: Callable[[str], None] | None = None
                    ) -> list[Path]:
@@ -436,7 +436,8 @@ def fit_hands_file(points_path: str | os.PathLike, out_dir: str | os.PathLike, c
     (:func:`lisa_hand.fitting.points.hands.fit_scan_hands`) and write ``out_dir/handN/``
     (each hand's ``params.json``, ``mesh.ply``, ``keypoints.json``), ``hands.json``
     (:func:`lisa_hand.fitting.pair.record.hands_record`, world frame) and ``hands.ply`` (every
-    hand's mesh). Options as :func:`fit_point_file`'s. -> the written paths."""
+    hand's mesh). Options as :func:`fit_point_file`'s; ``config.hands`` says how the hands are
+    split and fitted together. -> the written paths."""
     import dataclasses
 
     from ...model.trained import load_trained, model_label
@@ -448,21 +449,20 @@ def fit_hands_file(points_path: str | os.PathLike, out_dir: str | os.PathLike, c
     from ..pair.contact import HandBody, penetration_depths
     from ..pair.record import hands_record, joined_mesh
     from .fit import FitPointsConfig
-    from .hands import ScanHandsConfig, fit_scan_hands
+    from .hands import fit_scan_hands
 
     log = log or (lambda line: None)
     if isinstance(count, bool) or not isinstance(count, int) or count < 2:
         raise ValueError(f"--hands must be an integer >= 2, got {count!r}")
     points_path, out_dir = Path(points_path), Path(out_dir)
     config = FitPointsConfig() if config is None else config
-    hands_config = ScanHandsConfig() if hands_config is None else hands_config
     claim_output_folder(out_dir, hands_entry, "hands.json, hands.ply and hand0/, hand1/, ...")
     cloud, sensor = read_cloud_file(points_path, units, config, None, log, depth, support)
     view = _fit_viewpoint(viewpoint, sensor, cloud.unit)
     analysis, model_path = _analysed(cloud, view, support, None, config, model_path, log)
     model = load_trained(model_path, resolve_device(device))
     points = np.asarray(cloud.points, np.float64)[analysis.keep]
-    found = fit_scan_hands(model, points, count, config, hands_config, side=side,
+    found = fit_scan_hands(model, points, count, config, side=side,
                            sensor=analysis.sensor, progress=progress, log=log)
     artefacts, meshes = [], []
     for index, params in enumerate(found.hands):
@@ -470,8 +470,7 @@ def fit_hands_file(points_path: str | os.PathLike, out_dir: str | os.PathLike, c
         params.extra["input"] = {"path": str(points_path), "unit": cloud.unit,
                                  "hand": index, "hands": count,
                                  "points": int((found.labels == index).sum())}
-        params.extra["config"] = {"fit": dataclasses.asdict(config),
-                                  "hands": dataclasses.asdict(hands_config)}
+        params.extra["config"] = {"fit": dataclasses.asdict(config)}
         clip = None if config.wrist_clip_m is None else wrist_plane(params, config.wrist_clip_m)
         mesh = _mesh_without_specks(model, params, resolution, clip, out_dir / f"hand{index}",
                                     log)
