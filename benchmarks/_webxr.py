@@ -30,7 +30,7 @@ from lisa_hand.data.webxr_hand import (
 )
 from lisa_hand.utils.threads import cpu_threads
 
-__all__ = ["run_webxr_fits"]
+__all__ = ["run_webxr_fits", "measured_fit"]
 
 
 def _refined_row(model, fit, points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
@@ -85,7 +85,7 @@ def _check_webxr_args(viewpoints: str, wrists: tuple[str, ...], scale: float,
             raise ValueError(f"unknown wrist variant {variant!r}: one of {WEBXR_WRISTS}")
 
 
-def _measured_fit(model, points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, config,
+def measured_fit(model, points: np.ndarray, vertices: np.ndarray, faces: np.ndarray, config,
                   side: str, viewpoint, threads: int) -> tuple[object, dict]:
     """One WebXR fit on ``threads`` threads, its 128^3 mesh measured against the truth
     (vertices [V, 3] metres, faces [F, 3]), both cut at the fit's wrist plane.
@@ -110,12 +110,11 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                    config=None, refine=None, viewpoints: str = "none", scale: float = 1.0,
                    proportions: tuple[float, float, float] | None = None,
                    log=None) -> list[dict]:
-    """Fit ``model`` (a trained model, or {"full": one, "partial": another}: one for each kind
-    of scan, as ``lisa fit-points`` chooses by default) to the WebXR hand (``right_hand.npz`` or
-    ``left_hand.npz``, its side found
-    by :func:`webxr_side`) in each pose of :data:`WEBXR_POSES` and each wrist
-    variant of ``wrists`` (:data:`WEBXR_WRISTS`), from a full scan and from a one-view partial
-    scan (noise 0.3 mm), each in a random placement (the same for every variant of a pose).
+    """Fit ``model`` (a trained model) to the WebXR hand (``right_hand.npz`` or
+    ``left_hand.npz``, its side found by :func:`webxr_side`) in each pose of
+    :data:`WEBXR_POSES` and each wrist variant of ``wrists`` (:data:`WEBXR_WRISTS`), from a full
+    scan and from a one-view partial scan (noise 0.3 mm), each in a random placement (the same
+    for every variant of a pose).
 
     config: the :class:`~lisa_hand.fitting.points.config.FitPointsConfig` (None: defaults with
     ``num_threads=threads`` and ``seed``). refine: a
@@ -175,17 +174,16 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                     points = points[Plane(place(wrist[None])[0],
                                           -(forearm @ rotation.T)).keeps(points)]
                 kind = "partial" if partial else "full"
-                fit_model = model[kind] if isinstance(model, dict) else model
                 viewpoint = {"none": None, "auto": "auto",
                              "true": scan.viewpoint if partial else None}[viewpoints]
-                fit, measured = _measured_fit(fit_model, points, placed, variant_faces, config,
+                fit, measured = measured_fit(model, points, placed, variant_faces, config,
                                               side, viewpoint, threads)
                 rows.append({"pose": pose, "wrist": variant, "scan": kind,
-                             "model": str(fit_model.source), "viewpoint": viewpoints,
+                             "model": str(model.source), "viewpoint": viewpoints,
                              "scale": scale, "proportions": list(proportions or (1.0, 1.0, 1.0)),
                              **measured})
                 if refine is not None:
-                    rows[-1].update(_refined_row(fit_model, fit, points, placed, variant_faces,
+                    rows[-1].update(_refined_row(model, fit, points, placed, variant_faces,
                                                  refine, threads))
                 if log is not None:
                     log(rows[-1])

@@ -112,19 +112,6 @@ def _bench_model(path, device):
     return model.to(device), "geometric-init (no trained model: a blob hand)"
 
 
-def _default_models(model, device) -> dict:
-    """{"full": ..., "partial": ...}: what ``lisa fit-points`` fits each kind of WebXR scan with
-    when no ``--model`` is given (:func:`lisa_hand.fitting.points.io.default_point_model`): the
-    one-view model ``model`` for the one-view scans, the all-round one for the full scans."""
-    from lisa_hand.fitting.points.io import default_point_model
-    from lisa_hand.model.trained import load_trained, shipped_model_path
-
-    full = default_point_model(one_view=False)
-    if full == default_point_model() or not shipped_model_path(full).is_file():
-        return {"full": model, "partial": model}
-    return {"full": load_trained(full, device), "partial": model}
-
-
 def _target(model, seed: int):
     """The true hand: HandParams of a training subject in a random placement."""
     from lisa_hand.handmodel.poses import named_pose
@@ -379,8 +366,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--json", type=Path, default=None, help="also write the numbers here")
     parser.add_argument("--model", default=None,
                         help="trained model (default: what lisa fit-points takes without "
-                             "--model: for the WebXR hand's full scans geometry_mix, for the "
-                             "rest geometry_v2; else a geometric init)")
+                             "--model, geometry_v3; else a geometric init)")
     parser.add_argument("--points", type=int, default=20000, help="scan points")
     parser.add_argument("--noise-mm", type=float, default=0.0, help="scan noise along normals")
     parser.add_argument("--target-mm", type=float, default=1.0, help="accuracy to reach")
@@ -425,11 +411,8 @@ def main(argv: list[str] | None = None) -> None:
     if args.webxr is not None:
         wrists = tuple(name.strip() for name in args.webxr_wrists.split(",") if name.strip())
         model, name = _bench_model(args.model, args.device)
-        models = _default_models(model, args.device) if args.model is None else model
         print("WebXR hand (mm; V2S recon->scan, scan->recon; V2V recon->scan, scan->recon; "
-              + ("models: " + ", ".join(f"{kind} scans {Path(str(one.source)).name}"
-                                        for kind, one in models.items())
-                 if isinstance(models, dict) else f"model: {name}") + "):")
+              f"model: {name}):")
 
         refine = None
         if args.webxr_refine:
@@ -441,7 +424,7 @@ def main(argv: list[str] | None = None) -> None:
             from lisa_hand.fitting.points.config import FitPointsConfig
 
             config = FitPointsConfig(seed=args.seed, sizes=args.webxr_sizes)
-        numbers["webxr"] = run_webxr_fits(models, args.webxr, seed=args.seed, config=config,
+        numbers["webxr"] = run_webxr_fits(model, args.webxr, seed=args.seed, config=config,
                                           threads=args.threads, wrists=wrists, refine=refine,
                                           viewpoints=args.webxr_viewpoint,
                                           scale=args.webxr_scale,
@@ -450,9 +433,8 @@ def main(argv: list[str] | None = None) -> None:
                               ("person", args.webxr_person)):
             if choice is not None:
                 off = None if choice == "none" else "auto"
-                one_view = models["partial"] if isinstance(models, dict) else models
                 numbers["webxr"] += run_scene_fits(
-                    one_view, args.webxr, scene=scene, seed=args.seed, threads=args.threads,
+                    model, args.webxr, scene=scene, seed=args.seed, threads=args.threads,
                     support="auto" if scene == "person" else off,
                     others=off if scene == "person" else "auto",
                     viewpoints=args.webxr_viewpoint, log=_shown_row)

@@ -39,6 +39,8 @@ SECTIONS: dict[str, tuple[str, str]] = {
               "python -m benchmarks train"),
     "fit": ("Point-cloud fitting: time to V2S 1 mm, and the WebXR hand",
             "python -m benchmarks fit"),
+    "heldout": ("Point-cloud fitting: MakeHuman hands older than any the models learnt from",
+                "python -m benchmarks heldout"),
     "oneview": ("One view: the keypoint stage's depth restarts",
                 "python -m benchmarks oneview --hands 3"),
     "photo": ("Photos: lisa fit-photo on synthetic photos with ground truth",

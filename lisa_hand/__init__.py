@@ -96,11 +96,10 @@ def load_model(model: str | os.PathLike | TrainedModel | None = None,
     """A trained LISA model.
 
     model: a shipped model's name: "default" (LISA-full on hand model v1: geometry and colour;
-        also None), "full_8k", "full_14k", "full_v2" (LISA-full on hand model v2),
-        "geometry_v2", "geometry_mix", "geometry" (geometric priors: no colour; what
-        :func:`fit_points` picks); a file exported by ``python -m lisa_hand.model.trained``; a
-        ``lisa train`` / ``lisa train-prior`` run folder or checkpoint; or a loaded model,
-        returned as it is.
+        also None), "geometry" (its geometric prior: no colour) or "geometry_v3" (the
+        geometric prior of hand models v1-v3: what :func:`fit_points` takes); a file exported
+        by ``python -m lisa_hand.model.trained``; a ``lisa train`` / ``lisa train-prior`` run
+        folder or checkpoint; or a loaded model, returned as it is.
     device: "auto" (CUDA when available, as the commands), "cpu", "cuda" or "cuda:N".
     -> :class:`TrainedModel`: ``field`` (the :class:`lisa_hand.model.lisa.LisaModel`),
     ``shape_codes`` [S, D] and ``color_codes`` [S, D'] (None without colour) of the S training
@@ -270,8 +269,8 @@ def fit_points(
         (PLY, OBJ, XYZ, NPY, NPZ, STL, OFF, GLB, GLTF; its normals are used). Depth images:
         ``lisa fit-points --camera``.
     normals: [N, 3] outward normals of an array cloud, or None.
-    model: as :func:`load_model`; None: chosen by the scan as the command does (a one-view scan
-        "geometry_v2", a scan from all round "geometry_mix").
+    model: as :func:`load_model`; None: the command's default (the geometric prior
+        "geometry_v3").
     units: "auto" (from the hand's size), "m", "cm" or "mm".
     side: "auto" (fitted as both, the nearer kept: twice the time), "right" or "left".
     viewpoint: the sensor of a one-view scan, [3] in ``units``; "auto" (found when the scan
@@ -291,7 +290,7 @@ def fit_points(
     from .fitting.points.analysis import analyse_scan
     from .fitting.points.config import FitPointsConfig
     from .fitting.points.fit import fit_points as fit_cloud
-    from .fitting.points.io import choose_point_model, prepare_point_cloud, read_point_cloud
+    from .fitting.points.io import default_point_model, prepare_point_cloud, read_point_cloud
 
     config = _config(FitPointsConfig, config, settings)
     source = "array"
@@ -307,10 +306,8 @@ def fit_points(
     if viewpoint is not None and not isinstance(viewpoint, str):
         view = _numpy(viewpoint).astype(np.float64) * _metres_per(cloud.unit)
     analysis = analyse_scan(cloud.points, viewpoint=view, support=support, others=others,
-                            config=config.analysis, seed=config.seed, tell_view=model is None)
-    given = model
-    if model is None:
-        given, _ = choose_point_model(analysis)
+                            config=config.analysis, seed=config.seed)
+    given = default_point_model() if model is None else model
     loaded = load_model(given, device)
     fit = fit_cloud(loaded, cloud.points, cloud.normals, config, side=side, analysis=analysis,
                     progress=progress)

@@ -166,7 +166,7 @@ def test_example_model_as_a_function(examples):
 @pytest.mark.slow
 def test_example_point_fit_is_near_the_true_surface(examples):
     fit, error = examples["fit"], examples["error"]
-    assert fit.params.model == "geometry_mix"  # a scan from all round, as the command chooses
+    assert fit.params.model == "geometry_v3"  # the command's default
     assert fit.residual_median_mm < 1.5
     assert error.v2s_recon_to_scan_mm < 1.0, error  # fitted surface -> true one, mm (0.25)
     assert error.v2s_scan_to_recon_mm < 1.0, error  # and back (0.28)
@@ -186,7 +186,7 @@ def test_example_mesh_and_images(examples):
     assert len(images) == 2 and images[0].rgb.shape == (96, 96, 3)
     coverage = float(images[0].mask.float().mean())
     assert 0.05 < coverage < 0.8
-    assert examples["hand"].model == "geometry_mix"
+    assert examples["hand"].model == "geometry_v3"
     assert math.isclose(len(examples["mesh_again"].vertices), len(mesh.vertices), rel_tol=0.7)
 
 

@@ -22,8 +22,8 @@ def demo(
     hand_model: Annotated[str, typer.Option(
         "--hand-model", metavar="v1|v2",
         help="Version of the open hand model the unseen hand is drawn from: v1 (default; what "
-             "the shipped model was trained on) or v2 (for a model trained on v2 hands, e.g. "
-             "--model full_v2).")] = "v1",
+             "the shipped model was trained on) or v2 (for a model trained on v2 hands, "
+             "--model RUN).")] = "v1",
 ) -> None:
     """Run the end-to-end demo: synthesize a hand the shipped model never saw, fit it from its
     point cloud, from 1 view and from 4 views, mesh the fits, render novel views and a

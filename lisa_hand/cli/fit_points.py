@@ -52,7 +52,7 @@ ColoursOpt = _auto_or_none(
     "'colors', a GLB's vertex colours or texture, a depth image's --rgb image) colours "
     "mesh.ply: each vertex the colour of the scan points within a few point spacings, the "
     "surface the scan did not show interpolated from what it showed (with a colour model, "
-    "--model full_v2 or default: its colour code fitted to the scan's colours guesses it); "
+    "--model default: its colour code fitted to the scan's colours guesses it); "
     "none: the model's colours (grey for a geometric prior).")
 
 

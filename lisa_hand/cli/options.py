@@ -103,20 +103,15 @@ def with_settings(config, settings: list[str] | None):
 
 FitModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model: exported file, run folder or checkpoint, or a shipped "
-                    "model's name: 'default' (LISA-full, hand model v1), 'full_8k' (the same "
-                    "trained 8000 steps: closer), 'full_14k' (14000 steps: sharper novel views), "
-                    "'full_v2' (LISA-full trained on hand model v2), 'geometry_mix', "
-                    "'geometry_v2' or 'geometry' (the geometric priors, hand models v1 and v2 / "
-                    "v2 / v1) (default: 'default').")]
+                    "model's name: 'default' (LISA-full, hand model v1), 'geometry' (its "
+                    "geometric prior) or 'geometry_v3' (the geometric prior of hand models "
+                    "v1-v3); no colour without LISA-full (default: 'default').")]
 
 PointModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model: exported file, run folder or checkpoint, or a shipped "
-                    "model's name (default: chosen by the scan, and said: a one-view scan "
-                    "'geometry_v2', the shipped geometric prior of hand model v2, no colour; a "
-                    "scan from all round 'geometry_mix', the prior of hand models v1 and v2, "
-                    "closer on full scans of unusual hands, worse from one view; 'geometry' is "
-                    "the v1 prior; 'default' is LISA-full, whose mean colour the mesh then "
-                    "gets).")]
+                    "model's name (default: 'geometry_v3', the shipped geometric prior of hand "
+                    "models v1-v3, no colour; 'geometry' is the v1 prior; 'default' is "
+                    "LISA-full, whose mean colour the mesh then gets).")]
 
 # The verbs over a fitted hand (lisa mesh, render, animate).
 ParamsArg = Annotated[Path, typer.Argument(
@@ -125,8 +120,8 @@ ParamsArg = Annotated[Path, typer.Argument(
          "'lisa blend'.")]
 ModelOpt = Annotated[Path | None, typer.Option(
     "--model", help="Trained model (exported file, or a 'lisa train' / 'lisa train-prior' run); "
-                    "default: the one PARAMS names ('default', 'full_8k', 'full_14k', 'full_v2', "
-                    "'geometry', 'geometry_v2', 'geometry_mix': the shipped ones).")]
+                    "default: the one PARAMS names ('default', 'geometry', 'geometry_v3': the "
+                    "shipped ones).")]
 DeviceOpt = Annotated[str, typer.Option(
     "--device", help="auto (CUDA when available), cpu, cuda or cuda:N.")]
 

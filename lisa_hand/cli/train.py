@@ -86,7 +86,7 @@ def train_prior(
     init: Annotated[Path | None, typer.Option(
         "--init", help="Start from this prior instead of the geometric initialisation: a "
                        "'lisa train-prior' run folder (or checkpoint), an exported model or a "
-                       "shipped model's name (e.g. 'geometry_mix'), to go on training it on "
+                       "shipped model's name (e.g. 'geometry_v3'), to go on training it on "
                        "more or other hands. Its field's architecture is taken; subjects it "
                        "has not seen start from its mean shape code. Ignored when the run "
                        "resumes from its own checkpoint.")] = None,

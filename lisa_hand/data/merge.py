@@ -1,8 +1,8 @@
 """One dataset from several: ``python -m lisa_hand.data.merge OUT DATA[=PREFIX] ...``.
 
 For training a model on the subjects of several ``lisa synth`` (or ``lisa import``) datasets at
-once, e.g. the open hand models v1 and v2 (the ``geometry_mix`` prior, README "The point fit's
-prior on both hand models"). ``OUT`` gets a ``split.json`` that keeps every source's own split (a
+once, e.g. the open hand models v1, v2 and v3 (the ``geometry_v3`` prior, docs/training.md).
+``OUT`` gets a ``split.json`` that keeps every source's own split (a
 held-out subject stays held out), a ``dataset.json`` naming the sources, and one symbolic link per
 subject to its folder in its source (nothing is copied). A source's subject ids get its ``PREFIX``
 (``runs/v1=v1``: ``s000`` -> ``v1s000``); ids must be unique across the sources.

@@ -62,7 +62,7 @@ class DemoConfig:
     hand_model: str = "v1"
     """Version of the open hand model the unseen hand is drawn from (``lisa synth
     --hand-model``): "v1", what the shipped LISA-full was trained on, or "v2" (for a model
-    trained on v2 hands, such as ``full_v2``)."""
+    trained on v2 hands)."""
 
 
 @dataclass

@@ -4,15 +4,11 @@ What fitting, meshing, rendering and animation load. It comes from one of
 
 * a model shipped with the package, by name (:data:`SHIPPED_MODELS`): ``"default"``
   (``lisa_hand/assets/lisa_pretrained.pt``, LISA-full: geometry and colour from images of hand
-  model v1, what ``load_trained(None)`` gives), ``"geometry_v2"``
-  (``lisa_hand/assets/lisa_geometry_v2.pt``, a geometric prior on 203 subjects of the open hand
-  model v2: no colour; the default of ``lisa fit-points``), ``"geometry_mix"``
-  (``lisa_hand/assets/lisa_geometry_mix.pt``, the same on 308 subjects of hand models v1 and v2),
-  ``"geometry"``
-  (``lisa_hand/assets/lisa_geometry.pt``, the same on hand model v1: the prior LISA-full was
-  trained from), ``"full_v2"``
-  (``lisa_hand/assets/lisa_full_v2.pt``, LISA-full trained on hand model v2) or ``"full_8k"``
-  (``lisa_hand/assets/lisa_full_8k.pt``, the ``"default"`` recipe trained 8000 steps);
+  model v1, what ``load_trained(None)`` gives), ``"geometry"``
+  (``lisa_hand/assets/lisa_geometry.pt``, the geometric prior LISA-full was trained from: no
+  colour) or ``"geometry_v3"`` (``lisa_hand/assets/lisa_geometry_v3.pt``, a geometric prior on
+  644 subjects of hand models v1, v2 and v3, the MakeHuman hands: the default of ``lisa
+  fit-points``);
 * a file written by :func:`export_trained` (``python -m lisa_hand.model.trained RUN --out FILE``);
 * a training run: a ``lisa train`` run (geometry and colour) or a ``lisa train-prior`` run
   (geometry only), as its folder or its checkpoint file.
@@ -131,19 +127,17 @@ class TrainedModel:
 
 
 SHIPPED_MODELS = {"default": "lisa_pretrained.pt", "geometry": "lisa_geometry.pt",
-                  "geometry_v2": "lisa_geometry_v2.pt", "geometry_mix": "lisa_geometry_mix.pt",
-                  "full_v2": "lisa_full_v2.pt",
-                  "full_8k": "lisa_full_8k.pt", "full_14k": "lisa_full_14k.pt"}
+                  "geometry_v3": "lisa_geometry_v3.pt"}
 """The models in ``lisa_hand/assets`` by the name ``--model`` and ``params.json`` give them:
 "default" is LISA-full (images: geometry and colour) trained on the open hand model v1 from the
-"geometry" prior (3200 steps), "full_8k" the same on the same data with 8000 steps and a cosine
-learning-rate decay, "full_14k" that run resumed to 14000 steps (the cosine spread over them),
-"full_v2" the 3200-step recipe on v2 hands from the "geometry_v2" prior;
-"geometry" and "geometry_v2" are geometric priors (``lisa train-prior`` on 203 subjects of the
-open hand model v1 and v2: the SDF and skinning networks only, no colour), "geometry_mix" the
-same recipe on 308 subjects of both (203 of v2, 105 of v1: ``python -m lisa_hand.data.merge``).
-A name always means the same weights (a ``params.json`` holds a shape code of that model's
-space), so a retrained model ships under a new name."""
+"geometry" prior (``lisa train-prior`` on 203 subjects of hand model v1: the SDF and skinning
+networks only, no colour); "geometry_v3" is the geometric prior of the point fit, 644 subjects
+of hand models v1, v2 and v3 (105, 203 and 336: ``python -m lisa_hand.data.merge``), the one
+closest on hands no generator made. A name always means the same weights (a ``params.json``
+holds a shape code of that model's space), so a retrained model ships under a new name."""
+
+_RETIRED_MODELS = ("geometry_v2", "geometry_mix", "full_v2", "full_8k", "full_14k")
+"""Names that were shipped once: a ``params.json`` may still name them."""
 
 
 def shipped_model_path(name: str = "default") -> Path:
@@ -332,9 +326,13 @@ def load_trained(
         if not path.is_file():
             raise FileNotFoundError(
                 f"{path}: the shipped model {name!r} is missing from this installation; pass "
-                "--model with a trained run or an exported model (see README, 'Pretrained model')"
+                "--model with a trained run or an exported model (see README, 'Models')"
             )
     path = Path(path)
+    if not path.exists() and str(path) in _RETIRED_MODELS:
+        raise FileNotFoundError(
+            f"{path}: this model is no longer shipped (shipped: {', '.join(SHIPPED_MODELS)}); "
+            f"the git history keeps its file, lisa_hand/assets/lisa_{path}.pt: pass that file")
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such model file or run folder")
     if path.is_dir():

@@ -289,8 +289,8 @@ def test_refine_writes_the_refined_model_that_params_json_names(lisa, files, cap
 
 
 def test_without_model_the_shipped_geometric_prior_fits(lisa, files, tmp_path, capsys):
-    """No --model: the point fit uses a shipped geometric prior, for this scan from all round
-    the one of hand models v1 and v2 ('geometry_mix'), and says so; params.json names it, the
+    """No --model: the point fit uses the shipped geometric prior of hand models v1-v3
+    ('geometry_v3'), and says so; params.json names it, the
     mesh has skinning weights and no colours (the prior has none), and the verbs over a hand
     load it by that name."""
     from lisa_hand.inference.hand_field import load_hand
@@ -298,16 +298,16 @@ def test_without_model_the_shipped_geometric_prior_fits(lisa, files, tmp_path, c
     root, _ = files
     out = tmp_path / "fit"
     assert lisa(["fit-points", str(root / "scan.npz"), "--out", str(out), *FAST_ARGS]) == 0
-    assert ("model: geometry_mix (the scan shows the hand all round; --model to choose another)"
+    assert ("model: geometry_v3 (the point fit's default; --model to choose another)"
             in capsys.readouterr().out)
     params = read_params(out / "params.json")
-    assert params.model == "geometry_mix" and params.color_code is None
+    assert params.model == "geometry_v3" and params.color_code is None
     assert params.shape_code is not None and params.shape_code.shape == (128,)
     mesh = load_mesh(out / "mesh.ply")
     assert mesh.num_vertices > 100 and mesh.colors is None and mesh.skin_weights is not None
     model, hand = load_hand(out / "params.json")
-    assert not model.has_color and model.source.endswith("lisa_geometry_mix.pt")
-    assert hand.model == "geometry_mix"
+    assert not model.has_color and model.source.endswith("lisa_geometry_v3.pt")
+    assert hand.model == "geometry_v3"
 
 
 def test_a_failed_preview_leaves_the_fit_written(lisa, files, capsys, monkeypatch):

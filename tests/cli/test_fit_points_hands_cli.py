@@ -41,14 +41,16 @@ def scene(tmp_path_factory):
     800 of each, and 10 far from both) as ``scan.npy``."""
     from lisa_hand.inference import mesh_hand
     from lisa_hand.model.trained import load_trained
-    from tests.fitting.pair.scene import BACK_M, mean_right_hand, mirrored_left
+    from tests.fitting.pair.scene import mean_right_hand, mirrored_left
 
     root = tmp_path_factory.mktemp("fit_points_hands")
-    model = load_trained("geometry_v2", torch.device("cpu"))
+    model = load_trained("geometry_v3", torch.device("cpu"))
     right = mean_right_hand(model)
-    hands = [right, mirrored_left(right, BACK_M + 0.01)]
+    right_mesh = mesh_hand(model, right, 32)
+    back = float(np.asarray(right_mesh.vertices)[:, 2].max())  # the back's depth, metres
+    hands = [right, mirrored_left(right, back + 0.0065)]
     rng = np.random.default_rng(0)
-    points = [mesh_hand(model, hand, 32).vertices for hand in hands]
+    points = [right_mesh.vertices, mesh_hand(model, hands[1], 32).vertices]
     points = [one[rng.choice(len(one), 800, replace=False)].astype(np.float64) for one in points]
     far = np.array([0.04, 0.4, 0.45]) + rng.normal(0.0, 0.002, (10, 3))
     np.save(root / "scan.npy", np.concatenate(points + [far]))
@@ -131,7 +133,7 @@ def test_hands_writes_each_hand_and_the_pair(scene, capsys, monkeypatch):
     monkeypatch.setattr(hands_module, "fit_scan_hands", stub)
     out = scene["root"] / "pair"
     assert lisa(["fit-points", str(scene["root"] / "scan.npy"), "--out", str(out), "--hands",
-                 "2", "--model", "geometry_v2", "--support", "none", *FAST,
+                 "2", "--model", "geometry_v3", "--support", "none", *FAST,
                  "--set", "hands.candidate_iters=7", "--set", "hands.joint.iters=0"]) == 0
     printed = capsys.readouterr().out
     assert seen["count"] == 2 and seen["side"] == "auto" and len(seen["points"]) == 1610
@@ -146,7 +148,7 @@ def test_hands_writes_each_hand_and_the_pair(scene, capsys, monkeypatch):
         assert sorted(p.name for p in folder.iterdir()) == ["keypoints.json", "mesh.ply",
                                                             "params.json"]
         params = read_params(folder / "params.json")
-        assert params.side == side and params.model == "geometry_v2"
+        assert params.side == side and params.model == "geometry_v3"
         assert torch.allclose(params.pose, true.pose, atol=1e-6)
         assert params.extra["input"]["hand"] == index and params.extra["input"]["hands"] == 2
         assert params.extra["input"]["points"] == 800

@@ -14,7 +14,7 @@ from lisa_hand.data.scans import ScanConfig, simulate_scan
 from lisa_hand.fitting.points.analysis import AnalysisConfig, analyse_scan
 from lisa_hand.fitting.points.fit import FitPointsConfig, fit_points
 from lisa_hand.fitting.points.others import OthersConfig
-from tests.fitting.test_points import FAST, scan_of, tiny_model, true_hand
+from tests.fitting.test_points import FAST, tiny_model
 from tests.fitting.test_support import hand_at, with_wall
 
 
@@ -78,7 +78,7 @@ def test_the_analysis_settings_reach_the_searches(scene):
     assert analyse_scan(points, others="auto", config=strict).others is None
     given = analyse_scan(points, viewpoint=np.array([0.0, 0.0, 0.0]))
     assert given.one_view and given.viewpoint is None and np.all(given.sensor == 0.0)
-    assert not analyse_scan(points).one_view  # nobody asked, nothing looked for
+    assert not analyse_scan(points).one_view  # nobody asked (no viewpoint), nothing looked for
     with pytest.raises(ValueError, match="support must be 'auto' or None"):
         analyse_scan(points, support="yes")
 
@@ -99,26 +99,16 @@ def test_the_fit_takes_the_analysis_and_records_it(scene):
         fit_points(model, torch.as_tensor(points[:100]), None, config, analysis=analysis)
 
 
-def test_the_default_model_follows_the_kind_of_scan():
-    """choose_point_model: a scan from all round gets the wider prior ('geometry_mix'), one
-    that looks like one view, or whose sensor is given, the v2 prior ('geometry_v2'), whatever
-    --viewpoint says of using the sensor."""
-    import trimesh
+def test_the_default_model_is_the_first_shipped_prior(monkeypatch):
+    """default_point_model: the prior of hand models v1-v3 ('geometry_v3') for every scan, one
+    view or all round; without its file the v1 prior, without both LISA-full ('default')."""
+    from lisa_hand.fitting.points import io
+    from lisa_hand.model import trained
 
-    from lisa_hand.fitting.points.io import choose_point_model, default_point_model
-
-    def choose(points, viewpoint):
-        return choose_point_model(analyse_scan(points, viewpoint=viewpoint, tell_view=True))
-
-    model = tiny_model(color=True)
-    points, _, _ = scan_of(model, true_hand(model, seed=2), ScanConfig(num_points=600), seed=2)
-    for viewpoint in ("auto", None):
-        assert choose(points, viewpoint) == ("geometry_mix", "the scan shows the hand all round")
-    assert choose(points, np.array([0.0, 0.0, 0.0])) == (
-        "geometry_v2", "a one-view scan, its sensor given")
-    ball = trimesh.creation.icosphere(subdivisions=4, radius=0.04)
-    seen = simulate_scan(np.asarray(ball.vertices) + [0.0, 0.0, 0.4], np.asarray(ball.faces),
-                         ScanConfig(num_points=2000, partial=True), seed=0).points
-    for viewpoint in ("auto", None):
-        assert choose(seen, viewpoint) == ("geometry_v2", "the scan looks like one view")
-    assert default_point_model() == default_point_model(one_view=True) == "geometry_v2"
+    assert io.default_point_model() == "geometry_v3"
+    shipped = dict(trained.SHIPPED_MODELS)
+    monkeypatch.setitem(trained.SHIPPED_MODELS, "geometry_v3", "missing_v3.pt")
+    assert io.default_point_model() == "geometry"
+    monkeypatch.setitem(trained.SHIPPED_MODELS, "geometry", "missing.pt")
+    assert io.default_point_model() == "default"
+    assert shipped["geometry_v3"] == "lisa_geometry_v3.pt"

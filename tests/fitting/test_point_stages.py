@@ -400,7 +400,7 @@ def test_side_auto_keeps_the_side_the_scan_shows():
     from lisa_hand.inference import MeshConfig, mesh_hand
     from lisa_hand.model.trained import load_trained
 
-    model = load_trained("geometry_v2", "cpu")
+    model = load_trained("geometry_v3", "cpu")
     config = FitPointsConfig(**FAST)
     _, rest_hand, _ = start_hand(model, target_cloud(torch.zeros(30, 3), None), None)
     pose = torch.zeros(16, 3)
@@ -439,7 +439,7 @@ def test_tries_keep_the_fit_nearest_the_scan():
     from lisa_hand.inference import MeshConfig, mesh_hand
     from lisa_hand.model.trained import load_trained
 
-    model = load_trained("geometry_v2", "cpu")
+    model = load_trained("geometry_v3", "cpu")
     config = FitPointsConfig(**{**FAST, "seed": 3, "tries": 2})
     _, rest_hand, _ = start_hand(model, target_cloud(torch.zeros(30, 3), None), None)
     pose = torch.zeros(16, 3)

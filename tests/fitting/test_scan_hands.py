@@ -1,7 +1,7 @@
 """A scan of several hands that may touch (lisa_hand.fitting.points.hands): the first split of
 the points (:func:`initial_split` against plain k-means) on two hands of the open hand model,
 each point's true hand from the hands' exact meshes; the split by fitted hands
-(:func:`assign_points`) on the shipped ``geometry_v2`` model against exact distances to its
+(:func:`assign_points`) on the shipped ``geometry_v3`` model against exact distances to its
 meshes; the settings' checks; and the whole fit of two flat hands lying palm to palm
 (:func:`fit_scan_hands`, a reduced fit: MPJPE and MRRPE against the open hand model's
 keypoints)."""
@@ -199,7 +199,7 @@ def test_splits_refuse_more_hands_than_points():
 def geometry():
     from lisa_hand.model.trained import load_trained
 
-    return load_trained("geometry_v2", torch.device("cpu"))
+    return load_trained("geometry_v3", torch.device("cpu"))
 
 
 @pytest.fixture(scope="module")
@@ -207,12 +207,13 @@ def apart(geometry):
     """The model's mean right hand (palm to a camera at -z) and the mirror image of it as a
     left hand, back to back 13 mm apart, and their meshes (64 samples a side)."""
     from lisa_hand.inference import mesh_hand
-    from tests.fitting.pair.scene import BACK_M, mean_right_hand, mirrored_left
+    from tests.fitting.pair.scene import mean_right_hand, mirrored_left
 
     right = mean_right_hand(geometry)
-    left = mirrored_left(right, BACK_M + 0.01)
-    hands = [right, left]
-    return hands, [mesh_hand(geometry, hand, 64) for hand in hands]
+    right_mesh = mesh_hand(geometry, right, 64)
+    back = float(np.asarray(right_mesh.vertices)[:, 2].max())  # the back's depth, metres
+    left = mirrored_left(right, back + 0.0065)
+    return [right, left], [right_mesh, mesh_hand(geometry, left, 64)]
 
 
 def _mesh_distances(meshes, points: np.ndarray) -> np.ndarray:

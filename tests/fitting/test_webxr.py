@@ -123,18 +123,13 @@ def test_a_scan_running_on_into_a_forearm_is_cut_at_the_wrist():
     assert whole.v2s_scan_to_recon_mm > 2.0 * cut.v2s_scan_to_recon_mm
 
 
-@pytest.mark.parametrize("name, bound_mm", [("geometry_v2", 1.5), ("geometry_mix", 1.15)])
-def test_the_shipped_geometric_prior_fits_the_webxr_hand(name, bound_mm):
-    """The point fit's one-view default model (the shipped geometric prior of hand model v2,
-    203 subjects) on the artist's hand in its
-    rest pose, a full 5000-point scan with 0.3 mm noise in a random placement: the first row of
-    ``python -m benchmarks fit --only-webxr``
-    (measured here V2S 1.20 mm scan->recon, 1.22 mm recon->scan, with the weaker shape prior of
-    a scan that covers the hand; 1.25 / 1.25 with the one-sided scans' prior; the v1 prior:
-    1.28 / 1.44; the shipped LISA-full: 2.10 / 2.62). The target without ``--refine``: 1.5 mm.
-    The prior of hand models v1 and v2 (``geometry_mix``, a wider shape space, the default for
-    a scan from all round) is closer: measured 1.01 / 1.02 mm, within a bound the v2 prior does
-    not meet."""
+def test_the_shipped_geometric_prior_fits_the_webxr_hand():
+    """The point fit's default model (the shipped geometric prior of hand models v1-v3, 644
+    subjects) on the artist's hand in its rest pose, a full 5000-point scan with 0.3 mm noise in
+    a random placement: the first row of ``python -m benchmarks fit --only-webxr`` (measured
+    here V2S 0.90 mm scan->recon, 0.93 mm recon->scan; the v1 prior: 1.28 / 1.44; the shipped
+    LISA-full: 2.10 / 2.62). The target without ``--refine`` is 1.5 mm; the bound here, 1.1 mm,
+    is one the v1 prior does not meet."""
     import torch
 
     from lisa_hand.data.scans import ScanConfig, simulate_scan
@@ -145,8 +140,8 @@ def test_the_shipped_geometric_prior_fits_the_webxr_hand(name, bound_mm):
     from lisa_hand.metrics import mesh_distances
     from lisa_hand.model.trained import load_trained
 
-    assert default_point_model() == "geometry_v2"
-    model = load_trained(name, "cpu")
+    assert default_point_model() == "geometry_v3"
+    model = load_trained("geometry_v3", "cpu")
     posed, faces = pose_webxr_hand(WEBXR / "right_hand.npz", "rest")
     turn = 3.0 * torch.rand(3, generator=torch.Generator().manual_seed(0), dtype=torch.float64)
     rotation = axis_angle_to_matrix(turn).numpy()
@@ -157,16 +152,16 @@ def test_the_shipped_geometric_prior_fits_the_webxr_hand(name, bound_mm):
     mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False, skin_weights=False),
                      clip=fit.wrist_plane)
     distances = mesh_distances(mesh.vertices, mesh.faces, placed, faces, clip=fit.wrist_plane)
-    assert distances.v2s_scan_to_recon_mm < bound_mm and distances.v2s_recon_to_scan_mm < bound_mm
+    assert distances.v2s_scan_to_recon_mm < 1.1 and distances.v2s_recon_to_scan_mm < 1.1
 
 
 def test_the_point_fit_curls_the_webxr_hands_bent_index():
     """The artist's hand with its index curled 160 degrees (MCP 52, PIP 69, DIP 40) about its
     knuckles' hinge axes, the full scan of ``python -m benchmarks fit --only-webxr`` (its
-    placement: the second random turn), fitted with the default v2 prior: measured flexion 55 /
-    60 / 34 degrees, V2S 1.10 / 1.14 mm scan->recon / recon->scan (the target without
-    ``--refine``: 1.5 mm; with the one-sided scans' shape prior 58 / 60 / 33 degrees, 1.27 /
-    1.29 mm; the v1 prior: 51 / 64 / 31 degrees, 1.31 / 1.38 mm)."""
+    placement: the second random turn), fitted with the default prior: measured flexion 65 /
+    49 / 41 degrees (156 in all: the rig's knuckles are not the skeleton's, so the curl is
+    shared out differently), V2S 0.95 / 1.02 mm scan->recon / recon->scan (the target without
+    ``--refine``: 1.5 mm; the v1 prior: 51 / 64 / 31 degrees, 1.31 / 1.38 mm)."""
     import torch
 
     from lisa_hand.data.scans import ScanConfig, simulate_scan
@@ -177,7 +172,7 @@ def test_the_point_fit_curls_the_webxr_hands_bent_index():
     from lisa_hand.metrics import mesh_distances
     from lisa_hand.model.trained import load_trained
 
-    model = load_trained("geometry_v2", "cpu")
+    model = load_trained("geometry_v3", "cpu")
     posed, faces = pose_webxr_hand(WEBXR / "right_hand.npz", "bent_index")
     generator = torch.Generator().manual_seed(0)
     turn = 3.0 * torch.rand(3, generator=generator, dtype=torch.float64)  # the rest pose's
@@ -191,19 +186,19 @@ def test_the_point_fit_curls_the_webxr_hands_bent_index():
     mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False, skin_weights=False),
                      clip=fit.wrist_plane)
     distances = mesh_distances(mesh.vertices, mesh.faces, placed, faces, clip=fit.wrist_plane)
-    np.testing.assert_allclose(flexion, np.degrees([0.9, 1.2, 0.7]), atol=15.0)
-    assert distances.v2s_scan_to_recon_mm < 1.5 and distances.v2s_recon_to_scan_mm < 1.5, \
+    np.testing.assert_allclose(flexion, np.degrees([0.9, 1.2, 0.7]), atol=20.0)
+    assert abs(flexion.sum() - np.degrees(2.8)) < 10.0, flexion  # the whole curl
+    assert distances.v2s_scan_to_recon_mm < 1.2 and distances.v2s_recon_to_scan_mm < 1.2, \
         distances.to_dict()
 
 
 def test_a_full_scan_of_the_webxr_fist_fits_within_the_target():
     """The artist's fist, a full 5000-point scan with 0.3 mm noise in the third random
-    placement (as ``python -m benchmarks fit --only-webxr``), fitted with the default v2
-    prior: the scan covers 76% of the fitted hand within 4 mm, so the surface stage uses the
-    weaker shape prior of a scan from all sides (``FitPointsConfig.covered_shape_weight``).
-    Measured V2S 1.44 / 1.30 mm scan->recon / recon->scan; with the one-sided scans' prior
-    1.51-1.56 / 1.36-1.49 over the bench's and three other placements, over the 1.5 mm target
-    without ``--refine``."""
+    placement (as ``python -m benchmarks fit --only-webxr``), fitted with the default prior:
+    the scan covers 80% of the fitted hand within 4 mm, so the surface stage uses the weaker
+    shape prior of a scan from all sides (``FitPointsConfig.covered_shape_weight``). Measured
+    V2S 1.37 / 1.14 mm scan->recon / recon->scan, within the 1.5 mm target without
+    ``--refine``."""
     import torch
 
     from lisa_hand.data.scans import ScanConfig, simulate_scan
@@ -213,7 +208,7 @@ def test_a_full_scan_of_the_webxr_fist_fits_within_the_target():
     from lisa_hand.metrics import mesh_distances
     from lisa_hand.model.trained import load_trained
 
-    model = load_trained("geometry_v2", "cpu")
+    model = load_trained("geometry_v3", "cpu")
     posed, faces = pose_webxr_hand(WEBXR / "right_hand.npz", "fist")
     generator = torch.Generator().manual_seed(0)
     for _ in range(3):  # the rest pose's and the bent index's turns, then the fist's
@@ -234,10 +229,10 @@ def test_a_full_scan_of_the_webxr_fist_fits_within_the_target():
 def test_a_one_view_scan_fits_closer_with_its_sensor_position():
     """The one-view scan of the WebXR fist of ``python -m benchmarks fit --only-webxr``
     (third random turn, the sensor 0.5 m off in a random direction): given where the sensor was,
-    the fit keeps the fingers out of the space it saw empty. Measured with the default v2 prior:
-    the mesh's share of vertices in the free space falls from 31% to 0% and V2S scan->recon /
-    recon->scan from 5.28 / 9.27 to 2.08 / 1.93 mm (without the sensor a finger pose fails
-    here; the v1 prior: 7.2% -> 0.7%, 3.06 / 3.33 -> 2.95 / 2.75 mm)."""
+    the fit keeps the fingers out of the space it saw empty. Measured with the v1 prior
+    (``geometry``, where it shows most): the mesh's share of vertices in the free space falls
+    from 6.0% to 0% and V2S scan->recon / recon->scan from 3.35 / 3.13 to 2.45 / 2.34 mm (the
+    default prior: 2.8% -> 1.7%, 2.49 / 2.93 -> 2.36 / 2.72 mm)."""
     import torch
 
     from lisa_hand.data.scans import ScanConfig, simulate_scan
@@ -248,7 +243,7 @@ def test_a_one_view_scan_fits_closer_with_its_sensor_position():
     from lisa_hand.metrics import mesh_distances
     from lisa_hand.model.trained import load_trained
 
-    model = load_trained("geometry_v2", "cpu")
+    model = load_trained("geometry", "cpu")
     posed, faces = pose_webxr_hand(WEBXR / "right_hand.npz", "fist")
     generator = torch.Generator().manual_seed(0)
     for _ in range(3):  # the rest's and the bent index's turns, then the fist's
@@ -305,12 +300,13 @@ def test_the_person_frame_is_one_piece_whose_nearest_part_is_the_hand():
         assert found.removed[off > 0.02].all()  # the body
 
 
-def test_a_larger_webxr_hand_fits_closer_with_the_size_search():
+def test_the_size_search_finds_a_larger_webxr_hands_size():
     """The artist's fist made 1.15 times larger about its wrist (204 mm from the wrist joint
     to the middle fingertip, a large adult hand), a full 5000-point scan with 0.3 mm noise:
-    with the size search the proxy stages pose a hand of its size and the fit comes closer.
-    Measured V2S scan->recon: without the search (``sizes=(1.0,)``) 2.17 mm, with it 2.10 mm
-    (size 1.15 chosen)."""
+    the size search finds its size, and the proxy stages pose a hand of that size. With the
+    default prior, whose shape codes reach hands this large by themselves, that brings the fit
+    no closer: measured V2S scan->recon without the search (``sizes=(1.0,)``) 1.79 mm, with it
+    1.84 mm (the v1 prior: 2.29 and 2.28 mm, size 1.1 chosen)."""
     import torch
 
     from lisa_hand.data.scans import ScanConfig, simulate_scan
@@ -321,7 +317,7 @@ def test_a_larger_webxr_hand_fits_closer_with_the_size_search():
     from lisa_hand.metrics import mesh_distances
     from lisa_hand.model.trained import load_trained
 
-    model = load_trained("geometry_v2", "cpu")
+    model = load_trained("geometry_v3", "cpu")
     wrist, _ = webxr_wrist(WEBXR / "right_hand.npz")
     posed, faces = pose_webxr_hand(WEBXR / "right_hand.npz", "fist")
     posed, faces = outer_surface(wrist + 1.15 * (posed - wrist), faces)
@@ -341,4 +337,4 @@ def test_a_larger_webxr_hand_fits_closer_with_the_size_search():
         errors[len(sizes)] = mesh_distances(mesh.vertices, mesh.faces, placed, faces,
                                             clip=fit.wrist_plane).v2s_scan_to_recon_mm
     assert "1.15 times" in fit.reports["size"].notes[0]
-    assert errors[len(sizes)] < min(2.15, errors[1] - 0.03), errors
+    assert errors[len(sizes)] < min(2.0, errors[1] + 0.1), errors

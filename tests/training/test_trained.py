@@ -136,38 +136,31 @@ def test_headlight_shading_is_trained_exported_and_rendered(tiny_data, tmp_path,
 
 
 def test_shipped_models_by_name(tmp_path, monkeypatch):
-    """'default', 'full_8k', 'full_14k', 'full_v2', 'geometry', 'geometry_v2' and 'geometry_mix'
-    name the seven shipped files (LISA-full with colour on hand models v1, 3200, 8000 and 14000
-    steps, and v2, the geometric priors of hand models v1, v2 and both without);
-    a file or folder of that name in the working directory wins; params.json records the name,
-    else the absolute path."""
+    """'default', 'geometry' and 'geometry_v3' name the three shipped files (LISA-full with
+    colour on hand model v1, its geometric prior, the prior of hand models v1-v3); a file or
+    folder of that name in the working directory wins; params.json records the name, else the
+    absolute path; a name shipped once says where its file went."""
     from lisa_hand.model.trained import SHIPPED_MODELS, model_label, shipped_model_path
 
-    assert set(SHIPPED_MODELS) == {"default", "full_8k", "full_14k", "full_v2", "geometry",
-                                   "geometry_v2", "geometry_mix"}
+    assert set(SHIPPED_MODELS) == {"default", "geometry", "geometry_v3"}
     full = load_trained("default")
     assert full.has_color and full.source == str(shipped_model_path("default"))
-    full_v2 = load_trained("full_v2")
-    assert full_v2.has_color and full_v2.source == str(shipped_model_path("full_v2"))
-    assert len(full_v2.subject_ids) == len(full.subject_ids) == 51  # the README's recipe
-    assert not torch.equal(full_v2.shape_codes, full.shape_codes)  # two models
-    assert model_label("full_v2") == "full_v2"
-    longer = load_trained("full_8k")  # the default's recipe and data, 8000 steps
-    assert longer.has_color and longer.subject_ids == full.subject_ids
-    assert longer.config == full.config and not torch.equal(longer.shape_codes, full.shape_codes)
-    longest = load_trained("full_14k")  # the 8000-step run resumed to 14000 steps
-    assert longest.subject_ids == full.subject_ids and longest.config == full.config
-    assert not torch.equal(longest.shape_codes, longer.shape_codes)
-    priors = [load_trained(name) for name in ("geometry", "geometry_v2", "geometry_mix")]
-    for name, geometry in zip(("geometry", "geometry_v2", "geometry_mix"), priors, strict=True):
+    assert len(full.subject_ids) == 51  # the training recipe's 51 subjects
+    priors = [load_trained(name) for name in ("geometry", "geometry_v3")]
+    for name, geometry in zip(("geometry", "geometry_v3"), priors, strict=True):
         assert not geometry.has_color and geometry.color_codes is None
         assert geometry.source == str(shipped_model_path(name))
-        assert len(geometry.subject_ids) >= 200  # the issue's "at least 200 training subjects"
+        assert len(geometry.subject_ids) >= 200
         assert geometry.config.shape_dim == full.config.shape_dim == 128
-    assert not torch.equal(priors[0].shape_codes, priors[1].shape_codes)  # two models
-    # geometry_mix: the v2 prior's 203 training subjects and 105 of hand model v1 (README)
-    assert len(priors[2].subject_ids) == 308
-    assert sum(subject.startswith("v1") for subject in priors[2].subject_ids) == 105
+    assert not torch.equal(priors[0].shape_codes[:5], priors[1].shape_codes[:5])  # two models
+    # geometry_v3: 203 subjects of hand model v2, 105 of v1, 336 of v3 (docs/training.md)
+    ids = priors[1].subject_ids
+    assert len(ids) == 644
+    assert sum(subject.startswith("v1") for subject in ids) == 105
+    assert sum(subject.startswith("mh") for subject in ids) == 336
+    assert model_label("geometry_v3") == "geometry_v3"
+    with pytest.raises(FileNotFoundError, match="geometry_mix: this model is no longer shipped"):
+        load_trained("geometry_mix")
     torch.testing.assert_close(load_trained(None).shape_codes, full.shape_codes)
     assert model_label(None) == "default" and model_label("geometry") == "geometry"
     with pytest.raises(ValueError, match="no shipped model named 'colour'"):

@@ -49,11 +49,11 @@ class ScanAnalysis:
     the other pieces'. sensor: [3] the sensor position the fit uses (given, or found for a scan
     that looks like one view with ``viewpoint="auto"``); None: views all round, or unknown.
     one_view: the scan looks like one view (its sensor given, too few points to tell, or
-    :func:`.viewpoint.estimate_viewpoint` says so; False when nobody asked:
-    :func:`analyse_scan`'s ``tell_view``). viewpoint: what that search found (None when
-    the sensor was given or the points were too few). support: the plane the hand rests on
-    (``support="auto"`` and found), its ``removed`` over the points given. others: the pieces
-    left out (``others="auto"``), its ``removed`` over the points the support left.
+    :func:`.viewpoint.estimate_viewpoint` says so; False when nobody asked: ``viewpoint=None``).
+    viewpoint: what that search found (None when the sensor was given or the points were too
+    few). support: the plane the hand rests on (``support="auto"`` and found), its ``removed``
+    over the points given. others: the pieces left out (``others="auto"``), its ``removed``
+    over the points the support left.
     hands: how many hands the scan holds apart from each other (:func:`.others.split_hands`,
     its support left out; a scan of several is fitted a hand at a time, ``lisa fit-points
     --hand N``).
@@ -118,7 +118,7 @@ def _as_numpy(values) -> np.ndarray:
 
 def analyse_scan(points, *, viewpoint=None, support: str | None = None,
                  others: str | None = None, config: AnalysisConfig | None = None,
-                 seed: int = 0, tell_view: bool = False) -> ScanAnalysis:
+                 seed: int = 0) -> ScanAnalysis:
     """Analyse a scan once (see the module docstring).
 
     points: [N, 3] world metres (numpy or torch), finite.
@@ -129,8 +129,7 @@ def analyse_scan(points, *, viewpoint=None, support: str | None = None,
     others: "auto": pieces well apart from the hand are left out (after the support's points);
         when the scan is larger than a hand and the sensor is known, only the part nearest the
         sensor is kept; None.
-    seed: of the random searches. tell_view: without a sensor position, also find whether the
-        scan looks like one view (about a second; the model choice of a command needs it).
+    seed: of the random searches.
     -> :class:`ScanAnalysis`.
     """
     config = AnalysisConfig() if config is None else config
@@ -151,7 +150,7 @@ def analyse_scan(points, *, viewpoint=None, support: str | None = None,
             raise ValueError(f"viewpoint must be 3 finite numbers (metres), got "
                              f"{list(sensor.shape)} values")
         one_view = True
-    elif viewpoint is None and not tell_view:
+    elif viewpoint is None:
         one_view = False
     elif count < _MIN_VIEW_POINTS:
         one_view = True

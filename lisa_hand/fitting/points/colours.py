@@ -9,7 +9,7 @@ of a one-view scan, between curled fingers) takes colours interpolated from what
 harmonic over the mesh's edges (:func:`harmonic_fill`: every such vertex the mean of its
 neighbours, the seen vertices fixed), so colours run on smoothly instead of stopping at a seam;
 a piece of the mesh that touches no seen vertex gets the seen vertices' mean colour. With a
-model that has colour (LISA-full: ``--model default`` or ``full_v2``), its colour code is first
+model that has colour (LISA-full: ``--model default``), its colour code is first
 fitted to the scan's colours (:func:`fit_colour_code`) and the model's colour guesses the unseen
 surface instead, corrected by the scan's difference from it interpolated the same way (a palm
 the scan did not see comes out lighter than the back it saw, as the model learnt).

@@ -36,7 +36,6 @@ __all__ = [
     "fit_point_file",
     "count_hands",
     "default_point_model",
-    "choose_point_model",
     "hand_points",
 ]
 
@@ -66,42 +65,19 @@ class FitPointsReport:
     """The refinement's :class:`~lisa_hand.fitting.stages.StageReport` (``--refine``), or None."""
 
 
-def default_point_model(one_view: bool = True) -> str:
-    """The model of a point fit without ``--model``. One view (or not known): the first
-    shipped one installed of "geometry_v2" (the geometric prior on 203 subjects of the open hand
-    model v2: geometry that image training has not blurred, a rounded palm and a forearm stub),
-    "geometry" (the same on hand model v1) and "default" (LISA-full). A scan from all round
-    (``one_view=False``): "geometry_mix" (the prior of hand models v1 and v2, 308 subjects), when
-    installed: its wider shape space comes closer on full scans of hands unlike either
-    generator, while from one view more shapes explain one side of a hand wrongly (README, "The
-    point fit's prior on both hand models"). A point cloud has no colour, so a prior's lack of
-    one costs nothing but the mesh's vertex colours (``--model default`` keeps them)."""
+def default_point_model() -> str:
+    """The model of a point fit without ``--model``: the first shipped one installed of
+    "geometry_v3" (the geometric prior on 644 subjects of hand models v1, v2 and v3: geometry
+    that image training has not blurred, the closest on hands no generator made, from one view
+    and from all round), "geometry" (the prior of hand model v1) and "default" (LISA-full). A
+    point cloud has no colour, so a prior's lack of one costs nothing but the mesh's vertex
+    colours (``--model default`` keeps them)."""
     from ...model.trained import shipped_model_path
 
-    names = ("geometry_v2", "geometry") if one_view else ("geometry_mix", "geometry_v2",
-                                                          "geometry")
-    for name in names:
+    for name in ("geometry_v3", "geometry"):
         if shipped_model_path(name).is_file():
             return name
     return "default"
-
-
-def choose_point_model(analysis) -> tuple[str, str]:
-    """The model of a point fit without ``--model`` (:func:`default_point_model`) for this scan
-    -> (its name, why, for the log).
-
-    analysis: the scan's :class:`.analysis.ScanAnalysis`, made with ``tell_view=True``: a given
-    sensor position means one view; otherwise the scan is one view when it looks like one
-    (whatever ``--viewpoint`` says, since "none" only keeps the sensor out of the fit).
-    """
-    if analysis.sensor is not None and analysis.viewpoint is None:
-        why = "a one-view scan, its sensor given"
-    elif analysis.hand_points < 20:
-        why = "too few points to tell one view from all round"
-    else:
-        why = ("the scan looks like one view" if analysis.one_view
-               else "the scan shows the hand all round")
-    return default_point_model(analysis.one_view), why
 
 
 @releases_output_locks
@@ -140,7 +116,7 @@ def fit_point_file(
 
     points_path: the cloud (:func:`read_point_cloud`); units: of the cloud and the ground truth
         ("auto", "m", "cm", "mm", see :func:`prepare_point_cloud`). model_path: a trained model
-        (:func:`lisa_hand.model.trained.load_trained`; None: :func:`choose_point_model`'s, a
+        (:func:`lisa_hand.model.trained.load_trained`; None: :func:`default_point_model`, a
         shipped geometric prior). gt_path: a mesh or
         points (:func:`lisa_hand.metrics.load_mesh`). resolution: marching-cubes samples a side.
     config: :class:`lisa_hand.fitting.points.fit.FitPointsConfig`. device: "auto", "cpu", "cuda".
@@ -195,15 +171,14 @@ def fit_point_file(
 
 def _analysed(cloud: PointCloud, view, support, others, config, model_path, log):
     """The scan analysed once (:func:`.analysis.analyse_scan`) and the model: ``model_path``, or
-    the one :func:`choose_point_model` chooses for it (logged) -> (analysis, model path)."""
+    :func:`default_point_model` (logged) -> (analysis, model path)."""
     from .analysis import analyse_scan
 
     analysis = analyse_scan(cloud.points, viewpoint=view, support=support, others=others,
-                            config=config.analysis, seed=config.seed,
-                            tell_view=model_path is None)
+                            config=config.analysis, seed=config.seed)
     if model_path is None:
-        model_path, why = choose_point_model(analysis)
-        log(f"model: {model_path} ({why}; --model to choose another)")
+        model_path = default_point_model()
+        log(f"model: {model_path} (the point fit's default; --model to choose another)")
     return analysis, model_path
 
 
