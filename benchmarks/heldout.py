@@ -58,7 +58,7 @@ def run_heldout_fits(model, *, subjects: int = 3, ages: tuple[float, float] = (6
                                            scan.viewpoint if partial else None, threads)
                 rows.append({"subject": subject, "pose": pose,
                              "scan": "partial" if partial else "full",
-                             "model": str(model.source), **measured})
+                             "model": Path(str(model.source)).stem, **measured})
                 if log is not None:
                     log(rows[-1])
     return rows
