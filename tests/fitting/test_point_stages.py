@@ -390,7 +390,7 @@ def test_the_surface_stage_draws_free_points_near_its_candidates_again():
 
 
 def test_side_auto_keeps_the_side_the_scan_shows():
-    """``side="auto"`` fits both sides and keeps the one nearer the scan: the shipped v2 prior's
+    """``side="auto"`` fits both sides and keeps the one nearer the scan: the shipped v3 prior's
     own hand (a natural pose) is kept as a right hand, its mirror image as a left one, each by
     a clear margin; the distances are the mean capped ``|G|`` at the points both fits keep
     (checked through ``hand_field``, which mirrors a left hand itself); the kept fit is the

@@ -306,8 +306,10 @@ def test_the_size_search_finds_a_larger_webxr_hands_size():
     to the middle fingertip, a large adult hand), a full 5000-point scan with 0.3 mm noise:
     the size search finds its size, and the proxy stages pose a hand of that size. With the
     default prior, whose shape codes reach hands this large by themselves, that brings the fit
-    no closer: measured V2S scan->recon without the search (``sizes=(1.0,)``) 1.79 mm, with it
-    1.84 mm (the v1 prior: 2.29 and 2.28 mm, size 1.1 chosen)."""
+    no closer here: measured V2S scan->recon without the search (``sizes=(1.0,)``) 1.79 mm,
+    with it 1.84 mm (the v1 prior: 2.29 and 2.28 mm, size 1.1 chosen), checked within 0.2 mm of
+    each other and 2.1 mm. Over the benchmark's x1.15 scans the search is closer (``python -m
+    benchmarks fit --webxr-scale 1.15`` against ``--webxr-sizes 1``)."""
     import torch
 
     from lisa_hand.data.scans import ScanConfig, simulate_scan
@@ -338,4 +340,4 @@ def test_the_size_search_finds_a_larger_webxr_hands_size():
         errors[len(sizes)] = mesh_distances(mesh.vertices, mesh.faces, placed, faces,
                                             clip=fit.wrist_plane).v2s_scan_to_recon_mm
     assert "1.15 times" in fit.reports["size"].notes[0]
-    assert errors[len(sizes)] < min(2.0, errors[1] + 0.1), errors
+    assert errors[len(sizes)] < min(2.1, errors[1] + 0.2), errors
