@@ -30,10 +30,10 @@ from lisa_hand.data.webxr_hand import (
 )
 from lisa_hand.utils.threads import cpu_threads
 
-__all__ = ["run_webxr_fits", "measured_fit"]
+__all__ = ["run_webxr_fits", "measured_fit", "refined_row"]
 
 
-def _refined_row(model, fit, points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
+def refined_row(model, fit, points: np.ndarray, vertices: np.ndarray, faces: np.ndarray,
                  refine, threads: int) -> dict:
     """The distances of ``fit`` refined on ``points`` (``refined_`` + the four keys) and the
     refinement's seconds."""
@@ -183,7 +183,7 @@ def run_webxr_fits(model, path: str | Path, *, num_points: int = 5000, seed: int
                              "scale": scale, "proportions": list(proportions or (1.0, 1.0, 1.0)),
                              **measured})
                 if refine is not None:
-                    rows[-1].update(_refined_row(model, fit, points, placed, variant_faces,
+                    rows[-1].update(refined_row(model, fit, points, placed, variant_faces,
                                                  refine, threads))
                 if log is not None:
                     log(rows[-1])

@@ -8,6 +8,7 @@ from one side with its sensor (partial), each in a random placement, and fitted 
 ``lisa fit-points`` takes without ``--model``. Distances as the WebXR benchmark's
 (:func:`benchmarks._webxr.measured_fit`): the fit's 128^3 mesh against the subject's exact
 mesh, both cut at the fit's wrist plane, so a one-sided fit is measured over the whole hand.
+``--refine`` also refines each fit (``lisa fit-points --refine``) and measures it again.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import numpy as np
 import torch
 
 from . import write_results
-from ._webxr import measured_fit
+from ._webxr import measured_fit, refined_row
 
 __all__ = ["run_heldout_fits", "main"]
 
@@ -29,10 +30,12 @@ POSES = ("flat", "relaxed", "fist")
 
 def run_heldout_fits(model, *, subjects: int = 3, ages: tuple[float, float] = (66.0, 80.0),
                      num_points: int = 5000, seed: int = 11, threads: int = 1,
-                     log=None) -> list[dict]:
+                     refine=None, log=None) -> list[dict]:
     """Fit ``model`` to full and one-sided scans of ``subjects`` v3 hands aged ``ages`` in
     each pose of :data:`POSES` -> one dict per fit: subject, pose, scan, seconds and the four
-    V2S / V2V distances (mm), ``scan_points_to_recon_mm``. log: called with each row."""
+    V2S / V2V distances (mm), ``scan_points_to_recon_mm``. refine: a
+    :class:`~lisa_hand.fitting.points.refine.RefineConfig`: each fit also refined and measured
+    (``refined_*`` keys). log: called with each row."""
     from lisa_hand.data.scans import ScanConfig, simulate_scan
     from lisa_hand.fitting.points.fit import FitPointsConfig
     from lisa_hand.geometry import axis_angle_to_matrix
@@ -54,11 +57,15 @@ def run_heldout_fits(model, *, subjects: int = 3, ages: tuple[float, float] = (6
                 scan = simulate_scan(placed, faces, ScanConfig(
                     num_points=num_points, partial=partial, noise_normal_std=3e-4),
                     seed=seed + subject)
-                _, measured = measured_fit(model, scan.points, placed, faces, config, "right",
-                                           scan.viewpoint if partial else None, threads)
+                fit, measured = measured_fit(model, scan.points, placed, faces, config,
+                                             "right", scan.viewpoint if partial else None,
+                                             threads)
                 rows.append({"subject": subject, "pose": pose,
                              "scan": "partial" if partial else "full",
                              "model": Path(str(model.source)).stem, **measured})
+                if refine is not None:
+                    rows[-1].update(refined_row(model, fit, scan.points, placed, faces, refine,
+                                                threads))
                 if log is not None:
                     log(rows[-1])
     return rows
@@ -72,17 +79,23 @@ def summary(rows: list[dict]) -> dict:
         mine = [row for row in rows if row["scan"] == kind]
         if not mine:
             continue
-        for key in ("v2s_scan_to_recon_mm", "v2s_recon_to_scan_mm"):
-            values = [row[key] for row in mine]
+        for key in ("v2s_scan_to_recon_mm", "v2s_recon_to_scan_mm",
+                    "refined_v2s_scan_to_recon_mm", "refined_v2s_recon_to_scan_mm"):
+            values = [row[key] for row in mine if key in row]
+            if not values:
+                continue
             numbers[f"{kind}_{key}_mean"] = round(float(np.mean(values)), 3)
             numbers[f"{kind}_{key}_worst"] = round(float(np.max(values)), 3)
     return numbers
 
 
 def _row_line(row: dict) -> None:
+    refined = ("" if "refined_v2s_scan_to_recon_mm" not in row else
+               f"; refined {row['refined_v2s_scan_to_recon_mm']:.2f}, "
+               f"{row['refined_v2s_recon_to_scan_mm']:.2f} mm (+{row['refine_seconds']:.1f} s)")
     print(f"  subject {row['subject']} {row['pose']:>8} {row['scan']:>8}: V2S scan->recon "
           f"{row['v2s_scan_to_recon_mm']:.2f}, recon->scan {row['v2s_recon_to_scan_mm']:.2f} mm "
-          f"({row['seconds']:.1f} s)", flush=True)
+          f"({row['seconds']:.1f} s){refined}", flush=True)
 
 
 def _ages(text: str) -> tuple[float, float]:
@@ -93,6 +106,12 @@ def _ages(text: str) -> tuple[float, float]:
     if not 0 < young <= old:
         raise argparse.ArgumentTypeError(f"expected 0 < A <= B, got {text!r}")
     return young, old
+
+
+def _refine_config(seed: int):
+    from lisa_hand.fitting.points.refine import RefineConfig
+
+    return RefineConfig(seed=seed)
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -112,6 +131,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--points", type=int, default=5000, help="scan points")
     parser.add_argument("--seed", type=int, default=11)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (CPU)")
+    parser.add_argument("--refine", action="store_true",
+                        help="also refine each fit (lisa fit-points --refine) and measure it")
     args = parser.parse_args(argv)
     if args.subjects < 1 or args.points < 100:
         parser.error("--subjects must be >= 1 and --points >= 100")
@@ -119,6 +140,7 @@ def main(argv: list[str] | None = None) -> None:
     print(f"MakeHuman hands aged {args.ages[0]:g}-{args.ages[1]:g} (model: {model.source}):")
     rows = run_heldout_fits(model, subjects=args.subjects, ages=args.ages,
                             num_points=args.points, seed=args.seed, threads=args.threads,
+                            refine=_refine_config(args.seed) if args.refine else None,
                             log=_row_line)
     numbers = {**summary(rows), "ages": list(args.ages), "rows": rows}
     for key, value in numbers.items():
