@@ -49,8 +49,11 @@ class MotionConfig:
     acceleration_weight: float = 1e-3
     """x the mean squared acceleration of the 3D keypoints, (m/s^2)^2."""
     articulation_weight: float = 5e-3
-    """x the mean squared acceleration of the 3D keypoints relative to the wrist, (m/s^2)^2:
-    the hand's own motion (what jitters most where one view leaves depth open)."""
+    """x the mean squared acceleration of the 3D keypoints relative to the wrist across their
+    camera rays, (m/s^2)^2: the hand's own motion as the image sees it."""
+    depth_articulation_weight: float = 5e-3
+    """x the same along the camera rays: the hand's own motion in depth, which one view leaves
+    open (what jitters most) and which the keypoints' agreement in the image does not see."""
     max_joint_speed: float = 25.0
     """rad/s: a finger joint turning faster than this is penalised."""
     joint_speed_weight: float = 1e-3
@@ -72,7 +75,7 @@ class MotionConfig:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
         for name in ("keypoint_weight", "pose_weight", "limit_weight", "betas_weight",
                      "velocity_weight", "acceleration_weight", "articulation_weight",
-                     "joint_speed_weight"):
+                     "depth_articulation_weight", "joint_speed_weight"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
         if not 0 < self.final_lr_fraction <= 1:

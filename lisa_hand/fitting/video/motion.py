@@ -11,8 +11,11 @@ sum of per-frame data and prior terms and of motion terms between consecutive fr
 * the prior of every fitter (:func:`lisa_hand.fitting.terms.hand_prior`: finger pose toward
   the relaxed hand, joint limits);
 * motion: the mean squared velocity (m/s) and acceleration (m/s^2) of the 3D keypoints, from
-  the frames' own times (a variable frame rate is taken as it comes), and the finger joints'
-  turning speed above ``max_joint_speed`` (rad/s).
+  the frames' own times (a variable frame rate is taken as it comes); the acceleration of the
+  keypoints relative to the wrist (the hand's own motion), split along each keypoint's camera
+  ray (depth, which one view leaves open: a fit left alone flickers there) and across it (what
+  the image sees: smoothing it costs agreement with the detections), each with its weight; and
+  the finger joints' turning speed above ``max_joint_speed`` (rad/s).
 
 Solved in two passes from an anchor frame whose pose is known (the keyframe's fit): windows of
 ``window`` frames stepping away from the anchor, forward then backward in time, each window's
@@ -119,7 +122,12 @@ class MotionEnergy:
             energy = energy + config.acceleration_weight * (
                 acceleration ** 2).sum(-1).mean(-1).sum()
             relative = acceleration - acceleration[:, :1]  # the hand's own motion, wrist held
-            energy = energy + config.articulation_weight * (relative ** 2).sum(-1).mean(-1).sum()
+            ray = points[1:-1].detach()
+            ray = ray / ray.norm(dim=-1, keepdim=True).clamp_min(1e-6)  # [W-2, 21, 3]
+            along = (relative * ray).sum(-1) ** 2  # toward / away from the camera
+            across = ((relative ** 2).sum(-1) - along).clamp_min(0.0)
+            energy = energy + (config.articulation_weight * across.mean(-1).sum()
+                               + config.depth_articulation_weight * along.mean(-1).sum())
         turning = (pose[1:, 3:] - pose[:-1, 3:]).abs() / step[:, None]
         excess = torch.relu(turning - config.max_joint_speed)
         return energy + config.joint_speed_weight * (excess ** 2).sum()

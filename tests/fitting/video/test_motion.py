@@ -272,7 +272,35 @@ def test_moving_fingers_add_articulation_and_joint_speed(exact):
     # One finger joint value turning at 30 rad/s, 5 above the limit of 25, nothing else moving.
     spinning = held_pose(times)
     spinning[:, 10] += 30.0 * times
-    config = MotionConfig(velocity_weight=0.0, acceleration_weight=0.0, articulation_weight=0.0)
+    config = MotionConfig(velocity_weight=0.0, acceleration_weight=0.0, articulation_weight=0.0,
+                          depth_articulation_weight=0.0)
     alone = energy(exact, spinning, translation, config, temporal=False)
     tracked = energy(exact, spinning, translation, config, temporal=True)
     assert tracked - alone == pytest.approx(config.joint_speed_weight * 9 * 5.0 ** 2, rel=1e-6)
+
+
+def test_articulation_splits_along_and_across_the_camera_rays(exact):
+    """The fingers curling with the wrist still: the articulation energy is
+    articulation_weight x the mean squared wrist-relative acceleration across each keypoint's
+    camera ray plus depth_articulation_weight x the same along it (a numpy float64 reference
+    from the keypoints' second differences); with equal weights the split sums to the whole."""
+    template, rest_joints, times = exact
+    translation = torch.tensor([0.09, 0.0, 0.5], dtype=torch.float64).expand(10, 3).clone()
+    pose, _ = trajectory(times * 3.0, torch.float64)
+    pose[:, :3] = pose[0, :3]
+    points = posed_keypoints(template, rest_joints, None, pose, translation).numpy()
+    step = 1.0 / FPS
+    acceleration = (points[2:] - 2.0 * points[1:-1] + points[:-2]) / step ** 2
+    relative = acceleration - acceleration[:, :1]
+    ray = points[1:-1] / np.linalg.norm(points[1:-1], axis=-1, keepdims=True)
+    along = np.einsum("fkc,fkc->fk", relative, ray) ** 2
+    across = (relative ** 2).sum(-1) - along
+    assert along.mean() > 0.05 * across.mean() and across.mean() > 0.05 * along.mean()
+    quiet = MotionConfig(velocity_weight=0.0, acceleration_weight=0.0, joint_speed_weight=0.0,
+                         articulation_weight=0.0, depth_articulation_weight=0.0)
+    alone = energy(exact, pose, translation, quiet, temporal=False)
+    for w_across, w_along in ((2e-3, 0.0), (0.0, 3e-2), (5e-3, 5e-3)):
+        config = replace(quiet, articulation_weight=w_across, depth_articulation_weight=w_along)
+        tracked = energy(exact, pose, translation, config, temporal=True)
+        expected = w_across * across.mean(-1).sum() + w_along * along.mean(-1).sum()
+        assert tracked - alone == pytest.approx(expected, rel=1e-6)
