@@ -28,7 +28,8 @@ a fixed, known camera. Per clip ``i`` (a ``numpy.random.SeedSequence`` keyed by
 * each frame rendered as a synthetic photo is (:func:`benchmarks._photo_scenes._render`: the
   posed hand meshed by marching cubes, Embree ray casting at twice the size averaged down) and
   saved as a lossless PNG in ``frames/`` (``frame_0000.png``, ...), with the truth in
-  ``truth.json`` beside it.
+  ``truth.json`` beside it (and the settings that made the clip: a folder that already holds a
+  clip made with the same settings and index is read back, not rendered again).
 """
 
 from __future__ import annotations
@@ -118,6 +119,8 @@ class SyntheticClip:
     """The turn about the vertical over the clip (signed), degrees."""
     seconds_render: float
     """Seconds spent making the clip (meshing and rendering every frame)."""
+    read_back: bool = False
+    """The clip was made by an earlier run and read back from its folder."""
 
     @property
     def num_frames(self) -> int:
@@ -193,9 +196,35 @@ def clip_motion(config: VideoSceneConfig, index: int, hand) -> dict:
             "turn_deg": math.degrees(turn), "rng": rng}
 
 
+def _made_with(config: VideoSceneConfig, index: int) -> dict:
+    """The settings a clip's ``truth.json`` records (JSON's view of them)."""
+    return json.loads(json.dumps({"scene": dataclasses.asdict(config), "index": index}))
+
+
+def _read_clip(config: VideoSceneConfig, index: int, folder: Path) -> SyntheticClip | None:
+    """The clip in ``folder`` when it was made with ``config`` as clip ``index`` and all its
+    frames are there; else None."""
+    try:
+        truth = json.loads((folder / "truth.json").read_text())
+    except (OSError, ValueError):
+        return None
+    frames_dir = folder / "frames"
+    if (truth.get("made_with") != _made_with(config, index) or not all(
+            (frames_dir / f"frame_{frame:04d}.png").is_file() for frame in range(config.frames))):
+        return None
+    return SyntheticClip(folder=frames_dir, camera_json=folder / "camera.json",
+                         subject=truth["subject"], side=truth["side"],
+                         keypoints_3d=np.asarray(truth["keypoints_3d"], np.float64),
+                         keypoints_2d=np.asarray(truth["keypoints_2d"], np.float64),
+                         K=np.asarray(truth["K"], np.float64), fps=float(truth["fps"]),
+                         turn_deg=float(truth["turn_deg"]),
+                         seconds_render=float(truth["seconds_render"]), read_back=True)
+
+
 def make_clip(config: VideoSceneConfig, index: int, out_dir: Path, log=None) -> SyntheticClip:
     """Clip ``index`` (see the module docstring), written to ``out_dir/clip_INDEX/``:
-    ``frames/frame_NNNN.png``, ``camera.json`` and ``truth.json``."""
+    ``frames/frame_NNNN.png``, ``camera.json`` and ``truth.json``; read back instead when that
+    folder already holds it (made with the same ``config`` and index, every frame there)."""
     from PIL import Image
 
     from lisa_hand.data.images import project_keypoints
@@ -204,6 +233,10 @@ def make_clip(config: VideoSceneConfig, index: int, out_dir: Path, log=None) -> 
 
     from ._photo_scenes import _TRAINING_SEED, _background, _render, held_out_subjects
 
+    folder = Path(out_dir) / f"clip_{index:03d}"
+    made = _read_clip(config, index, folder)
+    if made is not None:
+        return made
     began = time.perf_counter()
     subjects = held_out_subjects("test")
     record = make_subject(SynthConfig(seed=_TRAINING_SEED, hand_model=config.hand_model),
@@ -224,8 +257,8 @@ def make_clip(config: VideoSceneConfig, index: int, out_dir: Path, log=None) -> 
     light_seed = int(rng.integers(0, 2**62))  # the same light and white balance every frame
     background = _background(rng, 2 * height, 2 * width, textured=True)
 
-    folder = Path(out_dir) / f"clip_{index:03d}"
     frames_dir = folder / "frames"
+    (folder / "truth.json").unlink(missing_ok=True)  # an older clip's, about to be overwritten
     frames_dir.mkdir(parents=True, exist_ok=True)
     keypoints_3d, keypoints_2d = [], []
     for frame, (pose, translation) in enumerate(zip(motion["poses"], motion["translations"],
@@ -246,12 +279,16 @@ def make_clip(config: VideoSceneConfig, index: int, out_dir: Path, log=None) -> 
 
     camera_json = folder / "camera.json"
     camera_json.write_text(json.dumps([camera.to_dict()], indent=1))
+    seconds = time.perf_counter() - began
     truth = {"subject": record.id, "side": side, "fps": config.fps,
              "turn_deg": motion["turn_deg"], "K": K.tolist(),
              "keypoints_3d": np.stack(keypoints_3d).tolist(),
-             "keypoints_2d": np.stack(keypoints_2d).tolist()}
-    (folder / "truth.json").write_text(json.dumps(truth))
+             "keypoints_2d": np.stack(keypoints_2d).tolist(),
+             "seconds_render": seconds, "made_with": _made_with(config, index)}
+    staged = folder / "truth.json.partial"  # written last: its presence means a whole clip
+    staged.write_text(json.dumps(truth))
+    staged.replace(folder / "truth.json")
     return SyntheticClip(folder=frames_dir, camera_json=camera_json, subject=record.id, side=side,
                          keypoints_3d=np.stack(keypoints_3d), keypoints_2d=np.stack(keypoints_2d),
                          K=K.numpy(), fps=config.fps, turn_deg=motion["turn_deg"],
-                         seconds_render=time.perf_counter() - began)
+                         seconds_render=seconds)

@@ -330,7 +330,8 @@ def _clips_part(num_clips: int, scene, work_dir: Path, options: dict, make_confi
         clip = make_clip(scene, index, work_dir / "clips", log=log)
         log(f"  clip {index} ({clip.subject}, {clip.side}, turns {clip.turn_deg:+.0f} deg): "
             f"{clip.num_frames} frames rendered in {clip.seconds_render:.1f} s "
-            f"({clip.seconds_render / clip.num_frames:.2f} s a frame)")
+            f"({clip.seconds_render / clip.num_frames:.2f} s a frame)"
+            + (", by an earlier run: read back" if clip.read_back else ""))
         fits = {mode: _fit_clip(clip, mode == "independent", options, make_config)
                 for mode in MODES}
         results.append(_clip_result(clip, fits))
@@ -519,7 +520,8 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--skip-real", action="store_true", help="skip the real clip's part")
     parser.add_argument("--skip-speed", action="store_true", help="skip the speed part")
     parser.add_argument("--out", type=Path, default=None,
-                        help="keep the clips and fits here (default: a temporary folder)")
+                        help="keep the clips and fits here (default: a temporary folder); "
+                             "clips rendered there before with the same settings are reused")
     parser.add_argument("--model", default=None, help="trained model (default: the shipped one)")
     parser.add_argument("--device", default="cpu")
     parser.add_argument("--threads", type=int, default=2, help="torch threads (CPU)")
