@@ -53,7 +53,7 @@ class MotionConfig:
     camera rays, (m/s^2)^2: the hand's own motion as the image sees it."""
     depth_articulation_weight: float = 5e-3
     """x the same along the camera rays: the hand's own motion in depth, which one view leaves
-    open (what jitters most) and which the keypoints' agreement in the image does not see."""
+    open; smoothing it costs less agreement with the detections than smoothing across."""
     max_joint_speed: float = 25.0
     """rad/s: a finger joint turning faster than this is penalised."""
     joint_speed_weight: float = 1e-3

@@ -13,8 +13,8 @@ sum of per-frame data and prior terms and of motion terms between consecutive fr
 * motion: the mean squared velocity (m/s) and acceleration (m/s^2) of the 3D keypoints, from
   the frames' own times (a variable frame rate is taken as it comes); the acceleration of the
   keypoints relative to the wrist (the hand's own motion), split along each keypoint's camera
-  ray (depth, which one view leaves open: a fit left alone flickers there) and across it (what
-  the image sees: smoothing it costs agreement with the detections), each with its weight; and
+  ray (depth, which one view leaves open) and across it (what the image sees: smoothing it
+  costs agreement with the detections), each with its weight; and
   the finger joints' turning speed above ``max_joint_speed`` (rad/s).
 
 Solved in two passes from an anchor frame whose pose is known (the keyframe's fit): windows of
