@@ -1,5 +1,6 @@
 """Point fits of MakeHuman hands from a region of the macro space that no shipped model learnt
-from: ``python -m benchmarks heldout [--subjects N] [--ages 66,80] [--model M] [--json FILE]``.
+from: ``python -m benchmarks heldout [--subjects N] [--ages 66,80] [--model M] [--set KEY=VALUE]
+[--json FILE]``.
 
 Hand model v3 subjects (:func:`lisa_hand.handmodel.sample_hand`, MakeHuman's sculpted hand)
 aged 66-80 (the priors learnt from 18-65), each in three poses (``flat``, ``relaxed``: the
@@ -30,19 +31,21 @@ POSES = ("flat", "relaxed", "fist")
 
 def run_heldout_fits(model, *, subjects: int = 3, ages: tuple[float, float] = (66.0, 80.0),
                      num_points: int = 5000, seed: int = 11, threads: int = 1,
-                     refine=None, log=None) -> list[dict]:
+                     refine=None, overrides=(), log=None) -> list[dict]:
     """Fit ``model`` to full and one-sided scans of ``subjects`` v3 hands aged ``ages`` in
     each pose of :data:`POSES` -> one dict per fit: subject, pose, scan, seconds and the four
     V2S / V2V distances (mm), ``scan_points_to_recon_mm``. refine: a
     :class:`~lisa_hand.fitting.points.refine.RefineConfig`: each fit also refined and measured
-    (``refined_*`` keys). log: called with each row."""
+    (``refined_*`` keys). overrides: ``KEY=VALUE`` strings replacing fields of every fit's
+    :class:`~lisa_hand.fitting.points.config.FitPointsConfig`. log: called with each row."""
     from lisa_hand.data.scans import ScanConfig, simulate_scan
     from lisa_hand.fitting.points.fit import FitPointsConfig
     from lisa_hand.geometry import axis_angle_to_matrix
     from lisa_hand.handmodel import sample_hand
     from lisa_hand.handmodel.poses import named_pose
+    from lisa_hand.utils.config import apply_overrides
 
-    config = FitPointsConfig(num_threads=threads, seed=0)
+    config = apply_overrides(FitPointsConfig(num_threads=threads, seed=0), list(overrides))
     generator = torch.Generator().manual_seed(seed)
     rows = []
     for subject in range(subjects):
@@ -133,18 +136,32 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (CPU)")
     parser.add_argument("--refine", action="store_true",
                         help="also refine each fit (lisa fit-points --refine) and measure it")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE",
+                        help="override a FitPointsConfig field of every fit, e.g. --set tries=2 "
+                             "(repeatable)")
     args = parser.parse_args(argv)
     if args.subjects < 1 or args.points < 100:
         parser.error("--subjects must be >= 1 and --points >= 100")
+    if args.overrides:
+        from lisa_hand.fitting.points.config import FitPointsConfig
+        from lisa_hand.utils.config import apply_overrides
+
+        try:
+            apply_overrides(FitPointsConfig(), list(args.overrides))
+        except (ValueError, TypeError) as exc:
+            parser.error(f"--set: {exc}")
+        print(f"fit config overrides: {', '.join(args.overrides)}")
     model = load_trained(args.model or default_point_model(), "cpu")
     print(f"MakeHuman hands aged {args.ages[0]:g}-{args.ages[1]:g} (model: {model.source}):")
     rows = run_heldout_fits(model, subjects=args.subjects, ages=args.ages,
                             num_points=args.points, seed=args.seed, threads=args.threads,
                             refine=_refine_config(args.seed) if args.refine else None,
-                            log=_row_line)
-    numbers = {**summary(rows), "ages": list(args.ages), "rows": rows}
+                            overrides=tuple(args.overrides), log=_row_line)
+    numbers = {**summary(rows), "ages": list(args.ages), "overrides": list(args.overrides),
+               "rows": rows}
     for key, value in numbers.items():
-        if key not in ("rows", "ages"):
+        if key not in ("rows", "ages", "overrides"):
             print(f"{key}: {value}")
     write_results(args.json, numbers)
 
