@@ -31,7 +31,7 @@ from __future__ import annotations
 import argparse
 import math
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -400,6 +400,10 @@ def main(argv: list[str] | None = None) -> None:
                         help="the hand sizes the point fit's size search tries, times the mean "
                              "skeleton (default: the config's, 0.85-1.2); 1 turns it off")
     _add_scene_args(parser)
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE",
+                        help="override a FitPointsConfig field of every WebXR fit, e.g. --set "
+                             "tries=2 (repeatable)")
     parser.add_argument("--only-webxr", action="store_true",
                         help="skip the self-consistency benchmark")
     args = parser.parse_args(argv)
@@ -420,10 +424,19 @@ def main(argv: list[str] | None = None) -> None:
 
             refine = RefineConfig(seed=args.seed)
         config = None
-        if args.webxr_sizes is not None:
+        if args.webxr_sizes is not None or args.overrides:
             from lisa_hand.fitting.points.config import FitPointsConfig
+            from lisa_hand.utils.config import apply_overrides
 
-            config = FitPointsConfig(seed=args.seed, sizes=args.webxr_sizes)
+            config = FitPointsConfig(seed=args.seed)
+            if args.webxr_sizes is not None:
+                config = replace(config, sizes=args.webxr_sizes)
+            try:
+                config = apply_overrides(config, list(args.overrides))
+            except (ValueError, TypeError) as exc:
+                parser.error(f"--set: {exc}")
+            if args.overrides:
+                print(f"fit config overrides of the WebXR fits: {', '.join(args.overrides)}")
         numbers["webxr"] = run_webxr_fits(model, args.webxr, seed=args.seed, config=config,
                                           threads=args.threads, wrists=wrists, refine=refine,
                                           viewpoints=args.webxr_viewpoint,
