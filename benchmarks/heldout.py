@@ -15,6 +15,7 @@ mesh, both cut at the fit's wrist plane, so a one-sided fit is measured over the
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -31,21 +32,22 @@ POSES = ("flat", "relaxed", "fist")
 
 def run_heldout_fits(model, *, subjects: int = 3, ages: tuple[float, float] = (66.0, 80.0),
                      num_points: int = 5000, seed: int = 11, threads: int = 1,
-                     refine=None, overrides=(), log=None) -> list[dict]:
+                     config=None, refine=None, log=None) -> list[dict]:
     """Fit ``model`` to full and one-sided scans of ``subjects`` v3 hands aged ``ages`` in
     each pose of :data:`POSES` -> one dict per fit: subject, pose, scan, seconds and the four
-    V2S / V2V distances (mm), ``scan_points_to_recon_mm``. refine: a
+    V2S / V2V distances (mm), ``scan_points_to_recon_mm``. config: the
+    :class:`~lisa_hand.fitting.points.config.FitPointsConfig` of every fit (None: the defaults
+    with seed 0), on ``threads`` threads. refine: a
     :class:`~lisa_hand.fitting.points.refine.RefineConfig`: each fit also refined and measured
-    (``refined_*`` keys). overrides: ``KEY=VALUE`` strings replacing fields of every fit's
-    :class:`~lisa_hand.fitting.points.config.FitPointsConfig`. log: called with each row."""
+    (``refined_*`` keys). log: called with each row."""
     from lisa_hand.data.scans import ScanConfig, simulate_scan
     from lisa_hand.fitting.points.fit import FitPointsConfig
     from lisa_hand.geometry import axis_angle_to_matrix
     from lisa_hand.handmodel import sample_hand
     from lisa_hand.handmodel.poses import named_pose
-    from lisa_hand.utils.config import apply_overrides
 
-    config = apply_overrides(FitPointsConfig(num_threads=threads, seed=0), list(overrides))
+    config = dataclasses.replace(FitPointsConfig(seed=0) if config is None else config,
+                                 num_threads=threads)
     generator = torch.Generator().manual_seed(seed)
     rows = []
     for subject in range(subjects):
@@ -143,21 +145,21 @@ def main(argv: list[str] | None = None) -> None:
     args = parser.parse_args(argv)
     if args.subjects < 1 or args.points < 100:
         parser.error("--subjects must be >= 1 and --points >= 100")
-    if args.overrides:
-        from lisa_hand.fitting.points.config import FitPointsConfig
-        from lisa_hand.utils.config import apply_overrides
+    from lisa_hand.fitting.points.config import FitPointsConfig
+    from lisa_hand.utils.config import apply_overrides
 
-        try:
-            apply_overrides(FitPointsConfig(), list(args.overrides))
-        except (ValueError, TypeError) as exc:
-            parser.error(f"--set: {exc}")
+    try:
+        config = apply_overrides(FitPointsConfig(seed=0), list(args.overrides))
+    except (ValueError, TypeError) as exc:
+        parser.error(f"--set: {exc}")
+    if args.overrides:
         print(f"fit config overrides: {', '.join(args.overrides)}")
     model = load_trained(args.model or default_point_model(), "cpu")
     print(f"MakeHuman hands aged {args.ages[0]:g}-{args.ages[1]:g} (model: {model.source}):")
     rows = run_heldout_fits(model, subjects=args.subjects, ages=args.ages,
                             num_points=args.points, seed=args.seed, threads=args.threads,
                             refine=_refine_config(args.seed) if args.refine else None,
-                            overrides=tuple(args.overrides), log=_row_line)
+                            config=config, log=_row_line)
     numbers = {**summary(rows), "ages": list(args.ages), "overrides": list(args.overrides),
                "rows": rows}
     for key, value in numbers.items():
