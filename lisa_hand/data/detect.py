@@ -237,6 +237,12 @@ class DetectedHand:
     side_votes: tuple[int, int] = (0, 0)
     """(right, left): how many of the agreeing estimates (plain and mirrored windows) call it
     each side; a split vote means MediaPipe's side changed with the window or the mirroring."""
+    landmarks_3d: np.ndarray | None = None
+    """[21, 3] float64 metres or None: MediaPipe's world landmarks, the hand's shape in 3D as
+    its landmark model sees it (axes of the camera: x right, y down, z away from it; origin
+    near the hand's centre; the size of an average hand). Its depths are what one image leaves
+    open: which way a finger bends toward or away from the camera. The mean of the agreeing
+    estimates (plain and mirrored windows)."""
 
     @property
     def side_split(self) -> bool:
@@ -253,6 +259,7 @@ class _Found:
     votes: tuple[int, int] = (0, 0)  # (right, left) of the estimates averaged into it
     cut: bool = False  # its box reaches a crop's edge inside the image: maybe a partial view
     support: int = 1  # how many estimates agree on it (refined: :func:`_consensus`)
+    landmarks: np.ndarray | None = None  # [21, 3] metres, MediaPipe's world landmarks
 
     @property
     def box(self) -> tuple[float, float, float, float]:
@@ -311,8 +318,10 @@ def _run(hands: Any, image: np.ndarray, window: Window, long_side: int, fill: np
         return []
     x0, y0, x1, y1 = window
     found = []
-    for landmarks, handedness in zip(result.multi_hand_landmarks, result.multi_handedness,
-                                     strict=True):
+    world = getattr(result, "multi_hand_world_landmarks", None) or \
+        [None] * len(result.multi_hand_landmarks)
+    for landmarks, handedness, shape in zip(result.multi_hand_landmarks,
+                                            result.multi_handedness, world, strict=True):
         normalised = np.array([[point.x, point.y] for point in landmarks.landmark], np.float64)
         if normalised.shape != (NUM_KEYPOINTS, 2) or not np.isfinite(normalised).all():
             continue
@@ -324,8 +333,28 @@ def _run(hands: Any, image: np.ndarray, window: Window, long_side: int, fill: np
         # MediaPipe's label is mirrored; on a mirrored input it is the photo's own side.
         says_right = (label.label == "Right") if mirrored else (label.label == "Left")
         score = float(label.score) if says_right else 1.0 - float(label.score)
-        found.append(_Found(keypoints, score, cut=_cut(keypoints, window, *image.shape[1::-1])))
+        found.append(_Found(keypoints, score, cut=_cut(keypoints, window, *image.shape[1::-1]),
+                            landmarks=_world(shape, mirrored)))
     return found
+
+
+def _world(landmarks: Any, mirrored: bool) -> np.ndarray | None:
+    """MediaPipe's world landmarks of one hand -> [21, 3] metres in the camera's axes (None if
+    absent or not finite); from a mirrored window, mirrored back (x negated)."""
+    if landmarks is None:
+        return None
+    points = np.array([[point.x, point.y, point.z] for point in landmarks.landmark], np.float64)
+    if points.shape != (NUM_KEYPOINTS, 3) or not np.isfinite(points).all():
+        return None
+    if mirrored:
+        points[:, 0] = -points[:, 0]
+    return points
+
+
+def _mean_landmarks(estimates: Sequence[_Found]) -> np.ndarray | None:
+    """The mean world landmarks [21, 3] of those ``estimates`` that have them (None: none)."""
+    shapes = [e.landmarks for e in estimates if e.landmarks is not None]
+    return np.mean(shapes, axis=0) if shapes else None
 
 
 Named = tuple[_Found, str]  # a hand and what found it
@@ -452,7 +481,8 @@ def _consensus(estimates: list[_Found], agreement: float) -> tuple[_Found, int]:
     box diagonal) of their medoid, and how many they are."""
     if len(estimates) == 1:
         one = estimates[0]
-        return _Found(one.keypoints, one.p_right, (1, 0) if one.p_right >= 0.5 else (0, 1)), 1
+        return _Found(one.keypoints, one.p_right, (1, 0) if one.p_right >= 0.5 else (0, 1),
+                      landmarks=one.landmarks), 1
     size = max(1.0, float(np.median([math.hypot(e.box[2] - e.box[0], e.box[3] - e.box[1])
                                      for e in estimates])))
     keypoints = np.stack([e.keypoints for e in estimates])  # [E, 21, 2]
@@ -462,7 +492,8 @@ def _consensus(estimates: list[_Found], agreement: float) -> tuple[_Found, int]:
     p_right = float(np.mean([estimates[i].p_right for i in agree]))
     right = int(sum(estimates[i].p_right >= 0.5 for i in agree))
     return _Found(keypoints[agree].mean(axis=0), p_right, (right, int(agree.size) - right),
-                  support=int(agree.size)), int(agree.size)
+                  support=int(agree.size),
+                  landmarks=_mean_landmarks([estimates[i] for i in agree])), int(agree.size)
 
 
 _SKIN_TINT = (1.0, 0.78, 0.66)
@@ -574,7 +605,8 @@ def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | N
     unique = sorted(_unique(hands_found, config), key=lambda p: -_area(p[0].box))[:max_hands]
     result = [DetectedHand(keypoints=found.keypoints, score=max(found.p_right, 1 - found.p_right),
                            side="right" if found.p_right >= 0.5 else "left", box=found.box,
-                           found_by=level, side_votes=found.votes) for found, level in unique]
+                           found_by=level, side_votes=found.votes, landmarks_3d=found.landmarks)
+              for found, level in unique]
     return sorted(result, key=lambda hand: 0.5 * (hand.box[0] + hand.box[2]))
 
 

@@ -84,6 +84,7 @@ class VideoHandDetector:
         hands = [DetectedHand(keypoints=one.keypoints, score=max(one.p_right, 1 - one.p_right),
                               side="right" if one.p_right >= 0.5 else "left", box=one.box,
                               found_by="video",
-                              side_votes=(1, 0) if one.p_right >= 0.5 else (0, 1))
+                              side_votes=(1, 0) if one.p_right >= 0.5 else (0, 1),
+                              landmarks_3d=one.landmarks)
                  for one in found]
         return sorted(hands, key=lambda hand: 0.5 * (hand.box[0] + hand.box[2]))

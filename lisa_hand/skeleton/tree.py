@@ -38,6 +38,7 @@ __all__ = [
     "FINGER_JOINTS",
     "KEYPOINT_NAMES",
     "KEYPOINT_SOURCES",
+    "KEYPOINT_PARENTS",
     "MANO_FINGERTIP_VERTEX_IDS",
     "AVERAGE_REST_JOINTS",
     "joints_to_keypoints",
@@ -87,6 +88,17 @@ KEYPOINT_SOURCES = (
     10, 11, 12, 19,
     7, 8, 9, 20,
 )  # fmt: skip
+
+KEYPOINT_PARENTS = (
+    -1,
+    0, 1, 2, 3,
+    0, 5, 6, 7,
+    0, 9, 10, 11,
+    0, 13, 14, 15,
+    0, 17, 18, 19,
+)  # fmt: skip
+"""Each keypoint's parent along the hand (-1: the wrist): keypoint ``k`` > 0 and
+``KEYPOINT_PARENTS[k]`` are the ends of one of the 20 bones of the 21-keypoint skeleton."""
 
 # Vertex indices of MANO's fingertips (thumb, index, middle, ring, pinky), as used by smplx.
 MANO_FINGERTIP_VERTEX_IDS = (744, 320, 443, 554, 671)

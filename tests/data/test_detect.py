@@ -64,7 +64,7 @@ class FakeHands:
         magenta = (red > 150) & (green < 110) & (blue > 150)
         greenish = (green > 150) & (red < 110) & (blue < 110)
         labels, count = ndimage.label(magenta)
-        landmarks, handedness = [], []
+        landmarks, handedness, world = [], [], []
         grid = np.stack(np.meshgrid(np.linspace(0, 1, 3), np.linspace(0, 1, 7)), -1).reshape(-1, 2)
         for index in range(1, count + 1):
             rows, cols = np.nonzero(labels == index)
@@ -82,10 +82,22 @@ class FakeHands:
             points = [SimpleNamespace(x=(x0 + u * (x1 - x0)) / width,
                                       y=(y0 + v * (y1 - y0)) / height) for u, v in grid]
             landmarks.append(SimpleNamespace(landmark=points))
+            sign = 1.0 if x0 < x1 else -1.0  # the input's own x axis, mirrored or not
+            world.append(SimpleNamespace(landmark=[
+                SimpleNamespace(x=x, y=y, z=z) for x, y, z in world_shape(sign)]))
             handedness.append(SimpleNamespace(
                 classification=[SimpleNamespace(label=label, score=0.9)]))
         return SimpleNamespace(multi_hand_landmarks=landmarks or None,
-                               multi_handedness=handedness or None)
+                               multi_handedness=handedness or None,
+                               multi_hand_world_landmarks=world or None)
+
+
+def world_shape(sign: float = 1.0) -> np.ndarray:
+    """The fake's world landmarks [21, 3] metres: the 3 x 7 grid of its keypoints, 8 x 18 cm,
+    leaning in depth along u; ``sign`` -1: seen in a mirrored input (x negated)."""
+    grid = np.stack(np.meshgrid(np.linspace(0, 1, 3), np.linspace(0, 1, 7)), -1).reshape(-1, 2)
+    return np.stack([sign * 0.08 * (grid[:, 0] - 0.5), 0.18 * (grid[:, 1] - 0.5),
+                     0.03 * grid[:, 0]], -1)
 
 
 def marker(image: np.ndarray, x0: int, y0: int, width: int, height: int,
@@ -215,6 +227,25 @@ def test_mirrored_photo_other_side():
     (hand,) = detect_hands(image[:, ::-1], hands_factory=fake())
     assert hand.side == "left"
     np.testing.assert_allclose(hand.box, (500, 200, 700, 350), atol=2.0)
+
+
+def test_world_landmarks_in_the_photo_axes_from_plain_and_mirrored_windows():
+    """The detector's 3D landmarks come back in the photo's own axes whether a window was
+    mirrored or not (x negated back), averaged over the agreeing estimates; a mirrored photo
+    gives them mirrored."""
+    from lisa_hand.data.detect import _world
+
+    image = canvas()
+    marker(image, 300, 200, 200, 150, thumb="left")
+    (hand,) = detect_hands(image, hands_factory=fake())
+    np.testing.assert_allclose(hand.landmarks_3d, world_shape(), atol=1e-12)
+    (mirrored,) = detect_hands(image[:, ::-1], hands_factory=fake())
+    np.testing.assert_allclose(mirrored.landmarks_3d, world_shape(-1.0), atol=1e-12)
+    shape = SimpleNamespace(landmark=[SimpleNamespace(x=x, y=y, z=z) for x, y, z in
+                                      world_shape()])
+    np.testing.assert_array_equal(_world(shape, mirrored=True), world_shape(-1.0))
+    assert _world(None, False) is None
+    assert _world(SimpleNamespace(landmark=shape.landmark[:20]), False) is None
 
 
 def test_two_hands_sorted_left_to_right():

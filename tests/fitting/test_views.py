@@ -183,6 +183,23 @@ def test_mirror_view_sees_the_mirrored_world():
     assert torch.allclose(mirror_view(mirrored).camera.K, camera.K)
 
 
+def test_mirror_view_mirrors_the_landmarks_in_its_camera_axes():
+    """A view's 3D landmarks are in its camera's axes: the mirrored view's are the mirrored
+    points in the mirrored camera's frame."""
+    camera = make_rig(1, width=40, height=30, seed=3)[0]
+    points = torch.randn(21, 3, generator=torch.Generator().manual_seed(0)) * 0.05
+    landmarks = points @ camera.R.T + camera.t
+    view = ImageView(name="c", camera=camera, rgb=torch.zeros(30, 40, 3),
+                     landmarks_3d=landmarks)
+    mirrored = mirror_view(view)
+    expected = mirror_points(points) @ mirrored.camera.R.T + mirrored.camera.t
+    assert torch.allclose(mirrored.landmarks_3d, expected, atol=1e-6)
+    assert torch.equal(view.to("cpu").landmarks_3d, landmarks)
+    with pytest.raises(ValueError, match="landmarks_3d must be"):
+        ImageView(name="c", camera=camera, rgb=torch.zeros(30, 40, 3),
+                  landmarks_3d=landmarks[:20])
+
+
 def test_folders_and_files_in_the_wrong_place_are_named(tmp_path):
     from lisa_hand.fitting.images.views import read_views
 

@@ -146,6 +146,11 @@ class FitImagesConfig:
     coverage_weight: float = 0.1
     """Keypoint stage: weight of the mean distance from mask contour pixels to the nearest
     projected template vertex (pixels)."""
+    landmark_weight: float = 0.0
+    """Keypoint stage: weight of the bones' misfit against the detector's 3D landmarks, where a
+    view has them (:attr:`lisa_hand.fitting.images.views.ImageView.landmarks_3d`;
+    :func:`lisa_hand.fitting.images.terms.direction_misfit`, unitless, against the keypoints'
+    pixels): which way each finger bends in depth, which one view leaves open."""
     coverage_pixels: int = 64
     """Keypoint stage: mask contour pixels per view for the coverage term (chosen once,
     seeded)."""
@@ -271,9 +276,9 @@ class FitImagesConfig:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
         for name in ("keypoint_betas_lr", "color_betas_lr", "no_mask_margin",
                      "restart_separation_deg", "finger_restart_px", "silhouette_weight",
-                     "coverage_weight", "limit_weight", "pose_weight", "betas_weight",
-                     "size_weight", "rgb_weight", "code_weight", "joints_weight", "mask_weight",
-                     "shape_weight", "max_area_change", "shape_range_margin",
+                     "coverage_weight", "landmark_weight", "limit_weight", "pose_weight",
+                     "betas_weight", "size_weight", "rgb_weight", "code_weight", "joints_weight",
+                     "mask_weight", "shape_weight", "max_area_change", "shape_range_margin",
                      "view_gain_std", "view_bias_std", "view_calibration_weight"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")

@@ -105,6 +105,8 @@ def _objective(template: Any, state: _Candidates, data: ViewData, config: FitIma
     out = template.forward(pose, state.betas, state.translation)
     keypoint_pixels, keypoint_depth = data.project(out.keypoints)
     loss = keypoint_l1(keypoint_pixels, data, palm_only=rigid)
+    if config.landmark_weight > 0 and not rigid:
+        loss = loss + config.landmark_weight * data.direction_misfit(out.keypoints)
     vertex_pixels, vertex_depth = data.project(out.vertices)
     if data.num_masks and silhouette:
         outside, coverage = silhouette_terms(vertex_pixels, data)

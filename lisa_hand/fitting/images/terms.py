@@ -1,6 +1,8 @@
 """The 2D terms of the image fit, shared by its stages: the views' cameras and keypoints stacked
 (:class:`ViewData`), the keypoint L1 (the paper's L_joints, in pixels), the silhouette terms
-of projected template vertices against the masks. The pose and shape priors are every fitter's
+of projected template vertices against the masks, and the bone directions of the detector's
+3D landmarks (:func:`bone_directions`, :func:`direction_misfit`: the depth one view leaves
+open). The pose and shape priors are every fitter's
 (:func:`lisa_hand.fitting.terms.hand_prior`, with the training subjects' hand size,
 :class:`lisa_hand.fitting.images.shape_prior.HandSizePrior`).
 """
@@ -14,7 +16,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
-from ...skeleton import NUM_KEYPOINTS
+from ...skeleton import KEYPOINT_PARENTS, NUM_KEYPOINTS
 from .views import ImageView
 
 __all__ = [
@@ -23,6 +25,9 @@ __all__ = [
     "ViewData",
     "keypoint_l1",
     "keypoint_px",
+    "bone_directions",
+    "DIRECTION_MARGIN",
+    "direction_misfit",
     "sample_map",
     "silhouette_terms",
 ]
@@ -41,7 +46,9 @@ class ViewData:
         drawn with ``generator``; 0: no coverage term).
 
     Attributes: ``K``, ``R`` [C, 3, 3], ``t`` [C, 3]; ``keypoints`` [C, 21, 2] pixels (0 where
-    missing), ``visible`` [C, 21] (1.0 / 0.0), ``num_visible``; ``palm_visible`` and
+    missing), ``visible`` [C, 21] (1.0 / 0.0), ``num_visible``; ``directions`` [C, 20, 3] the
+    bone directions of the views' 3D landmarks (0 where a view has none), ``has_directions``
+    [C] (1.0 / 0.0), ``num_directions``; ``palm_visible`` and
     ``num_palm_visible`` (:data:`PALM_KEYPOINTS` only); per view ``outside`` (the mask's
     outside distance transform [1, 1, H, W] pixels, or None) and ``coverage`` (contour pixel
     centres [M, 2], or None); ``num_masks``; ``vertex_subset`` (:meth:`choose_vertices`).
@@ -63,6 +70,13 @@ class ViewData:
                 self.keypoints[index] = view.keypoints.float()
                 self.visible[index] = view.visible.float()
         self.num_visible = float(self.visible.sum())
+        self.directions = torch.zeros(num, NUM_KEYPOINTS - 1, 3, device=device)
+        self.has_directions = torch.zeros(num, device=device)
+        for index, view in enumerate(views):
+            if view.landmarks_3d is not None:
+                self.directions[index] = bone_directions(view.landmarks_3d.float())
+                self.has_directions[index] = 1.0
+        self.num_directions = float(self.has_directions.sum())
         palm = torch.zeros(NUM_KEYPOINTS, device=device)
         palm[list(PALM_KEYPOINTS)] = 1.0
         self.palm_visible = self.visible * palm
@@ -82,6 +96,18 @@ class ViewData:
             self.vertex_subset = torch.randperm(num_vertices, generator=generator)[:most].to(
                 self.device)
 
+    def camera_points(self, points: torch.Tensor) -> torch.Tensor:
+        """points [B, N, 3] world metres -> [B, C, N, 3] in each camera's frame."""
+        return torch.einsum("bnk,cjk->bcnj", points, self.R) + self.t[None, :, None]
+
+    def direction_misfit(self, keypoints: torch.Tensor) -> torch.Tensor:
+        """keypoints [B, 21, 3] world metres -> [B] the mean :func:`direction_misfit` over the
+        views with 3D landmarks (0 when none has them)."""
+        if self.num_directions == 0:
+            return keypoints.new_zeros(keypoints.shape[0])
+        misfit = direction_misfit(self.camera_points(keypoints), self.directions)  # [B, C]
+        return (misfit * self.has_directions).sum(1) / self.num_directions
+
     def project(self, points: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """points [B, N, 3] metres -> pixels [B, C, N, 2], depth [B, C, N] metres.
 
@@ -89,7 +115,7 @@ class ViewData:
         with einsum (one matrix product instead of B x C tiny batched ones, ~10x faster on a
         CPU).
         """
-        x_cam = torch.einsum("bnk,cjk->bcnj", points, self.R) + self.t[None, :, None]
+        x_cam = self.camera_points(points)
         homogeneous = torch.einsum("bcnk,cjk->bcnj", x_cam, self.K)
         depth = x_cam[..., 2]
         return homogeneous[..., :2] / depth.clamp_min(MIN_DEPTH)[..., None], depth
@@ -134,6 +160,38 @@ def keypoint_px(pixels: torch.Tensor, data: ViewData) -> torch.Tensor:
         return pixels.new_full((pixels.shape[0],), math.nan)
     distance = (pixels - data.keypoints).norm(dim=-1)
     return (distance * data.visible).sum((1, 2)) / data.num_visible
+
+
+def bone_directions(points: torch.Tensor) -> torch.Tensor:
+    """The unit vectors of the 20 bones of 21 keypoints (parent -> child,
+    :data:`lisa_hand.skeleton.KEYPOINT_PARENTS`): points [..., 21, 3] -> [..., 20, 3]."""
+    bones = points[..., 1:, :] - points[..., list(KEYPOINT_PARENTS[1:]), :]
+    return bones / bones.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+
+
+DIRECTION_MARGIN = 0.15
+"""How far the component along the camera's ray of a unit bone may differ from the detector's
+before it costs (:func:`direction_misfit`): its depths are coarse, and within this the image
+and the skeleton decide."""
+
+
+def direction_misfit(points: torch.Tensor, directions: torch.Tensor,
+                     margin: float = DIRECTION_MARGIN) -> torch.Tensor:
+    """How far the bones of ``points`` [..., 21, 3] (camera frame, metres) lean along the
+    camera's rays otherwise than ``directions`` [..., 20, 3] (unit, the camera's axes; e.g.
+    :func:`bone_directions` of MediaPipe's world landmarks) -> [...]: the mean over the bones of
+    ``max(0, |(u - d) . r| - margin)^2``, ``u`` the fitted bone's unit vector, ``d`` the given
+    one and ``r`` the unit ray through the bone's first keypoint.
+
+    The image fixes each bone's direction across the rays, not along them (a finger bent
+    toward the camera and one bent away project alike); the detector's 3D landmarks tell
+    which. Only that component counts, and only beyond ``margin``, so that it settles the
+    depth without pulling against the keypoints' pixels; nor does their size (an average
+    hand's) or origin (their wrist is not the skeleton's)."""
+    ray = points[..., list(KEYPOINT_PARENTS[1:]), :].detach()
+    ray = ray / ray.norm(dim=-1, keepdim=True).clamp_min(1e-9)
+    gap = ((bone_directions(points) - directions) * ray).sum(-1).abs()
+    return (torch.relu(gap - margin) ** 2).mean(-1)
 
 
 def sample_map(image: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:

@@ -74,6 +74,9 @@ class ImageView:
         visible but outside the image (:func:`keypoints_outside`) are made not visible.
     dropped_keypoints: names of the keypoints that were marked visible but lie outside the image
         (filled by the constructor; kept by :meth:`to` and :func:`mirror_view`).
+    landmarks_3d: [21, 3] metres, a detector's 3D landmarks of the hand in this camera's axes
+        (:attr:`lisa_hand.data.detect.DetectedHand.landmarks_3d`: only their bones' directions
+        count), or None.
     """
 
     name: str
@@ -83,6 +86,7 @@ class ImageView:
     keypoints: torch.Tensor | None = None
     visible: torch.Tensor | None = None
     dropped_keypoints: tuple[str, ...] = ()
+    landmarks_3d: torch.Tensor | None = None
 
     def __post_init__(self) -> None:
         if not isinstance(self.camera, Camera):
@@ -103,6 +107,12 @@ class ImageView:
         if self.mask is not None and self.mask.dtype != torch.bool:
             self.mask = self.mask > 0  # any nonzero value is foreground
         self.dropped_keypoints = tuple(self.dropped_keypoints)
+        if self.landmarks_3d is not None and (
+                not isinstance(self.landmarks_3d, torch.Tensor)
+                or self.landmarks_3d.shape != (NUM_KEYPOINTS, 3)
+                or not bool(torch.isfinite(self.landmarks_3d).all())):
+            raise ValueError(f"view {self.name!r}: landmarks_3d must be [21, 3] finite, got "
+                             f"{list(getattr(self.landmarks_3d, 'shape', []))}")
         if self.keypoints is not None:
             self._check_keypoints()
 
@@ -143,7 +153,8 @@ class ImageView:
         return ImageView(name=self.name, camera=self.camera.to(device, torch.float32),
                          rgb=self.rgb.to(device), mask=move(self.mask),
                          keypoints=move(self.keypoints), visible=move(self.visible),
-                         dropped_keypoints=self.dropped_keypoints)
+                         dropped_keypoints=self.dropped_keypoints,
+                         landmarks_3d=move(self.landmarks_3d))
 
 
 def keypoints_outside(keypoints: torch.Tensor, width: int, height: int,
@@ -356,8 +367,11 @@ def mirror_view(view: ImageView) -> ImageView:
         keypoints = view.keypoints.clone()
         keypoints[:, 0] = torch.where(view.visible, camera.width - keypoints[:, 0],
                                       keypoints[:, 0])
+    landmarks = None
+    if view.landmarks_3d is not None:
+        landmarks = view.landmarks_3d * view.landmarks_3d.new_tensor([-1.0, 1.0, 1.0])
     return ImageView(name=view.name, camera=mirrored, rgb=view.rgb.flip(1),
                      mask=None if view.mask is None else view.mask.flip(1),
                      keypoints=keypoints, visible=view.visible,
-                     dropped_keypoints=view.dropped_keypoints)
+                     dropped_keypoints=view.dropped_keypoints, landmarks_3d=landmarks)
 

@@ -332,7 +332,6 @@ def _place_cameras(views: list[Any], side: str, config: FitPhotoConfig, template
     the hand's rigid pose in each photo alone (see the module docstring) -> the views with
     those cameras."""
     from ...geometry.cameras import Camera
-    from ..images.views import ImageView
     from ..sides import mirror_hand
 
     flip = torch.diag(torch.tensor([-1.0, 1.0, 1.0], dtype=torch.float64))
@@ -347,11 +346,9 @@ def _place_cameras(views: list[Any], side: str, config: FitPhotoConfig, template
         if side == "left":  # the motion was found in the mirrored world (right hands)
             rotation, shift = flip @ rotation @ flip, flip @ shift
         camera = view.camera
-        placed.append(ImageView(
-            name=view.name, camera=Camera(K=camera.K, R=rotation.float(), t=shift.float(),
-                                          width=camera.width, height=camera.height,
-                                          name=camera.name),
-            rgb=view.rgb, mask=view.mask, keypoints=view.keypoints, visible=view.visible))
+        placed.append(dataclasses.replace(view, camera=Camera(K=camera.K, R=rotation.float(),
+                                                  t=shift.float(), width=camera.width,
+                                                  height=camera.height, name=camera.name)))
     return placed
 
 
@@ -370,7 +367,6 @@ def _pose_camera(view: Any, points: torch.Tensor, iterations: int) -> Any:
     camera; the view unchanged unless that lowers the loss."""
     from ...geometry import axis_angle_to_matrix
     from ...geometry.cameras import Camera
-    from ..images.views import ImageView
 
     camera = view.camera
     K, start_R = camera.K.double().cpu(), camera.R.double().cpu()
@@ -403,8 +399,7 @@ def _pose_camera(view: Any, points: torch.Tensor, iterations: int) -> Any:
         rotation = axis_angle_to_matrix(delta) @ start_R
     placed = Camera(K=camera.K, R=rotation.float(), t=shift.detach().float(),
                     width=camera.width, height=camera.height, name=camera.name)
-    return ImageView(name=view.name, camera=placed, rgb=view.rgb, mask=view.mask,
-                     keypoints=view.keypoints, visible=view.visible)
+    return dataclasses.replace(view, camera=placed)
 
 
 @dataclass

@@ -67,6 +67,8 @@ class PhotoHand:
     wrist moved to the skeleton's: :func:`lisa_hand.data.detect.to_skeleton_wrist`).
     side_votes: (right, left) of the detector's agreeing estimates
     (:attr:`lisa_hand.data.detect.DetectedHand.side_votes`), None when not detected.
+    landmarks_3d: [21, 3] metres, the detector's 3D landmarks in the camera's axes
+    (:attr:`lisa_hand.data.detect.DetectedHand.landmarks_3d`), or None.
     """
 
     keypoints: np.ndarray
@@ -76,6 +78,7 @@ class PhotoHand:
     source: str
     detector_keypoints: np.ndarray | None = None
     side_votes: tuple[int, int] | None = None
+    landmarks_3d: np.ndarray | None = None
 
     @property
     def side_split(self) -> bool:
@@ -320,7 +323,9 @@ def crop_view(photo: Any, camera: Camera, hand: PhotoHand, mask: np.ndarray | No
                      mask=torch.from_numpy(view_mask) if view_mask is not None
                      and view_mask.any() else None,
                      keypoints=torch.as_tensor(keypoints, dtype=torch.float32),
-                     visible=torch.from_numpy(hand.visible.copy()))
+                     visible=torch.from_numpy(hand.visible.copy()),
+                     landmarks_3d=None if hand.landmarks_3d is None
+                     else torch.as_tensor(hand.landmarks_3d, dtype=torch.float32))
     return CropView(view=view, box=(x0, y0, x1, y1), factors=factors)
 
 
@@ -380,4 +385,4 @@ def detected_hand(photo: Any, hand: Any, shift: float, log: Callable[[str], None
     return PhotoHand(keypoints=keypoints, visible=inside, side=hand.side,
                      score=float(hand.score), source="detected",
                      detector_keypoints=np.asarray(hand.keypoints, np.float64) if shift else None,
-                     side_votes=tuple(hand.side_votes))
+                     side_votes=tuple(hand.side_votes), landmarks_3d=hand.landmarks_3d)

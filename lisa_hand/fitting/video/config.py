@@ -54,6 +54,10 @@ class MotionConfig:
     depth_articulation_weight: float = 5e-3
     """x the same along the camera rays: the hand's own motion in depth, which one view leaves
     open; smoothing it costs less agreement with the detections than smoothing across."""
+    landmark_weight: float = 0.0
+    """x the mean over the 20 bones of 1 - cos(angle) between the fitted bone and the one of
+    the detector's 3D landmarks (:func:`lisa_hand.fitting.images.terms.direction_misfit`):
+    which way each finger bends in depth, which the keypoints' pixels leave open."""
     max_joint_speed: float = 25.0
     """rad/s: a finger joint turning faster than this is penalised."""
     joint_speed_weight: float = 1e-3
@@ -75,7 +79,7 @@ class MotionConfig:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")
         for name in ("keypoint_weight", "pose_weight", "limit_weight", "betas_weight",
                      "velocity_weight", "acceleration_weight", "articulation_weight",
-                     "depth_articulation_weight", "joint_speed_weight"):
+                     "depth_articulation_weight", "landmark_weight", "joint_speed_weight"):
             if not getattr(self, name) >= 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)!r}")
         if not 0 < self.final_lr_fraction <= 1:

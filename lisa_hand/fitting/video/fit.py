@@ -139,6 +139,7 @@ def _frames_at(video: Any, rows: set[int], kept: dict[int, np.ndarray]
 
 def _motion_data(track: HandTrack, camera: Any, times: np.ndarray, side: str) -> Any:
     """The track's keypoints as :class:`MotionData` of a right hand."""
+    from ..images.terms import bone_directions
     from .motion import MotionData
 
     keypoints = np.nan_to_num(track.keypoints.copy())
@@ -146,18 +147,25 @@ def _motion_data(track: HandTrack, camera: Any, times: np.ndarray, side: str) ->
     if side == "left":
         keypoints[..., 0] = 2.0 * float(K[0, 2]) - keypoints[..., 0]
     weights = track.scores * track.detected  # bridged frames: the motion prior only
+    directions = direction_weights = None
+    if track.landmarks_3d is not None:
+        landmarks = torch.from_numpy(track.landmarks_3d).float()
+        if side == "left":
+            landmarks[..., 0] = -landmarks[..., 0]
+        found = torch.isfinite(landmarks).all(-1).all(-1) & torch.from_numpy(track.detected)
+        directions = bone_directions(torch.nan_to_num(landmarks))
+        direction_weights = found.float()
     return MotionData(K=K.float(), keypoints=torch.from_numpy(keypoints).float(),
                       weights=torch.from_numpy(weights).float(),
-                      times=torch.from_numpy(times).float(), size_px=max(track.size_px(), 1.0))
+                      times=torch.from_numpy(times).float(), size_px=max(track.size_px(), 1.0),
+                      directions=directions, direction_weights=direction_weights)
 
 
 def _segments(track: HandTrack, independent: bool) -> list[tuple[int, int]]:
     """Runs of frames to fit: where the hand is present (tracked) or detected (independent)."""
     if not independent:
         return track.segments()
-    return HandTrack(identity=track.identity, side=track.side, keypoints=track.keypoints,
-                     detected=track.detected, bridged=np.zeros_like(track.bridged),
-                     scores=track.scores).segments()
+    return replace(track, bridged=np.zeros_like(track.bridged)).segments()
 
 
 def _right(pose: torch.Tensor, translation: torch.Tensor, side: str

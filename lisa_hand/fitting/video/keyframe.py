@@ -66,8 +66,12 @@ def frame_photo(path: Any, rgb: np.ndarray, original_size: tuple[int, int], scal
 def _photo_hand(track: HandTrack, row: int, side: str) -> Any:
     from ..photo.inputs import PhotoHand
 
+    landmarks = None if track.landmarks_3d is None else track.landmarks_3d[row]
+    if landmarks is not None and not np.isfinite(landmarks).all():
+        landmarks = None
     return PhotoHand(keypoints=track.keypoints[row].copy(), visible=np.ones(21, bool),
-                     side=side, score=float(track.scores[row]), source="detected")
+                     side=side, score=float(track.scores[row]), source="detected",
+                     landmarks_3d=None if landmarks is None else landmarks.copy())
 
 
 @dataclass

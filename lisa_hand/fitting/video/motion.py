@@ -8,6 +8,9 @@ sum of per-frame data and prior terms and of motion terms between consecutive fr
 * keypoints: each frame's 21 keypoints (:func:`lisa_hand.fitting.outputs.posed_keypoints`)
   projected and compared with the detector's, the distance in percent of the hand's size in the
   image, pseudo-Huber, weighed by the detector's score (a bridged frame has weight 0);
+* landmarks: the directions of the 20 bones against those of the detector's 3D landmarks
+  (:func:`lisa_hand.fitting.images.terms.direction_misfit`), where it gave them: which way
+  each finger bends in depth, which the pixels leave open;
 * the prior of every fitter (:func:`lisa_hand.fitting.terms.hand_prior`: finger pose toward
   the relaxed hand, joint limits);
 * motion: the mean squared velocity (m/s) and acceleration (m/s^2) of the 3D keypoints, from
@@ -37,6 +40,7 @@ import numpy as np
 import torch
 
 from ...skeleton import NUM_KEYPOINTS
+from ..images.terms import direction_misfit
 from ..optim import lr_schedule
 from ..outputs.records import fingertips_at_rest, posed_keypoints
 from ..priors import prior_mean_fingers
@@ -55,6 +59,9 @@ class MotionData:
     keypoints: [N, 21, 2] pixels (any value where ``weights`` is 0). weights: [N] the keypoint
     term's weight per frame (the detector's score; 0: no keypoints). times: [N] seconds,
     increasing. size_px: the hand's size in the image, pixels (the residuals' unit is 1 % of it).
+    directions: [N, 20, 3] the unit bone directions of the detector's 3D landmarks (camera
+    axes; a left hand's mirrored, x negated), any value where ``direction_weights`` is 0;
+    None: no landmarks. direction_weights: [N] their weight per frame (None: no landmarks).
     """
 
     K: torch.Tensor
@@ -62,6 +69,8 @@ class MotionData:
     weights: torch.Tensor
     times: torch.Tensor
     size_px: float
+    directions: torch.Tensor | None = None
+    direction_weights: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -107,6 +116,10 @@ class MotionEnergy:
         huber = scale ** 2 * (torch.sqrt(1.0 + (distance / scale) ** 2) - 1.0)
         weight = data.weights[rows] * data_rows
         energy = config.keypoint_weight * (huber.mean(-1) * weight).sum()
+        if data.directions is not None and config.landmark_weight > 0:
+            misfit = direction_misfit(points, data.directions[rows])
+            energy = energy + config.landmark_weight * (
+                misfit * data.direction_weights[rows] * data_rows).sum()
         energy = energy + (self.prior(HandTerms(pose=pose)) * data_rows).sum()
         behind = torch.relu(0.05 - points[..., 2]).sum()  # stay in front of the camera
         energy = energy + 1e4 * behind

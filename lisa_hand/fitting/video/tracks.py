@@ -41,7 +41,9 @@ class HandTrack:
     detected: [N] bool, the detector found it there. bridged: [N] bool, interpolated across a
     short dropout. scores: [N] the detector's side confidence (0 where not detected).
     side: "right" or "left" (the majority of its detections). identity: its index among the
-    clip's tracks (0, 1 ...), in order of first appearance.
+    clip's tracks (0, 1 ...), in order of first appearance. landmarks_3d: [N, 21, 3] metres,
+    the detector's 3D landmarks (:attr:`lisa_hand.data.detect.DetectedHand.landmarks_3d`; NaN
+    where not detected or not given), or None.
     """
 
     identity: int
@@ -50,6 +52,7 @@ class HandTrack:
     detected: np.ndarray
     bridged: np.ndarray
     scores: np.ndarray
+    landmarks_3d: np.ndarray | None = None
 
     @property
     def present(self) -> np.ndarray:
@@ -81,6 +84,7 @@ class _Open:
     keypoints: np.ndarray  # [N, 21, 2]
     detected: np.ndarray
     scores: np.ndarray
+    landmarks: np.ndarray  # [N, 21, 3]
     right: float = 0.0  # summed scores for "right"
     left: float = 0.0
     last: int = -1  # the row of its last detection
@@ -145,13 +149,16 @@ def build_tracks(detections: Sequence[Sequence[DetectedHand]], *, max_hands: int
                     continue
                 track = _Open(identity=len(tracks),
                               keypoints=np.full((count, NUM_KEYPOINTS, 2), np.nan),
-                              detected=np.zeros(count, bool), scores=np.zeros(count))
+                              detected=np.zeros(count, bool), scores=np.zeros(count),
+                              landmarks=np.full((count, NUM_KEYPOINTS, 3), np.nan))
                 tracks.append(track)
             if track.detected[row]:
                 continue
             track.keypoints[row] = hand.keypoints
             track.detected[row] = True
             track.scores[row] = hand.score
+            if hand.landmarks_3d is not None:
+                track.landmarks[row] = hand.landmarks_3d
             if hand.side == "right":
                 track.right += hand.score
             else:
@@ -173,4 +180,5 @@ def _finish(track: _Open, bridge_frames: int) -> HandTrack:
                 keypoints[row] = (1 - weight) * keypoints[before] + weight * keypoints[after]
                 bridged[row] = True
     return HandTrack(identity=track.identity, side=track.side(), keypoints=keypoints,
-                     detected=track.detected.copy(), bridged=bridged, scores=track.scores.copy())
+                     detected=track.detected.copy(), bridged=bridged, scores=track.scores.copy(),
+                     landmarks_3d=track.landmarks.copy())

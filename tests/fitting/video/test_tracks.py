@@ -28,6 +28,22 @@ def test_hand_size_is_the_keypoint_box_diagonal():
     assert hand_size_px(hand(3.0, 4.0, size=100.0).keypoints) == pytest.approx(100 * 2 ** 0.5)
 
 
+def test_the_detectors_3d_landmarks_follow_their_track():
+    """A track holds each detection's 3D landmarks in its frame, NaN where it was not
+    detected (a bridged dropout) or the detector gave none."""
+    from dataclasses import replace
+
+    shape = np.random.default_rng(1).normal(0.0, 0.05, size=(21, 3))
+    frames = [[replace(hand(100.0 + 5.0 * row, 100.0), landmarks_3d=shape + row)]
+              for row in range(6)]
+    frames[2] = []
+    frames[4] = [hand(120.0, 100.0)]  # no landmarks
+    (track,) = build_tracks(frames, bridge_frames=2)
+    for row in (0, 1, 3, 5):
+        np.testing.assert_array_equal(track.landmarks_3d[row], shape + row)
+    assert track.bridged[2] and np.isnan(track.landmarks_3d[[2, 4]]).all()
+
+
 def test_one_hand_moving_steadily_is_one_track_detected_throughout():
     frames = [[hand(100.0 + 6.0 * row, 120.0 + 2.0 * row, score=0.8)] for row in range(20)]
     (track,) = build_tracks(frames)
