@@ -69,6 +69,13 @@ of the true ones. :func:`to_skeleton_wrist` moves it back
 the offset belongs to the generator's long, flat-cut palms, not to MediaPipe; on photos of real
 hands the moved wrist lies in the forearm, and the fitted hand does not follow it.
 
+**3D landmarks.** MediaPipe's landmark model also gives each hand's 21 points in 3D (its "world
+landmarks": metres, an average hand's size, the camera's axes, origin near the hand's centre),
+kept as :attr:`DetectedHand.landmarks_3d` (from a mirrored window mirrored back, averaged over
+the agreeing estimates). Their size and origin are not the hand's; the directions of their
+bones tell which way each finger bends toward or away from the camera, which the 2D keypoints
+leave open (:func:`lisa_hand.fitting.images.terms.direction_misfit`).
+
 **Time.** One process call takes 15-60 ms on one CPU core, whatever the window's size (the
 models' inputs are fixed). A photo whose hand is found in the whole image takes about 0.2 s
 without the further search and 0.5-1 s with it (16-32 calls), a photo without a hand (every

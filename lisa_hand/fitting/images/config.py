@@ -146,7 +146,7 @@ class FitImagesConfig:
     coverage_weight: float = 0.1
     """Keypoint stage: weight of the mean distance from mask contour pixels to the nearest
     projected template vertex (pixels)."""
-    landmark_weight: float = 0.0
+    landmark_weight: float = 100.0
     """Keypoint stage: weight of the bones' misfit against the detector's 3D landmarks, where a
     view has them (:attr:`lisa_hand.fitting.images.views.ImageView.landmarks_3d`;
     :func:`lisa_hand.fitting.images.terms.direction_misfit`, unitless, against the keypoints'

@@ -7,7 +7,10 @@ compared with the given ones (L1 in pixels over the visible keypoints, as L_join
 view has a mask, the projected template vertices must fall inside it (the mask's outside
 distance transform at each vertex, pixels) and the mask's contour must be covered by them
 (distance from contour pixels to the nearest projected vertex;
-:func:`lisa_hand.fitting.images.terms.silhouette_terms`). Priors
+:func:`lisa_hand.fitting.images.terms.silhouette_terms`). Where a view has the detector's 3D
+landmarks, each bone's lean along the camera's rays is pulled toward theirs
+(``landmark_weight``, :func:`lisa_hand.fitting.images.terms.direction_misfit`): which way a
+finger bends in depth, which the pixels leave open. Priors
 (:func:`lisa_hand.fitting.terms.hand_prior`): soft joint limits, a small L2 pull of the
 finger pose towards ``prior_pose`` ("relaxed") and of ``betas`` towards 0, and the training
 subjects' hand size (``size_weight``, :class:`lisa_hand.fitting.images.shape_prior.HandSizePrior`:

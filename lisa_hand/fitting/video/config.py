@@ -54,7 +54,7 @@ class MotionConfig:
     depth_articulation_weight: float = 5e-3
     """x the same along the camera rays: the hand's own motion in depth, which one view leaves
     open; smoothing it costs less agreement with the detections than smoothing across."""
-    landmark_weight: float = 0.0
+    landmark_weight: float = 30.0
     """x the mean over the 20 bones of 1 - cos(angle) between the fitted bone and the one of
     the detector's 3D landmarks (:func:`lisa_hand.fitting.images.terms.direction_misfit`):
     which way each finger bends in depth, which the keypoints' pixels leave open."""
