@@ -69,12 +69,7 @@ of the true ones. :func:`to_skeleton_wrist` moves it back
 the offset belongs to the generator's long, flat-cut palms, not to MediaPipe; on photos of real
 hands the moved wrist lies in the forearm, and the fitted hand does not follow it.
 
-**3D landmarks.** MediaPipe's landmark model also gives each hand's 21 points in 3D (its "world
-landmarks": metres, an average hand's size, the camera's axes, origin near the hand's centre),
-kept as :attr:`DetectedHand.landmarks_3d` (from a mirrored window mirrored back, averaged over
-the agreeing estimates). Their size and origin are not the hand's; the directions of their
-bones tell which way each finger bends toward or away from the camera, which the 2D keypoints
-leave open (:func:`lisa_hand.fitting.images.terms.direction_misfit`).
+**3D landmarks** of each hand: :attr:`DetectedHand.landmarks_3d` (:mod:`.world_landmarks`).
 
 **Time.** One process call takes 15-60 ms on one CPU core, whatever the window's size (the
 models' inputs are fixed). A photo whose hand is found in the whole image takes about 0.2 s
@@ -94,6 +89,7 @@ import numpy as np
 
 from ..skeleton import KEYPOINT_NAMES, NUM_KEYPOINTS
 from ..utils.stderr import native_stderr_captured
+from .world_landmarks import mean_landmarks, world_landmarks
 
 if TYPE_CHECKING:  # at run time through __getattr__: detect_video imports this module
     from .detect_video import VideoHandDetector
@@ -245,11 +241,8 @@ class DetectedHand:
     """(right, left): how many of the agreeing estimates (plain and mirrored windows) call it
     each side; a split vote means MediaPipe's side changed with the window or the mirroring."""
     landmarks_3d: np.ndarray | None = None
-    """[21, 3] float64 metres or None: MediaPipe's world landmarks, the hand's shape in 3D as
-    its landmark model sees it (axes of the camera: x right, y down, z away from it; origin
-    near the hand's centre; the size of an average hand). Its depths are what one image leaves
-    open: which way a finger bends toward or away from the camera. The mean of the agreeing
-    estimates (plain and mirrored windows)."""
+    """[21, 3] float64 metres or None: MediaPipe's world landmarks in the camera's axes
+    (:mod:`lisa_hand.data.world_landmarks`), the mean of the agreeing estimates."""
 
     @property
     def side_split(self) -> bool:
@@ -325,10 +318,9 @@ def _run(hands: Any, image: np.ndarray, window: Window, long_side: int, fill: np
         return []
     x0, y0, x1, y1 = window
     found = []
-    world = getattr(result, "multi_hand_world_landmarks", None) or \
-        [None] * len(result.multi_hand_landmarks)
-    for landmarks, handedness, shape in zip(result.multi_hand_landmarks,
-                                            result.multi_handedness, world, strict=True):
+    marks = result.multi_hand_landmarks
+    world = getattr(result, "multi_hand_world_landmarks", None) or [None] * len(marks)
+    for landmarks, handedness, shape in zip(marks, result.multi_handedness, world, strict=True):
         normalised = np.array([[point.x, point.y] for point in landmarks.landmark], np.float64)
         if normalised.shape != (NUM_KEYPOINTS, 2) or not np.isfinite(normalised).all():
             continue
@@ -341,27 +333,8 @@ def _run(hands: Any, image: np.ndarray, window: Window, long_side: int, fill: np
         says_right = (label.label == "Right") if mirrored else (label.label == "Left")
         score = float(label.score) if says_right else 1.0 - float(label.score)
         found.append(_Found(keypoints, score, cut=_cut(keypoints, window, *image.shape[1::-1]),
-                            landmarks=_world(shape, mirrored)))
+                            landmarks=world_landmarks(shape, mirrored)))
     return found
-
-
-def _world(landmarks: Any, mirrored: bool) -> np.ndarray | None:
-    """MediaPipe's world landmarks of one hand -> [21, 3] metres in the camera's axes (None if
-    absent or not finite); from a mirrored window, mirrored back (x negated)."""
-    if landmarks is None:
-        return None
-    points = np.array([[point.x, point.y, point.z] for point in landmarks.landmark], np.float64)
-    if points.shape != (NUM_KEYPOINTS, 3) or not np.isfinite(points).all():
-        return None
-    if mirrored:
-        points[:, 0] = -points[:, 0]
-    return points
-
-
-def _mean_landmarks(estimates: Sequence[_Found]) -> np.ndarray | None:
-    """The mean world landmarks [21, 3] of those ``estimates`` that have them (None: none)."""
-    shapes = [e.landmarks for e in estimates if e.landmarks is not None]
-    return np.mean(shapes, axis=0) if shapes else None
 
 
 Named = tuple[_Found, str]  # a hand and what found it
@@ -500,7 +473,8 @@ def _consensus(estimates: list[_Found], agreement: float) -> tuple[_Found, int]:
     right = int(sum(estimates[i].p_right >= 0.5 for i in agree))
     return _Found(keypoints[agree].mean(axis=0), p_right, (right, int(agree.size) - right),
                   support=int(agree.size),
-                  landmarks=_mean_landmarks([estimates[i] for i in agree])), int(agree.size)
+                  landmarks=mean_landmarks([estimates[i].landmarks for i in agree])),\
+        int(agree.size)
 
 
 _SKIN_TINT = (1.0, 0.78, 0.66)

@@ -229,25 +229,6 @@ def test_mirrored_photo_other_side():
     np.testing.assert_allclose(hand.box, (500, 200, 700, 350), atol=2.0)
 
 
-def test_world_landmarks_in_the_photo_axes_from_plain_and_mirrored_windows():
-    """The detector's 3D landmarks come back in the photo's own axes whether a window was
-    mirrored or not (x negated back), averaged over the agreeing estimates; a mirrored photo
-    gives them mirrored."""
-    from lisa_hand.data.detect import _world
-
-    image = canvas()
-    marker(image, 300, 200, 200, 150, thumb="left")
-    (hand,) = detect_hands(image, hands_factory=fake())
-    np.testing.assert_allclose(hand.landmarks_3d, world_shape(), atol=1e-12)
-    (mirrored,) = detect_hands(image[:, ::-1], hands_factory=fake())
-    np.testing.assert_allclose(mirrored.landmarks_3d, world_shape(-1.0), atol=1e-12)
-    shape = SimpleNamespace(landmark=[SimpleNamespace(x=x, y=y, z=z) for x, y, z in
-                                      world_shape()])
-    np.testing.assert_array_equal(_world(shape, mirrored=True), world_shape(-1.0))
-    assert _world(None, False) is None
-    assert _world(SimpleNamespace(landmark=shape.landmark[:20]), False) is None
-
-
 def test_two_hands_sorted_left_to_right():
     image = canvas(1200, 600)
     marker(image, 800, 100, 220, 160, thumb="left")   # right hand, on the right
