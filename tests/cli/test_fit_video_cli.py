@@ -77,6 +77,14 @@ def test_track_json_frames(fitted, track):
     np.testing.assert_allclose(times, np.arange(150, 165) / 25.0, atol=1e-3)
     assert (np.diff(times) > 0).all()
     assert [hand["side"] for hand in track["hands"]] == ["right"]
+    # The hand's shape and colour come from a few of its best-seen frames across the 15: the
+    # best-seen one and the best of the other two thirds (it is large in every frame).
+    (record,) = track["hands"]
+    keyframes = [key["index"] for key in record["keyframes"]]
+    assert record["keyframe"]["index"] in keyframes and len(keyframes) == 3
+    assert keyframes == sorted(set(keyframes)) and 150 <= keyframes[0] < keyframes[-1] < 165
+    thirds = [(index - 150) // 5 for index in keyframes]
+    assert thirds == [0, 1, 2]
     for frame in frames:
         (hand,) = frame["hands"]
         assert hand["side"] == "right" and hand["identity"] == 0 and hand["detected"]
@@ -107,6 +115,8 @@ def test_params_overlay_and_metrics(fitted):
     assert code == 0, err
     params = read_params(folder / "params.json")
     assert params.side == "right" and params.pose.shape == (48,)
+    video = params.extra["video"]
+    assert video["keyframe"] in video["keyframes"] and len(video["keyframes"]) == 3
     assert 0.1 < float(params.translation[2]) < 2.0
     capture = cv2.VideoCapture(str(folder / "overlay.mp4"))
     count = 0

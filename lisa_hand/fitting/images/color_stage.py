@@ -62,7 +62,7 @@ from .calibration import ViewCalibration
 from .config import FitImagesConfig
 from .shape_prior import HandSizePrior, ShapeSpace
 from .terms import ViewData, keypoint_l1, keypoint_px
-from .views import ImageView, background_colour, check_views, fit_target
+from .views import ImageView, background_colour, check_moments, check_views, fit_target
 
 __all__ = ["RayPool", "ShapeCode", "template_boxes", "with_mean_codes", "fit_color"]
 
@@ -163,20 +163,21 @@ def _frozen(module: torch.nn.Module) -> Iterator[None]:
             parameter.requires_grad_(flag)
 
 
-def template_boxes(template: Any, views: Sequence[ImageView], hand: HandParams,
-                   margin: float) -> list[Box | None]:
+def template_boxes(template: Any, views: Sequence[ImageView],
+                   hand: HandParams | Sequence[HandParams], margin: float) -> list[Box | None]:
     """For each view without a mask: the box (u0, v0, u1, v1) pixels around the projected
-    template of ``hand`` (pose, translation, betas), grown by ``margin`` of its size on each
-    side; None for the views with a mask."""
+    template of ``hand`` (pose, translation, betas; a sequence: each view's hand), grown by
+    ``margin`` of its size on each side; None for the views with a mask."""
     device = views[0].rgb.device
+    hands = [hand] * len(views) if isinstance(hand, HandParams) else list(hand)
     boxes: list[Box | None] = []
-    with torch.no_grad():
-        vertices = template.forward(hand.pose[None].to(device), hand.betas[None].to(device),
-                                    hand.translation[None].to(device)).vertices[0]
-    for view in views:
+    for view, one in zip(views, hands, strict=True):
         if view.mask is not None:
             boxes.append(None)
             continue
+        with torch.no_grad():
+            vertices = template.forward(one.pose[None].to(device), one.betas[None].to(device),
+                                        one.translation[None].to(device)).vertices[0]
         pixels, _ = view.camera.project(vertices)
         low, high = pixels.amin(0), pixels.amax(0)
         grow = margin * (high - low)
@@ -254,16 +255,18 @@ class ShapeCode:
             self.value.copy_(self.space.clamp(self.value, self.margin))
 
 
-def _unknowns(start: HandParams, device: torch.device, config: FitImagesConfig
+def _unknowns(starts: Sequence[HandParams], device: torch.device, config: FitImagesConfig
               ) -> dict[str, torch.Tensor]:
     """The stage's unknowns on ``device`` but the shape code, with gradients (the betas only
-    with a rate)."""
+    with a rate): pose [M, 48] and translation [M, 3] of each moment's hand, the first's betas
+    and colour code."""
     def free(value: torch.Tensor, flag: bool = True) -> torch.Tensor:
         return value.to(device).float().clone().requires_grad_(flag)
 
-    return {"pose": free(start.pose), "translation": free(start.translation),
-            "betas": free(start.betas, config.color_betas_lr > 0),
-            "color_code": free(start.color_code)}
+    return {"pose": free(torch.stack([hand.pose.to(device) for hand in starts])),
+            "translation": free(torch.stack([hand.translation.to(device) for hand in starts])),
+            "betas": free(starts[0].betas, config.color_betas_lr > 0),
+            "color_code": free(starts[0].color_code)}
 
 
 def _optimizer(unknowns: dict[str, torch.Tensor], shape: ShapeCode,
@@ -286,17 +289,20 @@ class _Renderer:
     loss."""
 
     def __init__(self, model: Any, views: Sequence[ImageView], template: Any,
-                 config: FitImagesConfig, start: HandParams) -> None:
+                 config: FitImagesConfig, starts: Sequence[HandParams],
+                 moments: Sequence[int]) -> None:
         device = views[0].rgb.device
         self.model, self.template, self.config = model, template, config
+        self.moment = torch.tensor(list(moments), device=device)  # [C] each view's moment
+        self.num_moments = len(starts)
         self.generator = torch.Generator().manual_seed(config.seed + 1)
         self.render_generator = torch.Generator(device=device).manual_seed(config.seed + 2)
         self.data = ViewData(views, config.coverage_pixels, self.generator)
         self.mean_fingers = prior_mean_fingers(config.prior_pose, device)
         self.size_prior = HandSizePrior.from_template(template).for_keypoints(
             self.data.num_visible)
-        self.pool = RayPool(views, config.band_px, template_boxes(template, views, start,
-                                                                  config.no_mask_margin))
+        self.pool = RayPool(views, config.band_px, template_boxes(
+            template, views, [starts[m] for m in moments], config.no_mask_margin))
         self.density = LaplaceDensity(beta_init=float(model.beta), beta_min=0.0).to(device)
         self.density.requires_grad_(False)
         self.gain = model.gain.to(device).float()
@@ -306,42 +312,81 @@ class _Renderer:
         self.calibration = ViewCalibration(len(views), config.view_gain_std,
                                            config.view_bias_std, calibrate_views, device)
 
-    def terms(self, unknowns: dict[str, torch.Tensor]
-              ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
-        """unknowns: pose, translation, betas, shape_code, color_code -> ({"col", "reg",
-        "joints", "mask", "calibration"} scalars, keypoint pixels [1, C, 21, 2]); the rays are
-        calibrated with their view's response (``self.calibration``)."""
-        config, field_model = self.config, self.model.field
-        pose, translation, betas = (unknowns[k] for k in ("pose", "translation", "betas"))
-        shape_code, color_code = unknowns["shape_code"], unknowns["color_code"]
-        rest_joints = self.template.rest_joints(betas[None])
-        state = field_model.prepare(pose[None], translation[None], rest_joints,
-                                    shape_code[None], color_code[None])
+    def _moment_rays(self, rays: dict[str, torch.Tensor]) -> tuple[dict[str, torch.Tensor],
+                                                                   list[int]]:
+        """The rays grouped by their view's moment -> (the rays reordered, the count of each
+        moment's)."""
+        if self.num_moments == 1:
+            return rays, [rays["view"].numel()]
+        moment = self.moment[rays["view"]]
+        order = torch.argsort(moment, stable=True)
+        counts = torch.bincount(moment, minlength=self.num_moments).tolist()
+        return {name: value[order] for name, value in rays.items()}, counts
+
+    def _render(self, state: Any, rays: dict[str, torch.Tensor]
+                ) -> tuple[torch.Tensor, torch.Tensor]:
+        """rays (one moment's) rendered through the hand ``state`` -> rgb [R, 3] (shaded
+        when the model is), opacity [R]."""
+        field_model = self.model.field
         low, high = region_bounds(state, field_model)
-        rays = self.pool.sample(config.num_rays, config.mask_fraction, self.generator)
         near, far, hit = ray_box_bounds(rays["origins"], rays["directions"], low[0], high[0])
         hit = hit & (far > near)
         sdf_fn = field_model.sdf_fn(state)
         out = render_rays(field_model.field_fn(state), sdf_fn, rays["origins"],
-                          rays["directions"], near, far, config.render, self.density, hit=hit,
-                          background=self.gain.new_zeros(3), generator=self.render_generator)
+                          rays["directions"], near, far, self.config.render, self.density,
+                          hit=hit, background=self.gain.new_zeros(3),
+                          generator=self.render_generator)
         rgb = out.rgb
         if self.model.shading is not None:  # a model trained with headlight shading
             normals = surface_normals(sdf_fn, rays["origins"], rays["directions"], out.depth,
                                       out.opacity)
             rgb = self.model.shading(rgb, normals, rays["directions"], rays["rotations"])
+        return rgb, out.opacity
+
+    def keypoint_pixels(self, pose: torch.Tensor, translation: torch.Tensor,
+                        betas: torch.Tensor) -> tuple[torch.Tensor, Any]:
+        """Each moment's pose [M, 48] and translation [M, 3], the betas [10] -> (the template's
+        keypoints in each view at its moment's pose [1, C, 21, 2] pixels, the posed
+        template [M])."""
+        posed = self.template.forward(pose, betas[None].expand(pose.shape[0], -1), translation)
+        pixels, _ = self.data.project(posed.keypoints)  # [M, C, 21, 2]
+        views = torch.arange(self.moment.numel(), device=pixels.device)
+        return pixels[self.moment, views][None], posed
+
+    def terms(self, unknowns: dict[str, torch.Tensor]
+              ) -> tuple[dict[str, torch.Tensor], torch.Tensor]:
+        """unknowns: pose [M, 48], translation [M, 3] (a moment's each), betas, shape_code,
+        color_code -> ({"col", "reg", "joints", "mask", "calibration"} scalars, keypoint pixels
+        [1, C, 21, 2]); each ray goes through its view's moment's hand, calibrated with its
+        view's response (``self.calibration``)."""
+        config, field_model = self.config, self.model.field
+        pose, translation, betas = (unknowns[k] for k in ("pose", "translation", "betas"))
+        shape_code, color_code = unknowns["shape_code"], unknowns["color_code"]
+        rest_joints = self.template.rest_joints(betas[None])
+        rays, counts = self._moment_rays(self.pool.sample(config.num_rays, config.mask_fraction,
+                                                          self.generator))
+        parts, begin = [], 0
+        for moment, count in enumerate(counts):
+            if count == 0:
+                continue
+            state = field_model.prepare(pose[moment:moment + 1],
+                                        translation[moment:moment + 1], rest_joints,
+                                        shape_code[None], color_code[None])
+            parts.append(self._render(state, {name: value[begin:begin + count]
+                                              for name, value in rays.items()}))
+            begin += count
+        rgb, opacity = (torch.cat(values) for values in zip(*parts, strict=True))
         gain, bias = self.calibration.for_rays(self.gain, self.bias, rays["view"])
-        prediction = calibrate(rgb, out.opacity, gain, bias, rays["background"])
+        prediction = calibrate(rgb, opacity, gain, bias, rays["background"])
         terms = {"col": color_loss(prediction, rays["target"]),
                  "reg": latent_loss(shape_code[None], color_code[None])}
-        posed = self.template.forward(pose[None], betas[None], translation[None])
-        pixels, _ = self.data.project(posed.keypoints)
+        pixels, posed = self.keypoint_pixels(pose, translation, betas)
         prior = hand_prior(config, self.mean_fingers, size_prior=self.size_prior)
-        terms["joints"] = (keypoint_l1(pixels, self.data) + prior(
-            HandTerms(pose=pose[None], betas=betas[None], joints=posed.joints)))[0]
+        terms["joints"] = keypoint_l1(pixels, self.data)[0] + prior(HandTerms(
+            pose=pose, betas=betas[None].expand(pose.shape[0], -1), joints=posed.joints)).mean()
         has_mask = rays["has_mask"]
         if config.mask_weight > 0 and bool(has_mask.any()):
-            opacity = out.opacity[has_mask].clamp(1e-5, 1.0 - 1e-5)
+            opacity = opacity[has_mask].clamp(1e-5, 1.0 - 1e-5)
             terms["mask"] = F.binary_cross_entropy(opacity, rays["in_mask"][has_mask].float())
         else:
             terms["mask"] = prediction.new_zeros(())
@@ -352,10 +397,12 @@ class _Renderer:
 def fit_color(
     model: Any,
     views: Sequence[ImageView],
-    start: HandParams,
+    start: HandParams | Sequence[HandParams],
     config: FitImagesConfig | None = None,
     template: Any = None,
     progress: bool = False,
+    *,
+    moments: Sequence[int] | None = None,
 ) -> tuple[HandParams, StageReport]:
     """The colour stage: pose, translation, betas, shape and colour codes from the colour loss
     (see the module docstring).
@@ -363,7 +410,13 @@ def fit_color(
     model: a :class:`lisa_hand.model.trained.TrainedModel` with colour, on the views' device.
     views: as for :func:`lisa_hand.fitting.images.keypoint_stage.fit_keypoints`.
     start: the hand to start from (a right hand: pose, translation, betas, and codes of this
-        model, e.g. ``with_mean_codes(keypoint_hand, model)``).
+        model, e.g. ``with_mean_codes(keypoint_hand, model)``); with ``moments``, one hand a
+        moment (their poses and translations; the first's betas and codes).
+    moments: the moment each view shows (:func:`~lisa_hand.fitting.images.views.check_moments`;
+        None: one). Each moment has its own pose and translation; the shape and colour codes
+        (and the betas) are one, fitted to every view: a video's keyframes. The returned hand
+        is the first moment's; ``hand.extra["moments"]`` holds the others' fitted ``pose`` and
+        ``translation`` (lists).
     -> (hand, report): the fitted right hand (rest_joints ``template.rest_joints(betas)``,
     ``model=str(model.source)``) and the :class:`StageReport` ("color"): history records with
     "energy" (the weighted total ``L``), its unweighted terms "col", "reg", "joints", "mask",
@@ -379,12 +432,17 @@ def fit_color(
     if not model.has_color:
         raise ValueError(f"model {model.source}: it has no colour (a geometry-only prior); "
                          "fitting to images needs a model trained on images (lisa train)")
-    _check_start(model, start)
+    moments = check_moments(moments, len(views))
+    starts = [start] if isinstance(start, HandParams) else list(start)
+    if len(starts) != max(moments) + 1:
+        raise ValueError(f"{len(starts)} start hand(s) for {max(moments) + 1} moment(s)")
+    for hand in starts:
+        _check_start(model, hand)
     device = views[0].rgb.device
     template = template_on(template, device)
-    renderer = _Renderer(model, views, template, config, start)
-    unknowns = _unknowns(start, device, config)
-    shape = ShapeCode(model, start.shape_code, config, device)
+    renderer = _Renderer(model, views, template, config, starts, moments)
+    unknowns = _unknowns(starts, device, config)
+    shape = ShapeCode(model, starts[0].shape_code, config, device)
     optimizer = _optimizer(unknowns, shape, renderer.calibration, config)
     schedule = lr_schedule(optimizer, config.color_iters, config.final_lr_fraction)
     history: list[HistoryRecord] = []
@@ -416,26 +474,30 @@ def fit_color(
     if bar is not None:
         bar.close()
     unknowns["shape_code"] = shape.code()
-    hand, report = _finish(model, template, renderer.data, unknowns, history, began)
+    hand, report = _finish(model, renderer, unknowns, history, began)
     if renderer.calibration.enabled:
         hand.extra["view_calibration"] = renderer.calibration.to_dict(
             [view.name for view in views], renderer.gain, renderer.bias)
     return hand, report
 
 
-def _finish(model: Any, template: Any, data: ViewData, unknowns: dict[str, torch.Tensor],
+def _finish(model: Any, renderer: _Renderer, unknowns: dict[str, torch.Tensor],
             history: list[HistoryRecord], began: float) -> tuple[HandParams, StageReport]:
-    """The fitted hand and the stage's report."""
+    """The fitted hand (the first moment's) and the stage's report."""
     fitted = {name: value.detach() for name, value in unknowns.items()}
     with torch.no_grad():
-        rest_joints = template.rest_joints(fitted["betas"][None])[0]
-        posed = template.forward(fitted["pose"][None], fitted["betas"][None],
-                                 fitted["translation"][None])
-        error = float(keypoint_px(data.project(posed.keypoints)[0], data)[0])
-    hand = HandParams(pose=fitted["pose"], translation=fitted["translation"],
+        rest_joints = renderer.template.rest_joints(fitted["betas"][None])[0]
+        pixels, _ = renderer.keypoint_pixels(fitted["pose"], fitted["translation"],
+                                             fitted["betas"])
+        error = float(keypoint_px(pixels, renderer.data)[0])
+    hand = HandParams(pose=fitted["pose"][0], translation=fitted["translation"][0],
                       rest_joints=rest_joints, shape_code=fitted["shape_code"],
                       color_code=fitted["color_code"], betas=fitted["betas"],
                       model=str(model.source))
+    if renderer.num_moments > 1:
+        hand.extra["moments"] = [
+            {"pose": fitted["pose"][m].tolist(), "translation": fitted["translation"][m].tolist()}
+            for m in range(1, renderer.num_moments)]
     loss = float(history[-1]["energy"]) if history else float("nan")
     return hand, StageReport(stage="color", seconds=time.perf_counter() - began, loss=loss,
                              energies=[loss], history=history, keypoint_error_px=error)

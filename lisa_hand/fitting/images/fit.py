@@ -60,7 +60,7 @@ from .color_stage import fit_color, with_mean_codes
 from .config import FitImagesConfig
 from .guard import GuardReport, guard_mesh, surface_guard
 from .keypoint_stage import fit_keypoints, keypoint_errors, mean_keypoint_error
-from .views import ImageView, check_views, mirror_view
+from .views import ImageView, check_moments, check_views, mirror_view
 
 __all__ = ["FitImagesResult", "fit_images"]
 
@@ -112,6 +112,36 @@ class FitImagesResult:
     surface_resolution: int | None = None
 
 
+def _moment_hands(fit: ImageFit) -> tuple[list[HandParams], StageReport]:
+    """The keypoint stage of each moment (:func:`_keypoint_hand` on its views) -> (the right
+    hands, with one skeleton: the moments' mean betas; the first moment's report, its
+    keypoint error over every view)."""
+    starts = fit.start if isinstance(fit.start, list) else [fit.start]
+    hands, reports = [], []
+    for moment, start in enumerate(starts):
+        hand, report = _keypoint_hand(_moment_views(fit, moment), fit.config, fit.template,
+                                      fit.progress, start, fit.side)
+        hands.append(hand)
+        reports.append(report)
+    if len(hands) == 1:
+        return hands, reports[0]
+    betas = torch.stack([hand.betas for hand in hands]).mean(0)
+    with torch.no_grad():
+        rest_joints = fit.template.rest_joints(betas[None])[0]
+    hands = [replace(hand, betas=betas, rest_joints=rest_joints) for hand in hands]
+    errors = [error for moment, hand in enumerate(hands)
+              for error in keypoint_errors(fit.template, _moment_views(fit, moment),
+                                           hand).values()]
+    report = replace(reports[0], keypoint_error_px=float(np.mean(errors)) if errors
+                     else math.nan)
+    return hands, report
+
+
+def _moment_views(fit: ImageFit, moment: int) -> list[ImageView]:
+    """The views of ``moment`` (:attr:`ImageFit.moments`)."""
+    return [view for view, m in zip(fit.views, fit.moments, strict=True) if m == moment]
+
+
 def _keypoint_hand(views: list[ImageView], config: FitImagesConfig, template: Any,
                    progress: bool, start: HandParams | None, side: str
                    ) -> tuple[HandParams, StageReport]:
@@ -144,7 +174,8 @@ def fit_images(
     *,
     side: str = "right",
     template: Any = None,
-    start: HandParams | None = None,
+    start: HandParams | Sequence[HandParams] | None = None,
+    moments: Sequence[int] | None = None,
 ) -> FitImagesResult:
     """Fit LISA to calibrated views: the keypoint stage then the colour stage (see the module
     docstring).
@@ -160,7 +191,14 @@ def fit_images(
     start: a keypoint-stage hand of these views (:func:`fit_keypoints`, which depends on the
         views and the template only; a left hand's mirrored back, ``start.side == side``) to
         skip that stage and reuse it, e.g. for several models. Its pose, translation and betas
-        are used; the codes start from the model's mean.
+        are used; the codes start from the model's mean. With ``moments``: one a moment, or
+        None.
+    moments: the moment each view shows (:func:`~lisa_hand.fitting.images.views.check_moments`;
+        None: one, every view at one pose). Views of several moments (a video's keyframes)
+        share the shape code, skeleton and colour code and have a pose and translation a
+        moment: the keypoint stage runs on each moment's views (the skeleton is the mean of
+        their betas), the colour stage on all views at once; the returned hand, the guard and
+        the per-view keypoint errors are the first moment's.
     -> :class:`FitImagesResult`; ``params.model`` is ``model.source``, ``params.side`` is
     ``side``.
     """
@@ -170,6 +208,8 @@ def fit_images(
     if side not in ("right", "left"):
         raise ValueError(f"side must be 'right' or 'left', got {side!r}")
     views = check_views(views)
+    moments = check_moments(moments, len(views))
+    start = _starts(start, max(moments) + 1)
     if config.color_iters > 0 and not model.has_color:
         raise ValueError(f"model {model.source}: it has no colour (a geometry-only prior); "
                          "fitting to images needs a model trained on images (lisa train), or "
@@ -180,7 +220,7 @@ def fit_images(
         views = [mirror_view(view) for view in views]
     fit = ImageFit(model=model, views=views, config=config,
                    template=template_on(template, device), progress=progress, side=side,
-                   start=start)
+                   start=start, moments=moments)
     start_time = time.perf_counter()
     laps: dict[str, float] = {}
     with cpu_threads(config.num_threads):
@@ -191,8 +231,22 @@ def fit_images(
     guarded = state.guarded
     if guarded.fixed_shape is not None:
         reports["color_fixed_shape"] = guarded.fixed_shape
-    return _result(guarded, reports, views, fit.template, config, seconds,
+    return _result(guarded, reports, _moment_views(fit, 0), fit.template, config, seconds,
                    laps.get("keypoints", 0.0), side)
+
+
+def _starts(start: Any, num_moments: int) -> HandParams | list[HandParams | None] | None:
+    """``start`` of :func:`fit_images` checked against the number of moments: as given for
+    one, a list of one (or None) a moment for several."""
+    if num_moments == 1:
+        if isinstance(start, list | tuple):
+            raise ValueError(f"start holds {len(start)} hands, but the views show one moment")
+        return start
+    if start is None:
+        return [None] * num_moments
+    if not isinstance(start, list | tuple) or len(start) != num_moments:
+        raise ValueError(f"start must hold one hand a moment ({num_moments})")
+    return list(start)
 
 
 @dataclass
@@ -224,32 +278,35 @@ class ImageFit:
     template: Any
     progress: bool
     side: str
-    start: HandParams | None = None
+    start: HandParams | list[HandParams | None] | None = None
+    moments: tuple[int, ...] = ()
+    """Each view's moment (:func:`fit_images`); ``start`` a list then, one a moment."""
 
 
 @dataclass(frozen=True)
 class ImageState:
     """What one image-fit stage hands the next: ``guarded``, the hand so far with what the
-    guard said of it (None before 'keypoints'), and ``fitted``, the colour stage's hand
-    before the guard judged it (None before 'color')."""
+    guard said of it (None before 'keypoints'); ``fitted``, the colour stage's hand
+    before the guard judged it (None before 'color'); ``others``: the keypoint stage's hands of
+    the further moments (:attr:`ImageFit.moments`; empty for one)."""
 
     guarded: _Guarded | None = None
     fitted: HandParams | None = None
+    others: tuple[HandParams, ...] = ()
 
 
 def keypoints(state: ImageState, fit: ImageFit) -> tuple[ImageState, StageReport]:
     """'keypoints': the template's pose, translation and betas from the 2D keypoints and the
     masks (or ``fit.start`` reused), with the model's mean codes."""
-    hand, report = _keypoint_hand(fit.views, fit.config, fit.template, fit.progress, fit.start,
-                                  fit.side)
-    hand = with_mean_codes(hand, fit.model)
-    return replace(state, guarded=_Guarded(hand, start=hand)), report
+    hands, report = _moment_hands(fit)
+    hand, *others = (with_mean_codes(one, fit.model) for one in hands)
+    return replace(state, guarded=_Guarded(hand, start=hand), others=tuple(others)), report
 
 
 def color(state: ImageState, fit: ImageFit) -> tuple[ImageState, StageReport]:
     """'color': pose, shape and colour codes on the LISA field by volume rendering."""
-    fitted, report = fit_color(fit.model, fit.views, state.guarded.hand, fit.config,
-                               fit.template, fit.progress)
+    fitted, report = fit_color(fit.model, fit.views, [state.guarded.hand, *state.others],
+                               fit.config, fit.template, fit.progress, moments=fit.moments)
     return replace(state, guarded=_Guarded(fitted, start=state.guarded.start),
                    fitted=fitted), report
 
@@ -257,8 +314,7 @@ def color(state: ImageState, fit: ImageFit) -> tuple[ImageState, StageReport]:
 def guard(state: ImageState, fit: ImageFit) -> tuple[ImageState, StageReport]:
     """'guard': the colour stage's surface judged against its start, and replaced when it
     fails (:func:`_guard`)."""
-    guarded = _guard(fit.model, fit.views, state.guarded.start, state.fitted, fit.config,
-                     fit.template, fit.progress)
+    guarded = _guard(fit, state.guarded.start, state.fitted, state.others)
     return replace(state, guarded=guarded), StageReport(
         stage="guard", seconds=guarded.seconds, notes=list(guarded.notes),
         loss=math.nan if guarded.guard is None else guarded.guard.area_ratio)
@@ -276,14 +332,16 @@ def _order(config: FitImagesConfig) -> tuple[str, ...]:
     return tuple(name for name in config.stages if name == "keypoints")
 
 
-def _guard(model: Any, views: list[ImageView], start: HandParams, fitted: HandParams,
-           config: FitImagesConfig, template: Any, progress: bool) -> _Guarded:
+def _guard(fit: ImageFit, start: HandParams, fitted: HandParams,
+           others: Sequence[HandParams] = ()) -> _Guarded:
     """The surface guard after the colour stage (:attr:`FitImagesConfig.guard`), in order: the
     fitted hand; the fitted hand with its change of pose and shape shrunk to each fraction of
     ``config.guard_shrink`` (:func:`_shrunk`, colour kept); the colour stage again with the
     shape code and the skeleton fixed at the start (pose and colour only,
     :attr:`_Guarded.fixed_shape`); the start's geometry with that fit's colour code. The
-    first that passes is returned."""
+    first that passes is returned. ``others``: the further moments' start hands (the
+    refit's)."""
+    model, config, template = fit.model, fit.config, fit.template
     if not config.guard:
         return _Guarded(fitted, start=start, notes=["the surface guard is off (guard=False): "
                                                     "the colour stage's surface was not "
@@ -312,8 +370,7 @@ def _guard(model: Any, views: list[ImageView], start: HandParams, fitted: HandPa
                                 f"{100 * fraction:g} %, which passed")
             break
     if not result.guard.passed:
-        fallback, result.fixed_shape = _fixed_shape_fit(model, views, start, config, template,
-                                                        progress)
+        fallback, result.fixed_shape = _fixed_shape_fit(fit, [start, *others])
         second = result.attempts["fixed_shape"] = judge("fixed_shape", fallback)
         if second.passed:
             result.hand, result.guard, result.fallback = fallback, second, "fixed_shape"
@@ -365,13 +422,14 @@ def _calibration_extra(hand: HandParams) -> dict[str, Any]:
     return {"view_calibration": hand.extra["view_calibration"]}
 
 
-def _fixed_shape_fit(model: Any, views: list[ImageView], start: HandParams,
-                     config: FitImagesConfig, template: Any, progress: bool
+def _fixed_shape_fit(fit: ImageFit, starts: list[HandParams]
                      ) -> tuple[HandParams, StageReport]:
-    """The colour stage with the shape code and skeleton fixed at the start's -> (its hand,
-    its report, named "color_fixed_shape", as are its history records)."""
-    fixed = replace(config, shape_fit="fixed", color_betas_lr=0.0)
-    hand, report = fit_color(model, views, start, fixed, template, progress)
+    """The colour stage with the shape code and skeleton fixed at the start's (``starts``: a
+    hand a moment) -> (its hand, its report, named "color_fixed_shape", as are its history
+    records)."""
+    fixed = replace(fit.config, shape_fit="fixed", color_betas_lr=0.0)
+    hand, report = fit_color(fit.model, fit.views, starts, fixed, fit.template, fit.progress,
+                             moments=fit.moments)
     report.stage = "color_fixed_shape"
     for record in report.history:
         record["stage"] = "color_fixed_shape"

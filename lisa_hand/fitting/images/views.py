@@ -30,6 +30,7 @@ views (:func:`mirror_view`) and mirrored back (:func:`lisa_hand.fitting.sides.mi
 
 from __future__ import annotations
 
+import numbers
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -48,6 +49,7 @@ __all__ = [
     "keypoints_outside",
     "read_views",
     "check_views",
+    "check_moments",
     "input_notes",
     "fit_target",
     "background_colour",
@@ -291,6 +293,27 @@ def check_views(views: Sequence[ImageView]) -> list[ImageView]:
     if not any(view.mask is not None or view.has_keypoints for view in views):
         raise ValueError("no view has a mask or keypoints: the hand cannot be located")
     return views
+
+
+def check_moments(moments: Sequence[int] | None, num_views: int) -> tuple[int, ...]:
+    """The moment each of ``num_views`` views shows (None: all one moment, 0), checked: one
+    integer a view, every moment from 0 to the largest shown (else ValueError).
+
+    Views of one moment show the hand in one pose; views of several moments (a video's
+    keyframes) show it in several poses, with one shape, skeleton and colour."""
+    if moments is None:
+        return (0,) * num_views
+    moments = tuple(moments)
+    if len(moments) != num_views:
+        raise ValueError(f"moments has {len(moments)} entries for {num_views} views")
+    if any(isinstance(m, bool) or not isinstance(m, numbers.Integral) or m < 0
+           for m in moments):
+        raise ValueError(f"moments must be integers >= 0, got {list(moments)}")
+    moments = tuple(int(m) for m in moments)
+    missing = sorted(set(range(max(moments) + 1)) - set(moments))
+    if missing:
+        raise ValueError(f"moments {missing} have no view: number the moments 0, 1, 2...")
+    return moments
 
 
 def input_notes(views: Sequence[ImageView]) -> list[str]:

@@ -42,6 +42,11 @@ def _rows(values: np.ndarray, digits: int) -> list:
     return np.round(np.asarray(values, np.float64), digits).tolist()
 
 
+def _moment(fit: Any, row: int) -> dict[str, Any]:
+    """A frame's ``index`` in the clip and ``time_s``."""
+    return {"index": int(fit.indices[row]), "time_s": round(float(fit.times[row]), 4)}
+
+
 def track_record(fit: Any) -> dict[str, Any]:
     """What ``track.json`` holds: the clip (``video``, ``fps``, ``width``, ``height``, original
     pixels), the camera (``K`` original pixels, its ``source``), ``hands`` (each one's
@@ -74,8 +79,8 @@ def track_record(fit: Any) -> dict[str, Any]:
                       "order)", "keypoints_2d": "px of the clip"},
             "hands": [{"identity": hand.track.identity, "side": hand.side,
                        "folder": hand_folder(fit, hand),
-                       "keyframe": {"index": int(fit.indices[hand.keyframe_row]),
-                                    "time_s": round(float(fit.times[hand.keyframe_row]), 4)}}
+                       "keyframe": _moment(fit, hand.keyframe_row),
+                       "keyframes": [_moment(fit, row) for row in sorted(hand.keyframe.rows)]}
                       for hand in fit.hands],
             "frames": frames}
 

@@ -91,7 +91,10 @@ class FitVideoConfig:
     """Settings of :func:`lisa_hand.fitting.video.fit.fit_video`."""
 
     keyframe: FitPhotoConfig = field(default_factory=FitPhotoConfig)
-    """The fit of each hand's keyframe (shape, skeleton, colour; a photo fit)."""
+    """The fit of each hand's keyframes (shape, skeleton, colour; a photo fit)."""
+    keyframes: int = 3
+    """At most this many keyframes a hand (the best-seen frame, and the best-seen of each
+    other part of the clip), fitted together: one shape, skeleton and colour, a pose each."""
     motion: MotionConfig = field(default_factory=MotionConfig)
     """The per-frame pose fit."""
     max_side: int = 1280
@@ -138,7 +141,8 @@ class FitVideoConfig:
             raise TypeError(f"keyframe must be a FitPhotoConfig, got {type(self.keyframe)}")
         if not isinstance(self.motion, MotionConfig):
             raise TypeError(f"motion must be a MotionConfig, got {type(self.motion)}")
-        for name in ("max_side", "max_hands", "min_frames", "overlay_faces", "overlay_max_side",
+        for name in ("keyframes", "max_side", "max_hands", "min_frames", "overlay_faces",
+                     "overlay_max_side",
                      "overlay_supersample",
                      "report_frames", "num_threads"):
             value = getattr(self, name)

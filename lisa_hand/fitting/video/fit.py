@@ -9,12 +9,15 @@
    (:class:`lisa_hand.data.detect.VideoHandDetector`) and **join** them into tracks
    (:func:`lisa_hand.fitting.video.tracks.build_tracks`: one identity a hand, short dropouts
    bridged, a hand that leaves and comes back picked up again).
-3. Per track, **one hand**: its keyframe fitted as a photo
-   (:mod:`lisa_hand.fitting.video.keyframe`): one shape code, skeleton and colour code for the
-   whole clip.
+3. Per track, **one skeleton**: the keypoint stage on its best-seen frame
+   (:func:`lisa_hand.fitting.video.keyframe.keyframe_start`), whose pose there starts the
+   motion.
 4. Per track, **the motion**: pose and translation in every frame where the hand is present,
    fitted in windows with a motion prior (:func:`lisa_hand.fitting.video.motion.fit_motion`);
-   ``independent``: each frame alone, the reference.
+   ``independent``: each frame alone, the reference. Then **one shape and colour**: its
+   keyframes (the best-seen frame and the best of other parts of the clip, ``keyframes``)
+   fitted as photos of one hand at their fitted poses
+   (:func:`lisa_hand.fitting.video.keyframe.fit_keyframe`).
 5. The files (:mod:`lisa_hand.fitting.video.artefacts`): written all or nothing.
 
 A left hand is fitted as the mirror image of a right one (its keypoints mirrored about the
@@ -179,21 +182,31 @@ def _right(pose: torch.Tensor, translation: torch.Tensor, side: str
 
 
 def _fit_track(model: Any, video: Any, track: HandTrack, side: str, camera: Any,
-               times: np.ndarray, frames: dict[int, np.ndarray], key_row: int,
+               times: np.ndarray, frames: dict[int, np.ndarray], key_rows: list[int],
                config: FitVideoConfig, template: Any, progress: bool) -> tuple[Any, Any]:
-    """The keyframe fit and the motion of one track -> (KeyframeFit, MotionResult of the
-    hand's side)."""
+    """One track: the skeleton and first pose from the best-seen keyframe (``key_rows[0]``),
+    the motion, then the shape and colour from every keyframe at its fitted pose ->
+    (KeyframeFit, MotionResult of the hand's side)."""
     from ...skeleton import mirror_points, mirror_pose
     from ..sides import mirror_hand
-    from .keyframe import choose_keyframe, fit_keyframe, frame_photo, segment_anchor
+    from .keyframe import (
+        choose_keyframe,
+        fit_keyframe,
+        frame_photo,
+        keyframe_start,
+        keyframe_views,
+        segment_anchor,
+    )
     from .motion import fit_motion
 
     info = video.info
     photo_of = {row: frame_photo(info.path, rgb, (info.width, info.height), info.scale)
                 for row, rgb in frames.items()}
-    keyframe = fit_keyframe(model, photo_of[key_row], camera, track, key_row, side,
-                            config.keyframe, template, progress, config.min_hand_px)
-    right = mirror_hand(keyframe.params) if side == "left" else keyframe.params
+    views = keyframe_views(photo_of, camera, track, key_rows, side, config.keyframe,
+                           config.min_hand_px)
+    start = keyframe_start(views[0], side, config.keyframe, template, progress)
+    key_row = key_rows[0]
+    right = mirror_hand(start) if side == "left" else start
     segments = []
     for first, end in _segments(track, config.independent):
         if first <= key_row < end:
@@ -212,6 +225,13 @@ def _fit_track(model: Any, video: Any, track: HandTrack, side: str, camera: Any,
                          translation=mirror_points(torch.from_numpy(motion.translation)).numpy(),
                          keypoints_3d=mirror_points(torch.from_numpy(motion.keypoints_3d))
                          .numpy())
+    fitted = [0] + [number for number, row in enumerate(key_rows)
+                    if number and np.isfinite(motion.pose[row]).all()]
+    starts = [start] + [replace(start, pose=torch.from_numpy(motion.pose[key_rows[n]]).float(),
+                                translation=torch.from_numpy(motion.translation[key_rows[n]])
+                                .float()) for n in fitted[1:]]
+    keyframe = fit_keyframe(model, [views[n] for n in fitted], starts,
+                            [key_rows[n] for n in fitted], side, config.keyframe, progress)
     return keyframe, motion
 
 
@@ -222,18 +242,19 @@ def _project(camera: Any, points: np.ndarray, scale: float) -> np.ndarray:
     return homogeneous[..., :2] / np.maximum(homogeneous[..., 2:], 1e-6) / scale
 
 
-def _anchor_rows(tracks: Sequence[HandTrack], size: tuple[int, int], independent: bool
-                 ) -> dict[int, list[int]]:
-    """Per track, the rows whose frames the fit needs: its keyframe first, then the anchor of
-    each further segment."""
-    from .keyframe import choose_keyframe
+def _anchor_rows(tracks: Sequence[HandTrack], size: tuple[int, int], config: FitVideoConfig
+                 ) -> dict[int, tuple[list[int], list[int]]]:
+    """Per track, the rows whose frames the fit needs: (its keyframes, the best-seen first;
+    the anchor of each further segment)."""
+    from .keyframe import choose_keyframe, choose_keyframes
 
     rows = {}
     for track in tracks:
-        key = choose_keyframe(track, *size)
+        keys = choose_keyframes(track, *size, config.keyframes)
         others = [choose_keyframe(track, *size, range(first, end))
-                  for first, end in _segments(track, independent) if not first <= key < end]
-        rows[track.identity] = [key] + others
+                  for first, end in _segments(track, config.independent)
+                  if not first <= keys[0] < end]
+        rows[track.identity] = (keys, others)
     return rows
 
 
@@ -337,22 +358,28 @@ def _fit_hands(model: Any, video: Any, tracks: list[HandTrack], side: str, camer
 
     info = video.info
     template = template_on(None, torch.device("cpu"))
-    anchors = _anchor_rows(tracks, info.size, config.independent)
-    frames = _frames_at(video, {row for rows in anchors.values() for row in rows}, kept)
+    anchors = _anchor_rows(tracks, info.size, config)
+    frames = _frames_at(video, {row for keys, others in anchors.values()
+                                for row in keys + others}, kept)
     hands = []
     for track in tracks:
         chosen = track.side if side == "auto" else side
-        key_row = anchors[track.identity][0]
-        log(f"hand {track.identity} ({chosen}): keyframe at {times[key_row]:.2f} s")
+        keys, others = anchors[track.identity]
+        key_row = keys[0]
+        log(f"hand {track.identity} ({chosen}): keyframe(s) at "
+            + ", ".join(f"{times[row]:.2f}" for row in sorted(keys)) + " s")
         keyframe, motion = _fit_track(model, video, track, chosen, camera, times,
-                                      {row: frames[row] for row in anchors[track.identity]},
-                                      key_row, config, template, progress)
+                                      {row: frames[row] for row in keys + others},
+                                      keys, config, template, progress)
         notes += keyframe.notes
         params = keyframe.params
         params.model = _model_label(model_path)
         params.extra["video"] = {"path": str(info.path), "identity": track.identity,
                                  "keyframe": {"index": int(indices[key_row]),
-                                              "time_s": float(times[key_row])}}
+                                              "time_s": float(times[key_row])},
+                                 "keyframes": [{"index": int(indices[row]),
+                                                "time_s": float(times[row])}
+                                               for row in sorted(keys)]}
         params.extra["config"] = config_to_dict(config)  # the settings that fitted it
         hands.append(TrackedHand(
             track=track, params=params, keyframe_row=key_row, keyframe=keyframe,
