@@ -23,6 +23,11 @@ def _mean(values) -> float:
 
 
 
+def _clip_mean(result: VideoBenchmark, mode: str, name: str) -> float:
+    """The mean of a rendered clips' figure of ``mode``."""
+    return _mean(getattr(getattr(clip, mode), name) for clip in result.clips)
+
+
 def _number(value, digits: int = 1) -> str:
     if value is None or (isinstance(value, float) and not math.isfinite(value)):
         return "-"
@@ -42,7 +47,8 @@ def _clip_lines(result: ClipResult) -> list[str]:
             f"{_number(mode_result.pa_mpjpe_mm)} mm, acceleration error "
             f"{_number(mode_result.acceleration_error_mm, 2)}, jitter "
             f"{_number(mode_result.jitter_mm, 2)} (truth {_number(result.truth_jitter_mm, 2)}) "
-            f"mm/frame^2, {mode_result.seconds:.1f} s")
+            f"mm/frame^2, look {_number(mode_result.appearance_psnr_db, 2)} dB, "
+            f"{mode_result.seconds:.1f} s")
     return lines
 
 
@@ -53,7 +59,8 @@ def _real_line(mode: str, result: RealResult) -> str:
     return (f"    {mode:<11}: {result.hands} hand(s), fitted in {share} % of "
             f"{result.detected_frames} detected frames (of {result.frames}), jitter "
             f"{_number(result.jitter_mm, 2)} mm/frame^2, agreement "
-            f"{_number(result.agreement_px, 2)} px, {result.seconds:.1f} s")
+            f"{_number(result.agreement_px, 2)} px, look "
+            f"{_number(result.appearance_psnr_db, 2)} dB, {result.seconds:.1f} s")
 
 
 def _speed_line(mode: str, result: SpeedResult) -> str:
@@ -68,8 +75,8 @@ def _table(result: VideoBenchmark) -> list[str]:
     rows = []
     if result.clips:
         rows += ["| rendered clip | subject | side | mode | fitted frames | MPJPE mm | PA-MPJPE mm "
-                 "| accel. error mm/f^2 | jitter mm/f^2 (truth) | s |",
-                 "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+                 "| accel. error mm/f^2 | jitter mm/f^2 (truth) | look dB | s |",
+                 "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
         for clip in result.clips:
             for mode in MODES:
                 m = getattr(clip, mode)
@@ -77,7 +84,7 @@ def _table(result: VideoBenchmark) -> list[str]:
                             f"{m.fitted_frames}/{clip.frames} | {_number(m.mpjpe_mm)} | "
                             f"{_number(m.pa_mpjpe_mm)} | {_number(m.acceleration_error_mm, 2)} | "
                             f"{_number(m.jitter_mm, 2)} ({_number(clip.truth_jitter_mm, 2)}) | "
-                            f"{_number(m.seconds)} |")
+                            f"{_number(m.appearance_psnr_db, 2)} | {_number(m.seconds)} |")
         for mode, prefix in (("tracked", ""), ("independent", "reference_")):
             d = result.to_dict()
             rows.append(f"| mean | | | {mode} | {_number(100 * d[prefix + 'fitted_share'])} % | "
@@ -85,16 +92,17 @@ def _table(result: VideoBenchmark) -> list[str]:
                         f" | {_number(d[prefix + 'acceleration_error_mm'], 2)} | "
                         f"{_number(d[prefix + 'jitter_mm'], 2)} "
                         f"({_number(result.truth_jitter_mm, 2)}) | "
-                        f"{_number(_mean(getattr(c, mode).seconds for c in result.clips))} |")
+                        f"{_number(_clip_mean(result, mode, 'appearance_psnr_db'), 2)} | "
+                        f"{_number(_clip_mean(result, mode, 'seconds'))} |")
         rows.append("")
     if result.real:
         rows += ["| real clip | hands | fitted share of detected | jitter mm/f^2 | agreement px "
-                 "| s |",
-                 "| --- | --- | --- | --- | --- | --- |"]
+                 "| look dB | s |",
+                 "| --- | --- | --- | --- | --- | --- | --- |"]
         for mode, r in result.real.items():
             rows.append(f"| {mode} | {r.hands} | {_number(100 * r.fitted_share)} % | "
-                        f"{_number(r.jitter_mm, 2)} | {_number(r.agreement_px, 2)} | "
-                        f"{_number(r.seconds)} |")
+                        f"{_number(r.jitter_mm, 2)} | {_number(r.agreement_px, 3)} | "
+                        f"{_number(r.appearance_psnr_db, 2)} | {_number(r.seconds)} |")
         rows.append("")
     if result.speed:
         rows += [f"| speed, {SPEED_SIZE[0]}x{SPEED_SIZE[1]} | frames | s end to end | frames/s | "

@@ -310,22 +310,27 @@ def _video(data: dict) -> list[str]:
     rows = [[clip["clip"], clip["subject"], clip["side"], mode,
              f"{clip[mode]['fitted_frames']}/{clip['frames']}", clip[mode]["mpjpe_mm"],
              clip[mode]["pa_mpjpe_mm"], clip[mode]["acceleration_error_mm"],
-             clip[mode]["jitter_mm"], clip["truth_jitter_mm"], clip[mode]["seconds"]]
+             clip[mode]["jitter_mm"], clip["truth_jitter_mm"],
+             clip[mode].get("appearance_psnr_db"), clip[mode]["seconds"]]
             for clip in data.get("clips") or [] for mode in ("tracked", "independent")]
     if rows:
         lines += ["", "Rendered clips of held-out hands with truth; the distances over the frames "
                   "fitted in both modes (mm; acceleration error and jitter mm/frame^2):", ""]
         lines += _table(["clip", "subject", "side", "mode", "fitted frames", "MPJPE",
-                         "PA-MPJPE", "acceleration error", "jitter", "truth's jitter", "s"],
-                        rows)
+                         "PA-MPJPE", "acceleration error", "jitter", "truth's jitter",
+                         "look dB", "s"], rows)
+        lines += ["", "Look: the PSNR of the fitted hand rendered at its fitted poses against "
+                  "the frames it was not fitted on, over the pixels it covers fully."]
     real = data.get("real") or {}
     if real:
         lines += ["", "The real clip (no truth): the share of the detected frames with a fitted "
                   "hand, jitter (mm/frame^2) and the fitted keypoints' distance from the "
                   "detected ones (pixels of the clip):", ""]
-        lines += _table(["mode", "hands", "fitted share", "jitter", "agreement px", "s"],
+        lines += _table(["mode", "hands", "fitted share", "jitter", "agreement px", "look dB",
+                         "s"],
                         [[mode, row.get("hands"), row.get("fitted_share"), row.get("jitter_mm"),
-                          row.get("agreement_px"), row.get("seconds")]
+                          row.get("agreement_px"), row.get("appearance_psnr_db"),
+                          row.get("seconds")]
                          for mode, row in real.items()])
     speed = data.get("speed") or {}
     if speed:

@@ -23,6 +23,9 @@ frame's fit).
    skipped with a note when missing): the share of the frames where the detector found a hand
    that have a fitted hand, the jitter (mm/frame^2), the 2D agreement between the fitted
    keypoints projected and the detector's (pixels of the clip), seconds.
+
+In parts 1 and 2 the hand's look through the clip: the PSNR of the fitted hand rendered at its
+fitted poses against the frames it was not fitted on (:func:`appearance_psnr_db`).
 3. **Speed** (``--skip-speed`` to skip): the real clip upscaled to 1280x720 (bicubic), fitted
    with its files (:func:`lisa_hand.fitting.video.fit_video_folder`): frames a second end to
    end and of the detection alone.
@@ -95,6 +98,8 @@ class ModeResult:
     hands: int = 0
     """Hands the fit followed."""
     error: str | None = None
+    appearance_psnr_db: float = math.nan
+    """The hand's look through the clip (:func:`appearance_psnr_db`)."""
 
 
 @dataclass
@@ -128,6 +133,8 @@ class RealResult:
     seconds: float
     hands: int
     error: str | None = None
+    appearance_psnr_db: float = math.nan
+    """The hands' look through the clip (:func:`appearance_psnr_db`)."""
 
 
 @dataclass
@@ -170,6 +177,9 @@ class VideoBenchmark:
     reference_real_agreement_px: float | None
     speed_frames_per_second: float | None
     reference_speed_frames_per_second: float | None
+    appearance_psnr_db: float
+    """Rendered clips, tracked: the mean :func:`appearance_psnr_db`."""
+    real_appearance_psnr_db: float | None
     clips: list[ClipResult]
     real: dict[str, RealResult]
     speed: dict[str, SpeedResult]
@@ -209,6 +219,32 @@ def _nearest_hand(fit, keypoints_2d: np.ndarray):
         return float(gap.mean()) if gap.size else math.inf
 
     return min(fit.hands, key=distance, default=None)
+
+
+def appearance_psnr_db(fit) -> float:
+    """How well one shape and colour code fit the whole clip: the PSNR (dB) between the fitted
+    hands rendered at their fitted poses (their meshes, with the model's shading:
+    :func:`lisa_hand.inference.mesh_render.render_mesh`) and every frame they were not fitted on
+    (their keyframes left out), over the pixels a hand covers fully (NaN without any). Pose
+    errors count too, so compare fits with the same motion."""
+    from lisa_hand.inference.mesh_render import render_mesh
+    from lisa_hand.inference.skinned import SkinnedMesh
+
+    squared, count = 0.0, 0
+    posers = [SkinnedMesh(hand.keyframe.mesh, hand.params, fit_config(False, 1).overlay_faces)
+              for hand in fit.hands]
+    for row, frame in enumerate(fit.video.frames()):
+        for hand, poser in zip(fit.hands, posers, strict=True):
+            if row in hand.keyframe.rows or not np.isfinite(hand.motion.pose[row]).all():
+                continue
+            shown = render_mesh(fit.model, poser.posed(hand.motion.pose[row],
+                                                       hand.motion.translation[row]),
+                                fit.camera, 1)
+            full = shown.alpha > 0.999
+            gap = shown.rgb[full] - frame.rgb[full].astype(np.float32) / 255.0
+            squared += float((gap.astype(np.float64) ** 2).sum())
+            count += gap.size
+    return -10.0 * math.log10(squared / count) if count and squared > 0 else math.nan
 
 
 def _masked(keypoints_3d: np.ndarray, rows: np.ndarray) -> np.ndarray:
@@ -259,7 +295,8 @@ def _clip_result(clip, fits: dict[str, tuple]) -> ClipResult:
             acceleration_error_mm=nan_mean(acceleration_error_mm(_masked(points, common),
                                                                  truth)),
             jitter_mm=nan_mean(jitter_mm(_masked(points, common))),
-            seconds=seconds, fitted_side=hand.side, hands=len(fit.hands))
+            seconds=seconds, fitted_side=hand.side, hands=len(fit.hands),
+            appearance_psnr_db=appearance_psnr_db(fit))
     return ClipResult(clip=clip.folder.parent.name, subject=clip.subject, side=clip.side,
                       frames=clip.num_frames, common_frames=int(common.sum()),
                       truth_jitter_mm=nan_mean(jitter_mm(_masked(truth, common))),
@@ -283,7 +320,8 @@ def _real_result(fit, seconds: float) -> RealResult:
     return RealResult(frames=len(fit.indices), detected_frames=detected,
                       fitted_share=fitted / detected if detected else math.nan,
                       jitter_mm=_nan_mean_all(jitters), agreement_px=_nan_mean_all(agreements),
-                      seconds=seconds, hands=len(fit.hands))
+                      seconds=seconds, hands=len(fit.hands),
+                      appearance_psnr_db=appearance_psnr_db(fit))
 
 
 def _nan_mean_all(arrays: list[np.ndarray]) -> float:
@@ -503,6 +541,8 @@ def run_video_benchmark(num_clips: int = 3, frames: int = 40, *, real: Path | No
         reference_real_agreement_px=part(real_results, "independent", "agreement_px"),
         speed_frames_per_second=part(speed, "tracked", "frames_per_second"),
         reference_speed_frames_per_second=part(speed, "independent", "frames_per_second"),
+        appearance_psnr_db=clip_mean("tracked", "appearance_psnr_db"),
+        real_appearance_psnr_db=part(real_results, "tracked", "appearance_psnr_db"),
         clips=clips, real=real_results, speed=speed,
         targets=_targets(clips, real_results, speed), seconds_parts=parts, notes=notes)
 
