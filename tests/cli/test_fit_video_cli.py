@@ -132,6 +132,9 @@ def test_params_overlay_and_metrics(fitted):
     assert metrics["frames"] == 15
     (hand,) = metrics["hands"]
     assert hand["side"] == "right" and hand["frames_fitted"] == 15
+    assert hand["keyframes"] == sorted(key["index"] for key in
+                                       json.loads((folder / "track.json").read_text())["hands"][0]
+                                       ["keyframes"])
     assert hand["agreement_px"] < 6.0  # measured 1.4 px
     assert np.isfinite(hand["jitter_mm_per_frame2"])
 

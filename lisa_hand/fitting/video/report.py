@@ -29,6 +29,7 @@ def _hand_metrics(fit: Any, hand: Any) -> dict[str, Any]:
             "frames_bridged": int(hand.track.bridged.sum()),
             "keyframe": {"index": int(fit.indices[hand.keyframe_row]),
                          "time_s": float(fit.times[hand.keyframe_row])},
+            "keyframes": [int(fit.indices[row]) for row in sorted(hand.keyframe.rows)],
             "jitter_mm_per_frame2": nan_mean(jitter_mm(hand.motion.keypoints_3d)),
             "agreement_px": nan_mean(agreement),
             "keyframe_keypoint_error_px": float(
@@ -157,8 +158,10 @@ def video_report_html(fit: Any, metrics: dict[str, Any], config: Any,
                 "frames fitted / detected / bridged":
                     f"{numbers['frames_fitted']} / {numbers['frames_detected']} / "
                     f"{numbers['frames_bridged']} of {len(times)}",
-                "keyframe": f"frame {numbers['keyframe']['index']} "
-                            f"({numbers['keyframe']['time_s']:.2f} s)",
+                "keyframes (shape and colour)": "frames " + ", ".join(
+                    str(index) for index in numbers["keyframes"])
+                    + f"; skeleton from frame {numbers['keyframe']['index']} "
+                      f"({numbers['keyframe']['time_s']:.2f} s), the best seen",
                 "jitter (mm/frame^2)": numbers["jitter_mm_per_frame2"],
                 "agreement with the detector (px)": numbers["agreement_px"],
                 "camera": f"{fit.camera_source}, focal length {metrics['focal_px']:.0f} px",
