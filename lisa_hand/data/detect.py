@@ -12,7 +12,10 @@ stops at the first level that finds a hand: 1. the whole image, as it is and zoo
 with the median colour of its border, for hands that fill it); 2. 2 x 2 crops overlapping by half
 a crop (:attr:`DetectConfig.grid_overlap`); 3. 3 x 3 crops; 4. 4 x 4 crops
 (:attr:`DetectConfig.grids`). Rescaled copies of the whole image would show the detector the
-same 192 pixels; crops are what make a small hand larger.
+same 192 pixels; crops are what make a small hand larger. When ``max_hands`` is above 2 the whole
+image is also searched by a second detector looking for at most two hands
+(:attr:`DetectConfig.pair_detector`): looking for four, MediaPipe returned no hand at all in a
+zoomed-out photo of two crossed hands where looking for two it returned both.
 
 Every hand found is **refined**: detected again in square windows 1.5 and 2.5 times its keypoint
 box (:attr:`DetectConfig.refine_contexts`), resized to :attr:`DetectConfig.refine_side_px`, each
@@ -82,6 +85,7 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Callable, Sequence
+from contextlib import nullcontext
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Any
 
@@ -193,6 +197,10 @@ class DetectConfig:
     """The crop level searched after another hand finds hands down to this fraction of its size."""
     paint_margin: float = 0.2
     """A hand is painted out as its keypoints' hull grown by this fraction of its box diagonal."""
+    pair_detector: bool = True
+    """When ``max_hands`` is above 2, the whole photo is also searched by MediaPipe looking for
+    at most two hands: looking for four, it returned no hand at all in a zoomed-out window that
+    holds two crossed hands, where looking for two it returned both."""
 
     def __post_init__(self) -> None:
         c = self
@@ -492,17 +500,21 @@ def _greyscale(pixels: np.ndarray) -> bool:
     return bool(np.abs(wide - wide[..., :1]).max() <= _GREY_TOLERANCE)
 
 
-def _search(hands: Any, pixels: np.ndarray, config: DetectConfig,
-            max_hands: int) -> list[Named]:
+def _search(hands: Any, pixels: np.ndarray, config: DetectConfig, max_hands: int,
+            pair: Any = None) -> list[Named]:
     """The coarse-to-fine search with MediaPipe's ``hands`` -> the hands of the first level that
-    finds any, with that level's name, and those the further search finds after them."""
+    finds any, with that level's name, and those the further search finds after them. ``pair``
+    (MediaPipe looking for at most two hands, or None) searches the whole photo too."""
     height, width = pixels.shape[:2]
     border = np.concatenate([pixels[0], pixels[-1], pixels[:, 0], pixels[:, -1]])
     fill = np.median(border, axis=0).astype(np.uint8)
     levels = _levels(width, height, config)
     for index, (level, windows) in enumerate(levels):
+        extra = [] if pair is None or level != _WHOLE else [
+            found for window in windows
+            for found in _run(pair, pixels, window, config.window_side_px, fill)]
         found, around = _find(hands, pixels, windows, config.window_side_px, fill, config, [],
-                              confirm=level != _WHOLE)
+                              confirm=level != _WHOLE, extra=extra)
         if found:
             further = []
             if config.further_search and len(found) < max_hands:
@@ -571,16 +583,18 @@ def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | N
             raise ImportError(PHOTO_EXTRA_HINT) from None
     # The start-up lines come from MediaPipe's threads while the graph starts: hold them back
     # for the whole search.
-    with native_stderr_captured(), hands_factory(
-            static_image_mode=True, max_num_hands=max_hands,
-            model_complexity=config.model_complexity,
-            min_detection_confidence=config.min_detection_confidence) as hands:
-        hands_found = _search(hands, pixels, config, max_hands)
+    options = dict(static_image_mode=True, model_complexity=config.model_complexity,
+                   min_detection_confidence=config.min_detection_confidence)
+    two = config.pair_detector and max_hands > 2
+    with native_stderr_captured(), hands_factory(max_num_hands=max_hands, **options) as hands, \
+            (hands_factory(max_num_hands=2, **options) if two else nullcontext()) as pair:
+        hands_found = _search(hands, pixels, config, max_hands, pair)
         if not hands_found and _greyscale(pixels):  # no skin colour to go by: lend it one
             tinted = np.round(pixels * np.asarray(_SKIN_TINT)).astype(np.uint8)
             smallest = _MIN_TINTED_SIZE * max(pixels.shape[:2])
             hands_found = [(replace(found, p_right=0.5, votes=(0, 0)), f"{level}, {_TINTED}")
-                           for found, level in _search(hands, tinted, config, max_hands)
+                           for found, level in _search(hands, tinted, config, max_hands,
+                                                       pair)
                            if max(found.box[2] - found.box[0], found.box[3] - found.box[1])
                            >= smallest]
     unique = sorted(_unique(hands_found, config), key=lambda p: -_area(p[0].box))[:max_hands]

@@ -45,9 +45,12 @@ class FakeHands:
 
     calls: list[dict] = []
 
-    def __init__(self, square_only_fails: bool = False, **kwargs):
+    def __init__(self, square_only_fails: bool = False, crowded_fails: bool = False,
+                 **kwargs):
         FakeHands.calls.append(kwargs)
+        self.max_num_hands = kwargs.get("max_num_hands", 2)
         self.square_only_fails = square_only_fails
+        self.crowded_fails = crowded_fails
         self.inputs: list[tuple[int, int]] = []
 
     def __enter__(self):
@@ -87,6 +90,11 @@ class FakeHands:
                 SimpleNamespace(x=x, y=y, z=z) for x, y, z in world_shape(sign)]))
             handedness.append(SimpleNamespace(
                 classification=[SimpleNamespace(label=label, score=0.9)]))
+        if self.crowded_fails and self.max_num_hands > 2 and len(landmarks) > 1:
+            landmarks, handedness, world = [], [], []  # as MediaPipe did on crossed hands
+        # At most max_num_hands, as MediaPipe: the first found (the top of the input).
+        landmarks, handedness = landmarks[:self.max_num_hands], handedness[:self.max_num_hands]
+        world = world[:self.max_num_hands]
         return SimpleNamespace(multi_hand_landmarks=landmarks or None,
                                multi_handedness=handedness or None,
                                multi_hand_world_landmarks=world or None)
@@ -241,6 +249,33 @@ def test_two_hands_sorted_left_to_right():
     assert largest.side == "right"
 
 
+def test_three_hands_and_the_pair_detector():
+    """Three hands, each window giving at most max_num_hands: all three in the whole image.
+    And a detector that, looking for more than two hands, finds none where two are together
+    (MediaPipe on two crossed hands): the one looking for two finds both in the whole image;
+    without it only the crops do."""
+    image = canvas(1200, 800)
+    marker(image, 100, 80, 200, 150, thumb="left")
+    marker(image, 800, 100, 220, 160, thumb="right")
+    marker(image, 450, 550, 210, 150, thumb="left")
+    FakeHands.calls.clear()
+    hands = detect_hands(image, max_hands=4, hands_factory=fake())
+    assert sorted(call["max_num_hands"] for call in FakeHands.calls) == [2, 4]
+    assert len(hands) == 3 and {hand.found_by for hand in hands} == {"whole image"}
+    FakeHands.calls.clear()
+    assert len(detect_hands(image, max_hands=2, hands_factory=fake())) == 2
+    assert [call["max_num_hands"] for call in FakeHands.calls] == [2]  # one detector
+    pair = canvas(1200, 800)
+    marker(pair, 300, 250, 220, 160, thumb="left")
+    marker(pair, 650, 300, 200, 150, thumb="right")
+    crowded = fake(crowded_fails=True)
+    found = detect_hands(pair, max_hands=4, hands_factory=crowded)
+    assert [hand.found_by for hand in found] == ["whole image"] * 2
+    alone = detect_hands(pair, max_hands=4, hands_factory=crowded,
+                         config=DetectConfig(pair_detector=False))
+    assert [hand.found_by for hand in alone] == ["3x3 crops"] * 2  # windows of one hand each
+
+
 def test_small_hand_found_in_crops():
     """55 px in a 1000 px image is 5.5% of the long side: too small for the whole image and the
     2x2 crops (667 px), found in the 3x3 crops (500 px) and mapped back to image pixels."""
@@ -383,13 +418,14 @@ def test_blank_searches_every_level():
     detector = FakeHands()
     coloured = canvas() * np.array([1.0, 1.05, 0.95], np.float32)  # not greyscale
     assert detect_hands(coloured, hands_factory=lambda **_: detector) == []
-    # whole + zoomed out, then 2x2, 3x3, 4x4 crops; each window resized to a 640 px long side.
-    assert len(detector.inputs) == 2 + 4 + 9 + 16
+    # whole + zoomed out (twice: looking for up to 4 hands and for 2), then 2x2, 3x3, 4x4
+    # crops; each window resized to a 640 px long side.
+    assert len(detector.inputs) == 2 * 2 + 4 + 9 + 16
     assert {max(size) for size in detector.inputs} == {640}
     # a greyscale photo with no hand is searched twice: as it is, then tinted skin-coloured
     grey = FakeHands()
     assert detect_hands(canvas(), hands_factory=lambda **_: grey) == []
-    assert len(grey.inputs) == 2 * (2 + 4 + 9 + 16)
+    assert len(grey.inputs) == 2 * (2 * 2 + 4 + 9 + 16)
 
 
 class SkinHands(FakeHands):
