@@ -25,7 +25,8 @@ frame's fit).
    keypoints projected and the detector's (pixels of the clip), seconds.
 
 In parts 1 and 2 the hand's look through the clip: the PSNR of the fitted hand rendered at its
-fitted poses against the frames it was not fitted on (:func:`appearance_psnr_db`).
+fitted poses against the frames it was not fitted on
+(:func:`lisa_hand.fitting.video.quality.appearance_psnr_db`).
 3. **Speed** (``--skip-speed`` to skip): the real clip upscaled to 1280x720 (bicubic), fitted
    with its files (:func:`lisa_hand.fitting.video.fit_video_folder`): frames a second end to
    end and of the detection alone.
@@ -99,7 +100,8 @@ class ModeResult:
     """Hands the fit followed."""
     error: str | None = None
     appearance_psnr_db: float = math.nan
-    """The hand's look through the clip (:func:`appearance_psnr_db`)."""
+    """The hand's look through the clip
+    (:func:`lisa_hand.fitting.video.quality.appearance_psnr_db`)."""
 
 
 @dataclass
@@ -134,7 +136,8 @@ class RealResult:
     hands: int
     error: str | None = None
     appearance_psnr_db: float = math.nan
-    """The hands' look through the clip (:func:`appearance_psnr_db`)."""
+    """The hands' look through the clip
+    (:func:`lisa_hand.fitting.video.quality.appearance_psnr_db`)."""
 
 
 @dataclass
@@ -178,7 +181,8 @@ class VideoBenchmark:
     speed_frames_per_second: float | None
     reference_speed_frames_per_second: float | None
     appearance_psnr_db: float
-    """Rendered clips, tracked: the mean :func:`appearance_psnr_db`."""
+    """Rendered clips, tracked: the mean
+    :func:`lisa_hand.fitting.video.quality.appearance_psnr_db`."""
     real_appearance_psnr_db: float | None
     clips: list[ClipResult]
     real: dict[str, RealResult]
@@ -221,32 +225,6 @@ def _nearest_hand(fit, keypoints_2d: np.ndarray):
     return min(fit.hands, key=distance, default=None)
 
 
-def appearance_psnr_db(fit) -> float:
-    """How well one shape and colour code fit the whole clip: the PSNR (dB) between the fitted
-    hands rendered at their fitted poses (their meshes, with the model's shading:
-    :func:`lisa_hand.inference.mesh_render.render_mesh`) and every frame they were not fitted on
-    (their keyframes left out), over the pixels a hand covers fully (NaN without any). Pose
-    errors count too, so compare fits with the same motion."""
-    from lisa_hand.inference.mesh_render import render_mesh
-    from lisa_hand.inference.skinned import SkinnedMesh
-
-    squared, count = 0.0, 0
-    posers = [SkinnedMesh(hand.keyframe.mesh, hand.params, fit_config(False, 1).overlay_faces)
-              for hand in fit.hands]
-    for row, frame in enumerate(fit.video.frames()):
-        for hand, poser in zip(fit.hands, posers, strict=True):
-            if row in hand.keyframe.rows or not np.isfinite(hand.motion.pose[row]).all():
-                continue
-            shown = render_mesh(fit.model, poser.posed(hand.motion.pose[row],
-                                                       hand.motion.translation[row]),
-                                fit.camera, 1)
-            full = shown.alpha > 0.999
-            gap = shown.rgb[full] - frame.rgb[full].astype(np.float32) / 255.0
-            squared += float((gap.astype(np.float64) ** 2).sum())
-            count += gap.size
-    return -10.0 * math.log10(squared / count) if count and squared > 0 else math.nan
-
-
 def _masked(keypoints_3d: np.ndarray, rows: np.ndarray) -> np.ndarray:
     out = np.array(keypoints_3d, np.float64)
     out[~rows] = np.nan
@@ -267,7 +245,12 @@ def _fit_clip(clip, independent: bool, options: dict, make_config):
 
 
 def _clip_result(clip, fits: dict[str, tuple]) -> ClipResult:
-    from lisa_hand.fitting.video.quality import acceleration_error_mm, jitter_mm, nan_mean
+    from lisa_hand.fitting.video.quality import (
+        acceleration_error_mm,
+        appearance_psnr_db,
+        jitter_mm,
+        nan_mean,
+    )
     from lisa_hand.metrics import mpjpe, pa_mpjpe
 
     nan = math.nan
@@ -305,7 +288,7 @@ def _clip_result(clip, fits: dict[str, tuple]) -> ClipResult:
 
 
 def _real_result(fit, seconds: float) -> RealResult:
-    from lisa_hand.fitting.video.quality import agreement_px, jitter_mm
+    from lisa_hand.fitting.video.quality import agreement_px, appearance_psnr_db, jitter_mm
 
     detected = fitted = 0
     jitters, agreements = [], []

@@ -12,10 +12,8 @@ stops at the first level that finds a hand: 1. the whole image, as it is and zoo
 with the median colour of its border, for hands that fill it); 2. 2 x 2 crops overlapping by half
 a crop (:attr:`DetectConfig.grid_overlap`); 3. 3 x 3 crops; 4. 4 x 4 crops
 (:attr:`DetectConfig.grids`). Rescaled copies of the whole image would show the detector the
-same 192 pixels; crops are what make a small hand larger. When ``max_hands`` is above 2 the whole
-image is also searched by a second detector looking for at most two hands
-(:attr:`DetectConfig.pair_detector`): looking for four, MediaPipe returned no hand at all in a
-zoomed-out photo of two crossed hands where looking for two it returned both.
+same 192 pixels; crops are what make a small hand larger. The whole image is also searched for
+at most two hands (:attr:`DetectConfig.pair_detector`).
 
 Every hand found is **refined**: detected again in square windows 1.5 and 2.5 times its keypoint
 box (:attr:`DetectConfig.refine_contexts`), resized to :attr:`DetectConfig.refine_side_px`, each

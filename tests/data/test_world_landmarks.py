@@ -10,7 +10,7 @@ import numpy as np
 from lisa_hand.data.detect import detect_hands
 from lisa_hand.data.world_landmarks import mean_landmarks, world_landmarks
 
-from .test_detect import canvas, fake, marker, world_shape
+from .mediapipe_fake import canvas, fake, marker, world_shape
 
 
 def test_world_landmarks_in_the_photo_axes_from_plain_and_mirrored_windows():

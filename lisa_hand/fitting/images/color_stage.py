@@ -170,15 +170,18 @@ def template_boxes(template: Any, views: Sequence[ImageView],
     ``margin`` of its size on each side; None for the views with a mask."""
     device = views[0].rgb.device
     hands = [hand] * len(views) if isinstance(hand, HandParams) else list(hand)
+    posed: dict[int, torch.Tensor] = {}  # the template's vertices of each distinct hand
     boxes: list[Box | None] = []
     for view, one in zip(views, hands, strict=True):
         if view.mask is not None:
             boxes.append(None)
             continue
-        with torch.no_grad():
-            vertices = template.forward(one.pose[None].to(device), one.betas[None].to(device),
-                                        one.translation[None].to(device)).vertices[0]
-        pixels, _ = view.camera.project(vertices)
+        if id(one) not in posed:
+            with torch.no_grad():
+                posed[id(one)] = template.forward(
+                    one.pose[None].to(device), one.betas[None].to(device),
+                    one.translation[None].to(device)).vertices[0]
+        pixels, _ = view.camera.project(posed[id(one)])
         low, high = pixels.amin(0), pixels.amax(0)
         grow = margin * (high - low)
         low, high = (low - grow).tolist(), (high + grow).tolist()

@@ -7,14 +7,19 @@ and of the video benchmark.
 * agreement: the mean distance between the fitted keypoints projected and the detector's,
   pixels, in the frames where the detector found the hand;
 * acceleration error (with truth): the mean distance between the fitted and the true
-  wrist-relative keypoints' second differences, mm/frame^2.
+  wrist-relative keypoints' second differences, mm/frame^2;
+* look (:func:`appearance_psnr_db`): how well one shape and colour fit the whole clip, dB.
 """
 
 from __future__ import annotations
 
+import math
+from typing import Any
+
 import numpy as np
 
-__all__ = ["jitter_mm", "agreement_px", "acceleration_error_mm", "nan_mean"]
+__all__ = ["jitter_mm", "agreement_px", "acceleration_error_mm", "nan_mean",
+           "appearance_psnr_db"]
 
 
 def _relative(keypoints_3d: np.ndarray) -> np.ndarray:
@@ -63,3 +68,31 @@ def nan_mean(values: np.ndarray) -> float:
     values = np.asarray(values, np.float64)
     finite = values[np.isfinite(values)]
     return float(finite.mean()) if finite.size else float("nan")
+
+
+def appearance_psnr_db(fit: Any, max_faces: int | None = None) -> float:
+    """How well one shape and colour code fit the whole clip: the PSNR (dB) between the hands
+    of ``fit`` (a :class:`~lisa_hand.fitting.video.fit.VideoFit`) rendered at their fitted
+    poses (their meshes decimated to ``max_faces``, default the overlay's, with the model's shading:
+    :func:`lisa_hand.inference.mesh_render.render_mesh`) and every frame they were not fitted
+    on (their keyframes left out), over the pixels a hand covers fully (NaN without any). Pose
+    errors count too: compare fits with the same motion."""
+    from ...inference.mesh_render import render_mesh
+    from ...inference.skinned import SkinnedMesh
+    from .config import FitVideoConfig
+
+    max_faces = FitVideoConfig.overlay_faces if max_faces is None else max_faces
+    squared, count = 0.0, 0
+    posers = [SkinnedMesh(hand.keyframe.mesh, hand.params, max_faces) for hand in fit.hands]
+    for row, frame in enumerate(fit.video.frames()):
+        for hand, poser in zip(fit.hands, posers, strict=True):
+            if row in hand.keyframe.rows or not np.isfinite(hand.motion.pose[row]).all():
+                continue
+            shown = render_mesh(fit.model, poser.posed(hand.motion.pose[row],
+                                                       hand.motion.translation[row]),
+                                fit.camera, 1)
+            full = shown.alpha > 0.999
+            gap = shown.rgb[full] - frame.rgb[full].astype(np.float32) / 255.0
+            squared += float((gap.astype(np.float64) ** 2).sum())
+            count += gap.size
+    return -10.0 * math.log10(squared / count) if count and squared > 0 else math.nan
