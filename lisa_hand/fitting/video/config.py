@@ -43,7 +43,12 @@ class MotionConfig:
     """The finger-pose prior's weight (toward the relaxed hand)."""
     limit_weight: float = 10.0
     """The joint limits' weight."""
-    betas_weight: float = 0.0
+    betas_lr: float = 0.1
+    """Adam learning rate of the skeleton's template betas in the final pass over every frame:
+    the clip's one skeleton, fitted on all its frames, starting from the keyframe's (the
+    tracked fit only; 0: the keyframe's kept)."""
+    betas_weight: float = 1.0
+    """x the mean square of the skeleton's template betas (with ``betas_lr``)."""
     velocity_weight: float = 1e-4
     """x the mean squared velocity of the 3D keypoints, (m/s)^2."""
     acceleration_weight: float = 1e-3
@@ -74,6 +79,8 @@ class MotionConfig:
                 raise ValueError(f"{name} must be a positive integer, got {value!r}")
         if not 0 <= self.overlap < self.window:
             raise ValueError(f"overlap must be in [0, window), got {self.overlap}")
+        if not self.betas_lr >= 0:
+            raise ValueError(f"betas_lr must be >= 0, got {self.betas_lr!r}")
         for name in ("pose_lr", "translation_lr", "keypoint_scale", "max_joint_speed"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be positive, got {getattr(self, name)!r}")

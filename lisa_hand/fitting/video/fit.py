@@ -9,12 +9,13 @@
    (:class:`lisa_hand.data.detect.VideoHandDetector`) and **join** them into tracks
    (:func:`lisa_hand.fitting.video.tracks.build_tracks`: one identity a hand, short dropouts
    bridged, a hand that leaves and comes back picked up again).
-3. Per track, **one skeleton**: the keypoint stage on its best-seen frame
+3. Per track, **a first skeleton**: the keypoint stage on its best-seen frame
    (:func:`lisa_hand.fitting.video.keyframe.keyframe_start`), whose pose there starts the
    motion.
 4. Per track, **the motion**: pose and translation in every frame where the hand is present,
-   fitted in windows with a motion prior (:func:`lisa_hand.fitting.video.motion.fit_motion`);
-   ``independent``: each frame alone, the reference. Then **one shape and colour**: its
+   fitted in windows with a motion prior, then all at once with the skeleton refitted on every
+   frame (:func:`lisa_hand.fitting.video.motion.fit_motion`); ``independent``: each frame
+   alone with the first skeleton, the reference. Then **one shape and colour**: its
    keyframes (the best-seen frame and the best of other parts of the clip, ``keyframes``)
    fitted as photos of one hand at their fitted poses
    (:func:`lisa_hand.fitting.video.keyframe.fit_keyframe`).
@@ -184,8 +185,9 @@ def _right(pose: torch.Tensor, translation: torch.Tensor, side: str
 def _fit_track(model: Any, video: Any, track: HandTrack, side: str, camera: Any,
                times: np.ndarray, frames: dict[int, np.ndarray], key_rows: list[int],
                config: FitVideoConfig, template: Any, progress: bool) -> tuple[Any, Any]:
-    """One track: the skeleton and first pose from the best-seen keyframe (``key_rows[0]``),
-    the motion, then the shape and colour from every keyframe at its fitted pose ->
+    """One track: the first skeleton and pose from the best-seen keyframe (``key_rows[0]``),
+    the motion and the clip's skeleton, then the shape and colour from every keyframe at its
+    fitted pose with that skeleton ->
     (KeyframeFit, MotionResult of the hand's side)."""
     from ...skeleton import mirror_points, mirror_pose
     from ..sides import mirror_hand
@@ -225,6 +227,12 @@ def _fit_track(model: Any, video: Any, track: HandTrack, side: str, camera: Any,
                          translation=mirror_points(torch.from_numpy(motion.translation)).numpy(),
                          keypoints_3d=mirror_points(torch.from_numpy(motion.keypoints_3d))
                          .numpy())
+    if config.motion.betas_lr > 0 and not config.independent:  # the clip's own skeleton
+        rest_joints = motion.rest_joints.to(start.rest_joints)
+        start = replace(start, betas=motion.betas.to(start.betas),
+                        rest_joints=mirror_points(rest_joints) if side == "left" else rest_joints,
+                        pose=torch.from_numpy(motion.pose[key_row]).float(),
+                        translation=torch.from_numpy(motion.translation[key_row]).float())
     fitted = [0] + [number for number, row in enumerate(key_rows)
                     if number and np.isfinite(motion.pose[row]).all()]
     starts = [start] + [replace(start, pose=torch.from_numpy(motion.pose[key_rows[n]]).float(),

@@ -8,11 +8,12 @@ the best-seen frames of the other parts of the track (its detected frames cut in
 equal runs as keyframes), seen at least half as well: other poses of the same hand. Each is
 cut out as a photo is (:mod:`lisa_hand.fitting.photo`: a coarse mask seeded by the keypoints,
 the region around the hand as a view). The keypoint stage on the mesh template gives the
-first its pose and the clip its skeleton (:func:`keyframe_start`); once the motion is fitted
-with that skeleton, one image fit on the LISA field takes every keyframe at its pose (a pose
-a keyframe, one shape code and colour code: :func:`lisa_hand.fitting.images.fit.fit_images`'s
-``moments``), with its guard (:func:`fit_keyframe`). The hand it gives keeps its shape code,
-skeleton and colour code through the clip.
+first its pose and the clip its first skeleton (:func:`keyframe_start`), which the motion fit
+refits on every frame; once the motion is fitted, one image fit on the LISA field takes every
+keyframe at its pose (a pose a keyframe, one shape code and colour code:
+:func:`lisa_hand.fitting.images.fit.fit_images`'s ``moments``), with its guard
+(:func:`fit_keyframe`). The hand it gives keeps its shape code, skeleton and colour code
+through the clip.
 """
 
 from __future__ import annotations
@@ -146,7 +147,7 @@ def keyframe_views(photos: dict[int, Any], camera: Camera, track: HandTrack,
 def keyframe_start(view: Any, side: str, config: Any, template: Any, progress: bool
                    ) -> HandParams:
     """The keypoint stage on the first keyframe's ``view`` -> the ``side`` hand whose skeleton
-    (betas) the whole clip keeps and whose pose starts the motion there."""
+    (betas) starts the clip's and whose pose starts the motion there."""
     from ..photo.fit import keypoint_hand
 
     return keypoint_hand([view], side, config, template, progress)[0]
@@ -156,8 +157,9 @@ def fit_keyframe(model: Any, views: Sequence[Any], starts: Sequence[HandParams],
                  rows: Sequence[int], side: str, config: Any, progress: bool) -> KeyframeFit:
     """One image fit of the hand on its keyframes' ``views`` (:func:`keyframe_views`, a moment
     each: :func:`lisa_hand.fitting.images.fit.fit_images`): the shape and colour codes of the
-    clip. starts: the ``side`` hand at each keyframe (the first: :func:`keyframe_start`; the
-    others at their fitted motion, with its skeleton). rows: the keyframes' rows."""
+    clip. starts: the ``side`` hand at each keyframe, at its fitted motion with the clip's
+    skeleton (the first :func:`keyframe_start`'s when the motion keeps that skeleton).
+    rows: the keyframes' rows."""
     from ...geometry.pieces import drop_specks
     from ...skeleton.wrist import wrist_plane
     from ..images.fit import fit_images

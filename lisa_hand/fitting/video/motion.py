@@ -1,8 +1,9 @@
-"""A tracked hand's pose and translation in every frame, its shape fixed
+"""A tracked hand's pose and translation in every frame, and its one skeleton
 (:func:`fit_motion`): the motion fit of ``lisa fit-video``.
 
-The hand's skeleton and template shape come from its keyframe; per frame only the pose [48]
-and translation [3] are unknown. The energy of a set of frames (:class:`MotionEnergy`) is a
+The hand's skeleton (the mesh template's betas) starts as its keyframe's; per frame the pose
+[48] and translation [3] are unknown, and in the final pass the skeleton too, one for every
+frame. The energy of a set of frames (:class:`MotionEnergy`) is a
 sum of per-frame data and prior terms and of motion terms between consecutive frames:
 
 * keypoints: each frame's 21 keypoints (:func:`lisa_hand.fitting.outputs.posed_keypoints`)
@@ -24,9 +25,12 @@ Solved in two passes from an anchor frame whose pose is known (the keyframe's fi
 ``window`` frames stepping away from the anchor, forward then backward in time, each window's
 first ``overlap`` frames already solved and held (they carry position and velocity across),
 its new frames starting from the last solved frame, a few steps each to bring every frame near
-its pose; then every frame of the segment at once, until it converges (each frame between both
-neighbours; with too few steps the fit stays smoother than its energy and off the keypoints).
-With ``temporal=False`` the motion terms are off and each frame is fitted alone (from its
+its pose; then every frame of every segment at once, until it converges (each frame between
+both neighbours; with too few steps the fit stays smoother than its energy and off the
+keypoints), with the skeleton's betas free (``betas_lr``; under the betas prior of every
+fitter, ``betas_weight``): one keyframe's keypoints leave the bone lengths loosely set, the
+clip's frames in their many poses set them better. With ``temporal=False`` the motion terms
+are off, the skeleton stays the keyframe's and each frame is fitted alone (from its
 predecessor's fit: the ``--independent`` reference).
 """
 
@@ -76,13 +80,17 @@ class MotionData:
 @dataclass(frozen=True)
 class MotionResult:
     """pose: [N, 48] radians, translation: [N, 3] metres, keypoints_3d: [N, 21, 3] metres (NaN
-    rows: frames outside every fitted segment). seconds; iterations (Adam steps in all)."""
+    rows: frames outside every fitted segment). seconds; iterations (Adam steps in all).
+    betas: [K] and rest_joints: [16, 3] metres: the skeleton the motion was fitted with (the
+    keyframe's, or the clip's own when ``MotionConfig.betas_lr`` > 0)."""
 
     pose: np.ndarray
     translation: np.ndarray
     keypoints_3d: np.ndarray
     seconds: float
     iterations: int
+    betas: torch.Tensor | None = None
+    rest_joints: torch.Tensor | None = None
 
 
 class MotionEnergy:
@@ -97,18 +105,24 @@ class MotionEnergy:
         with torch.no_grad():  # the same for every frame and step
             self.tips_rest = fingertips_at_rest(template, rest_joints, betas)
 
-    def keypoints(self, pose: torch.Tensor, translation: torch.Tensor) -> torch.Tensor:
-        """[W, 48], [W, 3] -> [W, 21, 3] metres."""
-        return posed_keypoints(self.template, self.rest_joints, self.betas, pose, translation,
-                               self.tips_rest)
+    def keypoints(self, pose: torch.Tensor, translation: torch.Tensor,
+                  betas: torch.Tensor | None = None) -> torch.Tensor:
+        """[W, 48], [W, 3] -> [W, 21, 3] metres; ``betas`` [K]: with the skeleton of these
+        template betas (differentiable) instead of the fixed one."""
+        if betas is None:
+            return posed_keypoints(self.template, self.rest_joints, self.betas, pose,
+                                   translation, self.tips_rest)
+        rest_joints = self.template.rest_joints(betas[None])[0]
+        return posed_keypoints(self.template, rest_joints, betas, pose, translation)
 
     def __call__(self, rows: torch.Tensor, pose: torch.Tensor, translation: torch.Tensor,
-                 data_rows: torch.Tensor) -> torch.Tensor:
+                 data_rows: torch.Tensor, betas: torch.Tensor | None = None) -> torch.Tensor:
         """rows: [W] consecutive frame indices; pose [W, 48], translation [W, 3];
         data_rows: [W] bool, the frames whose data and prior terms count (the others are
-        context: they enter only the motion terms). -> the energy (a scalar)."""
+        context: they enter only the motion terms); betas: [K] the skeleton's template betas
+        when they are fitted too (None: the fixed skeleton). -> the energy (a scalar)."""
         config, data = self.config, self.data
-        points = self.keypoints(pose, translation)
+        points = self.keypoints(pose, translation, betas)
         depth = points[..., 2].clamp_min(1e-3)
         pixels = (points @ data.K.T)[..., :2] / depth[..., None]
         distance = (pixels - data.keypoints[rows]).norm(dim=-1) * (100.0 / data.size_px)
@@ -204,8 +218,50 @@ def _planned_steps(segments: list, config: MotionConfig) -> int:
     total = 0
     for first, end, anchor, *_ in segments:
         windows = -(-(end - anchor - 1) // fresh) + -(-(anchor - first) // fresh)
-        total += windows * config.window_iters + (config.refine_iters if end - first > 1 else 0)
+        total += windows * config.window_iters
+    if any(end - first > 1 for first, end, *_ in segments):
+        total += config.refine_iters
     return total
+
+
+def _refine(energy: MotionEnergy, spans: list[tuple[int, int]], pose: torch.Tensor,
+            translation: torch.Tensor, betas: torch.Tensor | None, iterations: int,
+            bar: Any = None) -> torch.Tensor | None:
+    """The final pass: every frame of ``spans`` (row ranges [first, end)) at once, in place,
+    and, where ``betas`` [K] is given, the one skeleton of them all (its template betas from
+    the given, under ``config.betas_weight`` x their mean square, as in every fitter) -> the
+    fitted betas (None where not given). Spans are independent but for the skeleton."""
+    config = energy.config
+    rows = [torch.arange(first, end) for first, end in spans]
+    every = torch.cat(rows)
+    free_pose = pose[every].clone().requires_grad_(True)
+    free_translation = translation[every].clone().requires_grad_(True)
+    groups = [{"params": [free_pose], "lr": config.pose_lr},
+              {"params": [free_translation], "lr": config.translation_lr}]
+    free_betas = None
+    if betas is not None:
+        free_betas = betas.detach().float().clone().requires_grad_(True)
+        groups.append({"params": [free_betas], "lr": config.betas_lr})
+    optimizer = torch.optim.Adam(groups)
+    schedule = lr_schedule(optimizer, iterations, config.final_lr_fraction)
+    bounds = np.cumsum([0] + [len(span) for span in rows])
+    for _ in range(iterations):
+        optimizer.zero_grad(set_to_none=True)
+        total = 0.0
+        for span, begin, end in zip(rows, bounds[:-1], bounds[1:], strict=True):
+            total = total + energy(span, free_pose[begin:end], free_translation[begin:end],
+                                   torch.ones(len(span), dtype=torch.bool), free_betas)
+        if free_betas is not None:
+            total = total + config.betas_weight * free_betas.square().mean()
+        total.backward()
+        optimizer.step()
+        schedule.step()
+        if bar is not None:
+            bar.update(1)
+    with torch.no_grad():
+        pose[every] = free_pose.detach()
+        translation[every] = free_translation.detach()
+    return None if free_betas is None else free_betas.detach()
 
 
 def fit_motion(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | None,
@@ -215,7 +271,9 @@ def fit_motion(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | N
     """Fit the pose and translation of a RIGHT hand in the frames of ``segments``.
 
     template: the mesh template (float32, CPU). rest_joints: [16, 3] metres; betas: [K] or
-    None: the hand's skeleton and template shape (fixed). data: :class:`MotionData` of all N
+    None: the hand's skeleton and template shape (the keyframe's: fixed with
+    ``config.betas_lr`` = 0, without betas or with ``temporal=False``; else the start of the
+    clip's, ``template.rest_joints(betas)`` then). data: :class:`MotionData` of all N
     frames. segments: (first, end, anchor, anchor_pose [48], anchor_translation [3]) per run
     of frames to fit, rows [first, end) with the pose known at row ``anchor``.
     temporal: with the motion terms (False: each frame alone; the final pass over all frames,
@@ -241,13 +299,16 @@ def fit_motion(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | N
         translation[anchor] = anchor_translation.float()
         steps += _sweep(energy, list(range(anchor, end)), pose, translation, bar)
         steps += _sweep(energy, list(range(anchor, first - 1, -1)), pose, translation, bar)
-        if refine_iters > 0 and end - first > 1:
-            rows = torch.arange(first, end)
-            sub_pose, sub_translation = pose[rows].clone(), translation[rows].clone()
-            _optimise(energy, rows, sub_pose, sub_translation,
-                      torch.ones(len(rows), dtype=torch.bool), refine_iters, bar)
-            pose[rows], translation[rows] = sub_pose, sub_translation
-            steps += refine_iters
+    spans = [(first, end) for first, end, *_ in segments if end - first > 1]
+    fit_skeleton = temporal and config.betas_lr > 0 and betas is not None
+    if refine_iters > 0 and spans:
+        fitted_betas = _refine(energy, spans, pose, translation,
+                               betas if fit_skeleton else None, refine_iters, bar)
+        steps += refine_iters
+        if fitted_betas is not None:
+            betas = fitted_betas
+            rest_joints = template.rest_joints(betas[None])[0]
+            energy = MotionEnergy(template, rest_joints, betas, data, config, temporal)
     if bar is not None:
         bar.close()
     keypoints = torch.full((count, NUM_KEYPOINTS, 3), float("nan"))
@@ -258,4 +319,6 @@ def fit_motion(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | N
     return MotionResult(pose=pose.numpy().astype(np.float64),
                         translation=translation.numpy().astype(np.float64),
                         keypoints_3d=keypoints.numpy().astype(np.float64),
-                        seconds=time.perf_counter() - began, iterations=steps)
+                        seconds=time.perf_counter() - began, iterations=steps,
+                        betas=None if betas is None else betas.detach().float(),
+                        rest_joints=rest_joints.detach().float())
