@@ -139,6 +139,26 @@ def test_params_overlay_and_metrics(fitted):
     assert np.isfinite(hand["jitter_mm_per_frame2"])
 
 
+@needs_mediapipe
+def test_params_skeleton_is_the_tracks(fitted, track):
+    """One skeleton through the clip: params.json's, posed at each frame's pose and
+    translation, gives that frame's keypoints in track.json (the motion fitted them with it)."""
+    from dataclasses import replace
+
+    import torch
+
+    from lisa_hand.fitting.outputs import hand_keypoints_3d
+
+    assert fitted[0] == 0, fitted[2]
+    params = read_params(fitted[3] / "params.json")
+    for frame in track["frames"][::7]:
+        (hand,) = frame["hands"]
+        posed = replace(params, pose=torch.tensor(hand["pose"], dtype=params.pose.dtype),
+                        translation=torch.tensor(hand["translation"],
+                                                 dtype=params.translation.dtype))
+        np.testing.assert_allclose(hand_keypoints_3d(posed), hand["keypoints_3d"], atol=2e-5)
+
+
 # --- bad input: one line, exit code 2, nothing written -------------------------------------
 
 
