@@ -52,10 +52,11 @@ def fit_video(
     settings: SetOpt = None,
 ) -> None:
     """Fit the LISA hand through a video: detect the hands of every frame (MediaPipe: pip
-    install -e '.[photo]'), follow each one through the clip, fit its shape, skeleton and colour
-    once on its best-seen frame, then its pose and translation in every frame with a motion
-    prior, and write the hand (params.json, mesh.ply), its animation (hand.glb), every frame's
-    keypoints (track.json), the clip with the hand over it (overlay.mp4) and report.html."""
+    install -e '.[photo]'), follow each one through the clip, fit its pose and translation in
+    every frame with a motion prior and one skeleton for the clip, then its shape and colour
+    once on a few well-seen frames, and write the hand (params.json, mesh.ply), its animation
+    (hand.glb), every frame's keypoints (track.json), the clip with the hand over it
+    (overlay.mp4) and report.html."""
     from ..fitting.video import FitVideoConfig, fit_video_folder
 
     config = with_settings(FitVideoConfig(independent=independent, num_threads=threads),
