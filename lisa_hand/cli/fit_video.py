@@ -20,8 +20,8 @@ def fit_video(
                               "(PNG, JPEG; natural order).")],
     out: Annotated[Path, typer.Option(
         "--out", help="Output folder: params.json, mesh.ply, hand.glb (one hand; DIR/handN/ "
-                      "each when there are several), track.json, overlay.mp4, report.html, "
-                      "metrics.json.")],
+                      "each when there are several, and hands.json: where they are from each "
+                      "other), track.json, overlay.mp4, report.html, metrics.json.")],
     camera: Annotated[Path | None, typer.Option(
         "--camera", metavar="CAM.json",
         help="Calibrated camera (cameras.json convention: K, width, height).")] = None,

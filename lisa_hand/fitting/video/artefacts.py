@@ -10,7 +10,8 @@ In ``DIR``: ``track.json`` (:func:`track_record`), ``overlay.mp4`` (the clip, at
 fit worked at, with each hand's mesh posed by skinning in every frame and rendered over it:
 :class:`lisa_hand.inference.skinned.SkinnedMesh`,
 :func:`lisa_hand.inference.mesh_render.render_mesh`), ``report.html`` and ``metrics.json``
-(:mod:`lisa_hand.fitting.video.report`). The overlay draws the mesh decimated to
+(:mod:`lisa_hand.fitting.video.report`); with several hands ``hands.json``
+(:func:`hands_record`). The overlay draws the mesh decimated to
 ``overlay_faces`` faces (the same picture, a quarter of the time).
 """
 
@@ -25,11 +26,11 @@ from ...inference.mesh_render import render_meshes_over
 from ...inference.skinned import SkinnedMesh
 from ..outputs import Artefact, json_artefact, mesh_artefact, params_artefact
 
-__all__ = ["VIDEO_FILES", "VIDEO_DESCRIBED", "hand_folder", "track_record",
+__all__ = ["VIDEO_FILES", "VIDEO_DESCRIBED", "hand_folder", "track_record", "hands_record",
            "video_artefacts", "video_entry"]
 
-VIDEO_FILES = ("params.json", "mesh.ply", "hand.glb", "track.json", "overlay.mp4",
-               "report.html", "metrics.json")
+VIDEO_FILES = ("params.json", "mesh.ply", "hand.glb", "track.json", "hands.json",
+               "overlay.mp4", "report.html", "metrics.json")
 """The files a video fit writes (per hand or at the top)."""
 
 
@@ -82,6 +83,27 @@ def track_record(fit: Any) -> dict[str, Any]:
                        "keyframe": _moment(fit, hand.keyframe_row),
                        "keyframes": [_moment(fit, row) for row in sorted(hand.keyframe.rows)]}
                       for hand in fit.hands],
+            "frames": frames}
+
+
+def hands_record(fit: Any) -> dict[str, Any]:
+    """What ``hands.json`` holds for a clip of several hands (``fit.contact``): ``hands`` (each
+    one's ``identity``, ``side`` and ``folder``), ``frame`` ("camera"), ``penetration_mm`` (the
+    deepest point of any hand inside another over the clip, by the hands' own fields) and
+    ``frames``: per frame its ``index``, ``time_s``, ``right_to_left_m`` ([3] metres, the left
+    wrist keypoint minus the right one; null unless one right and one left hand are both
+    there) and ``penetration_mm`` (null with fewer than two hands there)."""
+    contact = fit.contact
+
+    def value(values: np.ndarray, digits: int) -> Any:
+        return None if not np.isfinite(values).all() else _rows(values, digits)
+
+    frames = [{**_moment(fit, row), "right_to_left_m": value(contact.right_to_left_m[row], 6),
+               "penetration_mm": value(contact.penetration_mm[row], 3)}
+              for row in range(len(fit.indices))]
+    return {"hands": [{"identity": hand.track.identity, "side": hand.side,
+                       "folder": hand_folder(fit, hand)} for hand in fit.hands],
+            "frame": "camera", "penetration_mm": round(contact.deepest_mm, 3),
             "frames": frames}
 
 
@@ -182,6 +204,8 @@ def video_artefacts(fit: Any, model: Any, config: Any, metrics: dict, progress: 
                       mesh_artefact(hand.keyframe.mesh, prefix + "mesh.ply"),
                       _glb_artefact(prefix + "hand.glb", SkinnedMesh(hand.keyframe.mesh,
                                                                     hand.params), hand, fit.times)]
+    if fit.contact is not None:
+        artefacts.append(json_artefact("hands.json", hands_record(fit)))
     return artefacts + [json_artefact("track.json", track_record(fit)),
                         json_artefact("metrics.json", metrics),
                         _overlay_artefact(fit, frames),

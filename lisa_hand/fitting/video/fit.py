@@ -19,7 +19,9 @@
    keyframes (the best-seen frame and the best of other parts of the clip, ``keyframes``)
    fitted as photos of one hand at their fitted poses
    (:func:`lisa_hand.fitting.video.keyframe.fit_keyframe`).
-5. The files (:mod:`lisa_hand.fitting.video.artefacts`): written all or nothing.
+5. With several hands, **where they are from each other** and how deep they meet in every frame
+   (:func:`lisa_hand.fitting.video.contact.clip_contact`).
+6. The files (:mod:`lisa_hand.fitting.video.artefacts`): written all or nothing.
 
 A left hand is fitted as the mirror image of a right one (its keypoints mirrored about the
 principal point), as every fitter does, and mirrored back.
@@ -74,7 +76,9 @@ class VideoFit:
     camera: the camera in processing pixels (world = camera frame); camera_source: where it
     came from. hands: one :class:`TrackedHand` a track. detections: per frame, the hands the
     detector found. independent: each frame was fitted alone. model: the trained model the
-    hands belong to. timings: seconds per step; notes: sentences for the user."""
+    hands belong to. timings: seconds per step; notes: sentences for the user. contact: with
+    two hands or more, where they are from each other and how deep they meet per frame
+    (:class:`lisa_hand.fitting.video.contact.ClipContact`; None for one hand)."""
 
     video: Any
     indices: np.ndarray
@@ -87,6 +91,7 @@ class VideoFit:
     model: Any = None
     timings: dict[str, float] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
+    contact: Any = None
 
     @property
     def scale(self) -> float:
@@ -314,6 +319,7 @@ def fit_video(
     from ...model.trained import load_trained
     from ...utils.device import resolve_device
     from ...utils.threads import cpu_threads
+    from .contact import clip_contact
     from .keyframe import frame_photo
     from .tracks import build_tracks
 
@@ -348,11 +354,12 @@ def fit_video(
         model = load_trained(model_path, resolve_device(device))
         hands = _fit_hands(model, video, tracks, side, camera, indices, times, kept,
                            model_path, config, progress, log, notes)
+        contact = clip_contact(model, hands, config.overlay_faces) if len(hands) > 1 else None
     timings["seconds_fit"] = time.perf_counter() - began - sum(timings.values())
     return VideoFit(video=video, indices=indices, times=times, camera=camera,
                     camera_source=camera_source, hands=hands, detections=detections,
                     independent=config.independent, model=model, timings=timings,
-                    notes=notes)
+                    notes=notes, contact=contact)
 
 
 def _fit_hands(model: Any, video: Any, tracks: list[HandTrack], side: str, camera: Any,

@@ -57,3 +57,59 @@ def test_the_left_hand_is_the_right_one_mirrored(two_hands):
     relative = (mirrored_3d - mirrored_3d[:, :1]) - (right.motion.keypoints_3d
                                                     - right.motion.keypoints_3d[:, :1])
     assert np.linalg.norm(relative, axis=-1).mean() < 0.008  # metres (measured 3.1 mm)
+
+
+def test_where_the_hands_are_from_each_other(two_hands):
+    """The left hand is the right one mirrored through the picture's middle (x -> -x): its
+    wrist is the right wrist's mirror, so right-to-left is (-2 x, 0, 0) of the right wrist, to
+    what the detector sees differently in a mirrored picture (measured: x within 0.6 mm, y 2.3
+    mm, depth 5.2 mm); hands this far apart do not meet."""
+    right, _ = two_hands.hands
+    contact = two_hands.contact
+    wrist = right.motion.keypoints_3d[:, 0]  # [N, 3] metres
+    offset = contact.right_to_left_m
+    assert offset.shape == (10, 3) and np.isfinite(offset).all()
+    assert (offset[:, 0] > 0.1).all()  # the left hand on the right of the picture
+    np.testing.assert_allclose(offset[:, 0], -2.0 * wrist[:, 0], atol=0.005)
+    assert np.abs(offset[:, 1:]).max() < 0.015
+    np.testing.assert_array_equal(contact.penetration_mm, np.zeros(10))
+    assert contact.deepest_mm == 0.0
+
+
+def test_a_hand_inside_another_is_measured(two_hands):
+    """The right hand and a copy of it 5 mm to the side: one inside the other in every frame
+    (measured 6.0-6.1 mm deep); 20 cm to the side, apart."""
+    from dataclasses import replace
+
+    from lisa_hand.fitting.video.contact import clip_contact
+
+    right, _ = two_hands.hands
+
+    def moved(shift_m: float):
+        motion = replace(right.motion, translation=right.motion.translation
+                         + np.array([shift_m, 0.0, 0.0]),
+                         keypoints_3d=right.motion.keypoints_3d + np.array([shift_m, 0.0, 0.0]))
+        return replace(right, motion=motion)
+
+    near = clip_contact(two_hands.model, [right, moved(0.005)])
+    assert (near.penetration_mm > 4.0).all() and (near.penetration_mm < 9.0).all(), \
+        near.penetration_mm
+    assert np.isnan(near.right_to_left_m).all()  # two right hands: no right-to-left
+    far = clip_contact(two_hands.model, [right, moved(0.2)])
+    np.testing.assert_array_equal(far.penetration_mm, np.zeros(10))
+
+
+def test_hands_json(two_hands):
+    import json
+
+    from lisa_hand.fitting.video.artefacts import hands_record
+
+    record = json.loads(json.dumps(hands_record(two_hands)))  # plain JSON
+    assert record["hands"] == [{"identity": 0, "side": "right", "folder": "hand0"},
+                               {"identity": 1, "side": "left", "folder": "hand1"}]
+    assert record["frame"] == "camera" and record["penetration_mm"] == 0.0
+    frames = record["frames"]
+    assert [frame["index"] for frame in frames] == two_hands.indices.tolist()
+    np.testing.assert_allclose([frame["right_to_left_m"] for frame in frames],
+                               two_hands.contact.right_to_left_m, atol=1e-6)
+    assert all(frame["penetration_mm"] == 0.0 for frame in frames)
