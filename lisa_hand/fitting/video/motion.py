@@ -160,32 +160,49 @@ class MotionEnergy:
         return energy + config.joint_speed_weight * (excess ** 2).sum()
 
 
-def _optimise(energy: MotionEnergy, rows: torch.Tensor, pose: torch.Tensor,
-              translation: torch.Tensor, free: torch.Tensor, iterations: int,
-              bar: Any = None) -> None:
-    """Adam under the cosine schedule on the ``free`` [W] rows of ``pose`` and ``translation``
-    (in place); ``bar`` (a progress bar, or None) counts the steps."""
+def _optimise(energy: MotionEnergy, spans: list[tuple[torch.Tensor, torch.Tensor]],
+              pose: torch.Tensor, translation: torch.Tensor, iterations: int, bar: Any = None,
+              betas: torch.Tensor | None = None) -> torch.Tensor | None:
+    """Adam under the cosine schedule on the free rows of ``spans`` of ``pose`` [N, 48] and
+    ``translation`` [N, 3] (in place) and, where ``betas`` [K] is given, on the one skeleton
+    of them all (its template betas, under ``config.betas_weight`` x their mean square, as in
+    every fitter). spans: (rows [W] consecutive frame indices, free [W] bool) each, an energy
+    each: its held rows are context, fixed. ``bar`` (a progress bar, or None) counts the
+    steps. -> the fitted betas (None where not given)."""
     config = energy.config
-    free_pose = pose[free].clone().requires_grad_(True)
-    free_translation = translation[free].clone().requires_grad_(True)
-    optimizer = torch.optim.Adam([{"params": [free_pose], "lr": config.pose_lr},
-                                  {"params": [free_translation], "lr": config.translation_lr}])
+    moving = torch.cat([rows[free] for rows, free in spans])
+    free_pose = pose[moving].clone().requires_grad_(True)
+    free_translation = translation[moving].clone().requires_grad_(True)
+    groups = [{"params": [free_pose], "lr": config.pose_lr},
+              {"params": [free_translation], "lr": config.translation_lr}]
+    free_betas = None
+    if betas is not None:
+        free_betas = betas.detach().float().clone().requires_grad_(True)
+        groups.append({"params": [free_betas], "lr": config.betas_lr})
+    optimizer = torch.optim.Adam(groups)
     schedule = lr_schedule(optimizer, iterations, config.final_lr_fraction)
-    held_pose, held_translation = pose.detach(), translation.detach()
+    held = [(pose[rows].detach(), translation[rows].detach()) for rows, _ in spans]
+    bounds = np.cumsum([0] + [int(free.sum()) for _, free in spans])
     for _ in range(iterations):
         optimizer.zero_grad(set_to_none=True)
-        full_pose = held_pose.clone()
-        full_pose[free] = free_pose
-        full_translation = held_translation.clone()
-        full_translation[free] = free_translation
-        energy(rows, full_pose, full_translation, free).backward()
+        total = 0.0
+        for (rows, free), (held_pose, held_translation), begin, end in zip(
+                spans, held, bounds[:-1], bounds[1:], strict=True):
+            span_pose, span_translation = held_pose.clone(), held_translation.clone()
+            span_pose[free] = free_pose[begin:end]
+            span_translation[free] = free_translation[begin:end]
+            total = total + energy(rows, span_pose, span_translation, free, free_betas)
+        if free_betas is not None:
+            total = total + config.betas_weight * free_betas.square().mean()
+        total.backward()
         optimizer.step()
         schedule.step()
         if bar is not None:
             bar.update(1)
     with torch.no_grad():
-        pose[free] = free_pose.detach()
-        translation[free] = free_translation.detach()
+        pose[moving] = free_pose.detach()
+        translation[moving] = free_translation.detach()
+    return None if free_betas is None else free_betas.detach()
 
 
 def _sweep(energy: MotionEnergy, order: list[int], pose: torch.Tensor,
@@ -202,11 +219,9 @@ def _sweep(energy: MotionEnergy, order: list[int], pose: torch.Tensor,
             pose[new] = pose[order[done - 1]].clone()
             translation[new] = translation[order[done - 1]].clone()
         window = sorted(held + new)  # frame order, whichever way the sweep goes
-        rows = torch.tensor(window)
         free = torch.tensor([row in new for row in window])
-        sub_pose, sub_translation = pose[rows].clone(), translation[rows].clone()
-        _optimise(energy, rows, sub_pose, sub_translation, free, config.window_iters, bar)
-        pose[rows], translation[rows] = sub_pose, sub_translation
+        _optimise(energy, [(torch.tensor(window), free)], pose, translation,
+                  config.window_iters, bar)
         steps += config.window_iters
         done += len(new)
     return steps
@@ -222,46 +237,6 @@ def _planned_steps(segments: list, config: MotionConfig) -> int:
     if any(end - first > 1 for first, end, *_ in segments):
         total += config.refine_iters
     return total
-
-
-def _refine(energy: MotionEnergy, spans: list[tuple[int, int]], pose: torch.Tensor,
-            translation: torch.Tensor, betas: torch.Tensor | None, iterations: int,
-            bar: Any = None) -> torch.Tensor | None:
-    """The final pass: every frame of ``spans`` (row ranges [first, end)) at once, in place,
-    and, where ``betas`` [K] is given, the one skeleton of them all (its template betas from
-    the given, under ``config.betas_weight`` x their mean square, as in every fitter) -> the
-    fitted betas (None where not given). Spans are independent but for the skeleton."""
-    config = energy.config
-    rows = [torch.arange(first, end) for first, end in spans]
-    every = torch.cat(rows)
-    free_pose = pose[every].clone().requires_grad_(True)
-    free_translation = translation[every].clone().requires_grad_(True)
-    groups = [{"params": [free_pose], "lr": config.pose_lr},
-              {"params": [free_translation], "lr": config.translation_lr}]
-    free_betas = None
-    if betas is not None:
-        free_betas = betas.detach().float().clone().requires_grad_(True)
-        groups.append({"params": [free_betas], "lr": config.betas_lr})
-    optimizer = torch.optim.Adam(groups)
-    schedule = lr_schedule(optimizer, iterations, config.final_lr_fraction)
-    bounds = np.cumsum([0] + [len(span) for span in rows])
-    for _ in range(iterations):
-        optimizer.zero_grad(set_to_none=True)
-        total = 0.0
-        for span, begin, end in zip(rows, bounds[:-1], bounds[1:], strict=True):
-            total = total + energy(span, free_pose[begin:end], free_translation[begin:end],
-                                   torch.ones(len(span), dtype=torch.bool), free_betas)
-        if free_betas is not None:
-            total = total + config.betas_weight * free_betas.square().mean()
-        total.backward()
-        optimizer.step()
-        schedule.step()
-        if bar is not None:
-            bar.update(1)
-    with torch.no_grad():
-        pose[every] = free_pose.detach()
-        translation[every] = free_translation.detach()
-    return None if free_betas is None else free_betas.detach()
 
 
 def fit_motion(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | None,
@@ -302,8 +277,10 @@ def fit_motion(template: Any, rest_joints: torch.Tensor, betas: torch.Tensor | N
     spans = [(first, end) for first, end, *_ in segments if end - first > 1]
     fit_skeleton = temporal and config.betas_lr > 0 and betas is not None
     if refine_iters > 0 and spans:
-        fitted_betas = _refine(energy, spans, pose, translation,
-                               betas if fit_skeleton else None, refine_iters, bar)
+        fitted_betas = _optimise(energy, [(torch.arange(first, end),
+                                           torch.ones(end - first, dtype=torch.bool))
+                                          for first, end in spans], pose, translation,
+                                 refine_iters, bar, betas if fit_skeleton else None)
         steps += refine_iters
         if fitted_betas is not None:
             betas = fitted_betas
