@@ -13,3 +13,11 @@ def one_thread():
     test process and the fits' workers), restored afterwards."""
     with cpu_threads(1):
         yield
+
+
+@pytest.fixture(scope="module")
+def one_thread_per_module():
+    """:func:`one_thread` for a whole test module, its module-scoped fixtures (scenes, fits)
+    included: ``pytestmark = pytest.mark.usefixtures("one_thread_per_module")``."""
+    with cpu_threads(1):
+        yield

@@ -15,17 +15,13 @@ from lisa_hand.data.meshio import load_mesh, save_mesh
 from lisa_hand.inference import mesh_hand
 from lisa_hand.model.trained import export_trained
 from lisa_hand.skeleton.params import read_params
-from lisa_hand.utils.threads import cpu_threads
 from tests.fitting.image_scene import render_frame, tiny_model, true_hand, write_frame
 
 FAST = ["--keypoint-iters", "60", "--color-iters", "4", "--rays", "64", "--res", "32",
         "--device", "cpu", "--no-progress"]
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):  # the CPU is shared
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 @pytest.fixture()

@@ -19,7 +19,6 @@ from lisa_hand.metrics import mpjpe, pa_mpjpe
 from lisa_hand.model.trained import export_trained
 from lisa_hand.skeleton import KEYPOINT_NAMES
 from lisa_hand.skeleton.params import read_params
-from lisa_hand.utils.threads import cpu_threads
 from tests.fitting.image_scene import tiny_model
 from tests.fitting.photo.photo_scene import (
     FOCAL,
@@ -38,10 +37,7 @@ PHOTO_FILES = ["camera.json", "keypoints.json", "mask.png", "mesh.ply", "metrics
                "overlay.png", "params.json", "report.html"]
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):  # the CPU is shared
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 @pytest.fixture()

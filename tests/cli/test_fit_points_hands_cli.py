@@ -16,15 +16,11 @@ import torch
 from lisa_hand.cli import main as cli_main
 from lisa_hand.data.meshio import load_mesh
 from lisa_hand.skeleton.params import read_params
-from lisa_hand.utils.threads import cpu_threads
 
 FAST = ["--no-progress", "--res", "32", "--units", "m"]
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):  # the CPU is shared
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 def lisa(argv: list[str]) -> int:

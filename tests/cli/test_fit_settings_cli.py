@@ -14,7 +14,6 @@ from lisa_hand.fitting.photo.config import FitPhotoConfig
 from lisa_hand.model.trained import export_trained
 from lisa_hand.skeleton.params import read_params
 from lisa_hand.utils.config import apply_overrides, config_from_dict
-from lisa_hand.utils.threads import cpu_threads
 from tests.fitting.image_scene import render_frame, tiny_model, true_hand, write_frame
 from tests.fitting.photo.photo_scene import (
     FOCAL,
@@ -27,10 +26,7 @@ from tests.fitting.photo.photo_scene import (
 QUICK = ["--rays", "64", "--res", "32", "--device", "cpu", "--no-progress"]
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):  # the CPU is shared
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 def run(argv, capsys) -> tuple[int, str, str]:

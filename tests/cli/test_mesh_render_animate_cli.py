@@ -21,7 +21,6 @@ from lisa_hand.model.lisa import LisaModel
 from lisa_hand.model.trained import TrainedModel, export_trained
 from lisa_hand.skeleton import AVERAGE_REST_JOINTS
 from lisa_hand.skeleton.params import HandParams, read_params, write_params
-from lisa_hand.utils.threads import cpu_threads
 
 VERBS = (mesh, render, animate, blend)
 TINY_FIELD = dict(sdf_hidden=32, sdf_depth=2, skinning_hidden=32, skinning_depth=1,
@@ -31,10 +30,7 @@ REST = torch.tensor(AVERAGE_REST_JOINTS)
 PADDING = "0.08"  # metres: the untrained blob reaches 7 cm past the skeleton
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):  # the CPU is shared
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 @pytest.fixture(scope="module")

@@ -11,7 +11,6 @@ from dataclasses import replace
 
 import pytest
 
-from lisa_hand.utils.threads import cpu_threads
 from lisa_hand.viewer.export import export_folder
 from lisa_hand.viewer.origin import origin_allowed
 from tests.inference.helpers import PADDING, hand_params, tiny_model
@@ -32,10 +31,7 @@ from lisa_hand.viewer.state import NamedHand  # noqa: E402
 SUBPROTOCOL = f"viser-v{viser.__version__}"
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):  # the CPU is shared
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 @pytest.fixture(scope="module")

@@ -14,7 +14,6 @@ from lisa_hand.fitting.images.calibration import ViewCalibration
 from lisa_hand.fitting.images.color_stage import fit_color
 from lisa_hand.fitting.images.config import FitImagesConfig
 from lisa_hand.fitting.images.folder import render_fitted_views
-from lisa_hand.utils.threads import cpu_threads
 from tests.fitting.image_scene import FAST_RENDER, load_float_template, make_scene
 
 # Relative responses of the scene's 3 views: zero mean over the views, so that no colour code
@@ -23,10 +22,7 @@ RELATIVE_GAINS = torch.tensor([[1.12, 0.90, 1.00], [0.90, 1.00, 1.12], [0.98, 1.
 RELATIVE_BIASES = torch.tensor([[0.04, -0.03, 0.0], [-0.03, 0.0, 0.04], [-0.01, 0.03, -0.04]])
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 def test_gains_biases_prior_and_dict_by_hand():

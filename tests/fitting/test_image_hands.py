@@ -25,7 +25,6 @@ from lisa_hand.geometry.cameras import make_rig
 from lisa_hand.metrics.keypoints import mrrpe
 from lisa_hand.model.trained import export_trained
 from lisa_hand.skeleton.params import read_params
-from lisa_hand.utils.threads import cpu_threads
 from tests.fitting.image_scene import FAST_RENDER, tiny_model, true_hand, write_frame
 
 WIDTH, HEIGHT = 80, 60
@@ -38,10 +37,7 @@ FAST = FitImagesConfig(keypoint_iters=60, color_iters=4, num_rays=64, render=FAS
                        device="cpu")
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):  # the CPU is shared
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 def _frame(model, hand, cameras) -> list[ImageView]:

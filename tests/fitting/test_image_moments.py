@@ -17,7 +17,6 @@ from lisa_hand.fitting.images.views import check_moments
 from lisa_hand.fitting.stages import history_columns
 from lisa_hand.handmodel.poses import sample_pose
 from lisa_hand.render import RenderConfig
-from lisa_hand.utils.threads import cpu_threads
 from tests.fitting.image_scene import (
     FAST_RENDER,
     load_float_template,
@@ -26,11 +25,7 @@ from tests.fitting.image_scene import (
     rotation_error_deg,
 )
 
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):  # the CPU is shared: one thread per test process
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 @pytest.fixture(scope="module")

@@ -19,14 +19,9 @@ from lisa_hand.fitting.images.pose_search import (
 from lisa_hand.fitting.images.terms import ViewData
 from lisa_hand.fitting.priors import prior_mean_fingers
 from lisa_hand.geometry import axis_angle_to_matrix
-from lisa_hand.utils.threads import cpu_threads
 from tests.fitting.image_scene import load_float_template, make_scene
 
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):  # the CPU is shared: one thread per test process
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 @pytest.fixture(scope="module")

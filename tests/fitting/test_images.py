@@ -35,11 +35,7 @@ from tests.fitting.image_scene import (
     tiny_model,
 )
 
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):  # the CPU is shared: one thread per test process
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 @pytest.fixture(scope="module")

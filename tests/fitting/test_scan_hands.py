@@ -26,17 +26,13 @@ from lisa_hand.fitting.points.hands import (
     kmeans_split,
     split_candidates,
 )
-from lisa_hand.utils.threads import cpu_threads
 
 VOXELS_PER_LENGTH = 120
 """Meshes of the open hand model at hand length / 120 (about 1.5 mm; 25k vertices)."""
 SCAN_POINTS = 4000
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):  # the CPU is shared
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 def _pose(rotation) -> torch.Tensor:

@@ -22,14 +22,9 @@ from lisa_hand.fitting.images.views import (
 )
 from lisa_hand.geometry.cameras import Camera, make_rig
 from lisa_hand.skeleton import KEYPOINT_NAMES, mirror_points
-from lisa_hand.utils.threads import cpu_threads
 from tests.fitting.image_scene import HEIGHT, WIDTH, make_scene
 
-
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):  # the CPU is shared: one thread per test process
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 @pytest.fixture(scope="module")

@@ -27,7 +27,6 @@ from lisa_hand.fitting.sides import mirror_hand
 from lisa_hand.geometry import axis_angle_to_matrix
 from lisa_hand.geometry.meshing import Mesh
 from lisa_hand.skeleton import KEYPOINT_NAMES, forward_kinematics, mirror_points
-from lisa_hand.utils.threads import cpu_threads
 from tests.assets import PHOTOS
 from tests.fitting.image_scene import load_float_template, tiny_model
 from tests.fitting.photo.photo_scene import (
@@ -49,10 +48,7 @@ def fast_config(**overrides) -> FitPhotoConfig:
     return FitPhotoConfig(fit=fit, mesh_resolution=32, render_max_side=64)
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    with cpu_threads(1):  # the CPU is shared
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 @pytest.fixture(scope="module")

@@ -31,12 +31,7 @@ K = torch.tensor([[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]])  #
 FAST = MotionConfig(window=12, overlap=3, window_iters=40, refine_iters=80)
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _one_thread():
-    from lisa_hand.utils.threads import cpu_threads
-
-    with cpu_threads(1):  # the CPU is shared
-        yield
+pytestmark = pytest.mark.usefixtures("one_thread_per_module")  # the CPU is shared
 
 
 def trajectory(times: torch.Tensor, dtype: torch.dtype = torch.float32
