@@ -38,8 +38,11 @@ left, right, up and down, as they are and mirrored, with what its refinement win
 the border's colour), whole and zoomed out; both again around the hands they find; (c) if neither
 finds one, in the coarsest crop level that shows a hand half the smallest one's size large enough
 (:attr:`DetectConfig.further_smallest`), not painted out (a painted patch can make a neck its
-best "palm"). A hand partly hidden by another is found when its fingers show (the tests); with
-only its thumb and the back of the hand showing MediaPipe misses it or calls it the other side.
+best "palm"); (d) with the landmark model alone, without the palm detector, on squares around
+each hand (:mod:`.detect_hidden`, :attr:`DetectConfig.hidden_search`): a hand behind another
+whose fingers show but whose palm is hidden (interlaced fingers, a hand holding the other's
+wrist). With only its thumb and the back of the hand showing a hand is still missed or called
+the other side.
 
 **Handedness.** MediaPipe labels a hand assuming a mirrored (selfie) image: its label is the
 opposite of the true side in an ordinary photo. In a photo of the palm side of a thumbs-up fist
@@ -187,6 +190,11 @@ class DetectConfig:
     """A part cut by a crop's edge is one with a hand whose box overlaps it more than this."""
     further_search: bool = True
     """Once hands are found, look for more while fewer than ``max_hands`` are (module docstring)."""
+    hidden_search: bool = True
+    """Last of the further search: the landmark model alone around each hand found, for hands
+    whose palm is hidden (:mod:`lisa_hand.data.detect_hidden`)..."""
+    hidden_context: float = 2.0
+    """...on squares this many times a found hand's keypoint box."""
     beside_context: float = 3.0
     """Side of the windows beside a found hand, in units of its keypoint box's long side..."""
     beside_shift: float = 1.0
@@ -216,6 +224,7 @@ class DetectConfig:
             ("same_outline", 0.0 < c.same_outline <= 1.0, "in (0, 1]"),
             ("duplicate_iou", 0.0 < c.duplicate_iou <= 1.0, "in (0, 1]"),
             ("beside_context", c.beside_context >= 1.0, ">= 1"),
+            ("hidden_context", c.hidden_context >= 1.0, ">= 1"),
             ("beside_shift", c.beside_shift >= 0.0, ">= 0"),
             ("further_smallest", c.further_smallest > 0.0, "positive"),
             ("paint_margin", c.paint_margin >= 0.0, ">= 0")) if not ok]
@@ -241,7 +250,8 @@ class DetectedHand:
     found_by: str = ""
     """The search level that found it: "whole image" (as it is or zoomed out), "2x2 crops",
     "3x3 crops", "4x4 crops"; after another hand: "beside another hand", "another hand painted
-    out", "3x3 crops after another hand" (...); in a greyscale photo found only once tinted,
+    out", "3x3 crops after another hand", "the landmark model alone beside another hand (palm
+    hidden)" (...); in a greyscale photo found only once tinted,
     followed by ", greyscale photo tinted skin-coloured, side unknown" (:attr:`score` 0.5)."""
     side_votes: tuple[int, int] = (0, 0)
     """(right, left): how many of the agreeing estimates (plain and mirrored windows) call it
@@ -499,10 +509,11 @@ def _greyscale(pixels: np.ndarray) -> bool:
 
 
 def _search(hands: Any, pixels: np.ndarray, config: DetectConfig, max_hands: int,
-            pair: Any = None) -> list[Named]:
+            pair: Any = None, landmark: Any = None) -> list[Named]:
     """The coarse-to-fine search with MediaPipe's ``hands`` -> the hands of the first level that
     finds any, with that level's name, and those the further search finds after them. ``pair``
-    (MediaPipe looking for at most two hands, or None) searches the whole photo too."""
+    (MediaPipe looking for at most two hands, or None) searches the whole photo too;
+    ``landmark`` (the landmark model alone, or None) looks for hands whose palm is hidden."""
     height, width = pixels.shape[:2]
     border = np.concatenate([pixels[0], pixels[-1], pixels[:, 0], pixels[:, -1]])
     fill = np.median(border, axis=0).astype(np.uint8)
@@ -520,6 +531,12 @@ def _search(hands: Any, pixels: np.ndarray, config: DetectConfig, max_hands: int
 
                 further = search_further(hands, pixels, found, around, levels, index, fill,
                                          config, max_hands)
+            known = found + [hand for hand, _ in further]
+            if config.further_search and landmark is not None and len(known) < max_hands:
+                from .detect_hidden import HIDDEN, search_hidden
+
+                further += [(hand, HIDDEN) for hand in
+                            search_hidden(landmark, pixels, known, config, max_hands)]
             return [(hand, level) for hand in found] + further
     return []
 
@@ -559,14 +576,18 @@ def _unique(hands_found: list[Named], config: DetectConfig) -> list[Named]:
 
 
 def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | None = None,
-                 hands_factory: Callable[..., Any] | None = None) -> list[DetectedHand]:
+                 hands_factory: Callable[..., Any] | None = None,
+                 landmark_factory: Callable[[], Any] | None = None) -> list[DetectedHand]:
     """Find the hands in a photo (see the module docstring for the search).
 
     image: [H, W, 3] float32 RGB in [0, 1] (a :class:`lisa_hand.data.photo.Photo`'s image; uint8
     is accepted too); max_hands: at most this many hands (the largest keypoint boxes);
     hands_factory: what builds the detector, called with MediaPipe's ``Hands`` keyword arguments
     and used as a context manager whose ``process(rgb)`` returns MediaPipe's results (default:
-    ``mediapipe.solutions.hands.Hands``).
+    ``mediapipe.solutions.hands.Hands``); landmark_factory: what builds the landmark model
+    alone (:attr:`DetectConfig.hidden_search`; a context manager with ``read(pixels, square)``;
+    default: :class:`lisa_hand.data.detect_hidden.LandmarkModel` with MediaPipe's detector,
+    none with another ``hands_factory``).
     -> the hands, de-duplicated, sorted left to right by their box centres; [] when none.
     Needs the photo extra (ImportError with :data:`PHOTO_EXTRA_HINT` otherwise).
     """
@@ -574,6 +595,7 @@ def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | N
     if isinstance(max_hands, bool) or not isinstance(max_hands, int) or max_hands < 1:
         raise ValueError(f"max_hands must be a positive integer, got {max_hands!r}")
     pixels = _as_uint8(image)
+    default_factory = hands_factory is None
     if hands_factory is None:
         try:
             hands_factory = _mediapipe_hands().Hands
@@ -583,16 +605,23 @@ def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | N
     # for the whole search.
     options = dict(static_image_mode=True, model_complexity=config.model_complexity,
                    min_detection_confidence=config.min_detection_confidence)
+    if landmark_factory is None and default_factory and config.hidden_search:
+        from .detect_hidden import LandmarkModel
+
+        def landmark_factory() -> Any:
+            return LandmarkModel(config.model_complexity)
     two = config.pair_detector and max_hands > 2
     with native_stderr_captured(), hands_factory(max_num_hands=max_hands, **options) as hands, \
-            (hands_factory(max_num_hands=2, **options) if two else nullcontext()) as pair:
-        hands_found = _search(hands, pixels, config, max_hands, pair)
+            (hands_factory(max_num_hands=2, **options) if two else nullcontext()) as pair, \
+            (landmark_factory() if landmark_factory is not None and config.hidden_search
+             else nullcontext()) as landmark:
+        hands_found = _search(hands, pixels, config, max_hands, pair, landmark)
         if not hands_found and _greyscale(pixels):  # no skin colour to go by: lend it one
             tinted = np.round(pixels * np.asarray(_SKIN_TINT)).astype(np.uint8)
             smallest = _MIN_TINTED_SIZE * max(pixels.shape[:2])
             hands_found = [(replace(found, p_right=0.5, votes=(0, 0)), f"{level}, {_TINTED}")
                            for found, level in _search(hands, tinted, config, max_hands,
-                                                       pair)
+                                                       pair, landmark)
                            if max(found.box[2] - found.box[0], found.box[3] - found.box[1])
                            >= smallest]
     unique = sorted(_unique(hands_found, config), key=lambda p: -_area(p[0].box))[:max_hands]

@@ -380,16 +380,6 @@ def test_uint8_input_and_bad_input():
 # --- MediaPipe (the photo extra) ------------------------------------------------------------
 
 
-@pytest.fixture(scope="module")
-def mediapipe():
-    """MediaPipe, or a skip when the photo extra is missing (or its import fails)."""
-    try:
-        import mediapipe
-    except ImportError as exc:
-        pytest.skip(f"the photo extra (pip install -e '.[photo]') is not installed: {exc}")
-    return mediapipe
-
-
 def test_mediapipe_landmark_names(mediapipe):
     assert tuple(mediapipe.solutions.hands.HandLandmark._member_names_) == MEDIAPIPE_LANDMARKS
     assert photo_extra_missing() is None
