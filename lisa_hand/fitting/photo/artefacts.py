@@ -18,9 +18,10 @@ One fitted hand's folder (``DIR``, or ``DIR/handN`` when a photo holds several h
   coordinates: pixel ``(col, row)`` covers ``[col, col + 1) x [row, row + 1)``), ``"visible"`` [21],
   ``"keypoints_3d"`` [21, 3] metres in the photo's camera frame, ``"side"``, ``"photo"``,
   ``"image_size"`` (W, H of the original photo), ``"keypoint_error_px"`` (the mean distance between
-  the two sets of 2D keypoints over the visible ones, original pixels), ``"frame"`` (``"camera"``)
-  and ``"units"`` (:data:`UNITS`, in words). ``lisa fit-photo --keypoints`` reads this file back
-  (its detected keypoints).
+  the two sets of 2D keypoints over the visible ones, original pixels), ``"frame"`` (``"camera"``),
+  ``"units"`` (:data:`UNITS`, in words) and, when the fit had them, ``"landmarks_3d"`` [21, 3]
+  (the detector's 3D landmarks, metres, camera axes). ``lisa fit-photo --keypoints`` reads this
+  file back (its detected keypoints, side and landmarks: the same fit again).
 * ``camera.json``: the camera used (:func:`lisa_hand.data.photo.save_camera`: at the fitted
   image's size and at the original photo's, with its source);
 * ``mask.png``: the hand's mask at the original photo's size (white: hand);
@@ -114,7 +115,8 @@ class PhotoViewOutputs:
     original size. overlay: [h, w, 3] uint8 (:func:`lisa_hand.fitting.photo.report.overlay_image`).
     keypoint_error_px: mean distance (original pixels) of the visible keypoints.
     detector_px: [21, 2] original pixels, the detector's own keypoints when the fit was given
-    them changed (its wrist moved to the skeleton's), else None.
+    them changed (its wrist moved to the skeleton's), else None. landmarks_3d: [21, 3] metres,
+    the detector's 3D landmarks the fit was given (camera axes), else None.
     """
 
     photo: Path
@@ -129,6 +131,7 @@ class PhotoViewOutputs:
     overlay: np.ndarray
     keypoint_error_px: float
     detector_px: np.ndarray | None = None
+    landmarks_3d: np.ndarray | None = None
 
 
 @dataclass
@@ -225,7 +228,8 @@ def _view_outputs(model: Any, mesh: Any, keypoints_world: np.ndarray, item: Phot
         mask=resize_array(refined, (int(width), int(height))), overlay=overlay,
         keypoint_error_px=float(error.mean()),
         detector_px=(None if item.hand.detector_keypoints is None
-                     else item.hand.detector_keypoints / factors))
+                     else item.hand.detector_keypoints / factors),
+        landmarks_3d=item.hand.landmarks_3d)
 
 
 def build_hand_outputs(model: Any, params: HandParams, photos: Sequence[PhotoOfHand],
@@ -314,6 +318,8 @@ def _view_record(view: PhotoViewOutputs, side: str) -> dict[str, Any]:
               "keypoint_error_px": float(view.keypoint_error_px)}
     if view.detector_px is not None:
         record["keypoints_2d_detector"] = np.asarray(view.detector_px, np.float64).tolist()
+    if view.landmarks_3d is not None:
+        record["landmarks_3d"] = np.asarray(view.landmarks_3d, np.float64).tolist()
     return record
 
 

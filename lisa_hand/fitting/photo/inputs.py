@@ -12,13 +12,15 @@ in OpenPose / MediaPipe order (:data:`lisa_hand.skeleton.KEYPOINT_NAMES`). Accep
 
 * a list of 21 ``[u, v]`` (or ``[u, v, confidence]``: visible where the confidence is > 0);
 * ``{"keypoints": [[u, v] x 21], "visible": [21] (optional), "side": "right" | "left"
-  (optional)}``; ``"keypoints"`` may also be [21, 3] with a confidence column;
+  (optional), "landmarks_3d": [21, 3] (optional)}``; ``"keypoints"`` may also be [21, 3] with a
+  confidence column; ``"landmarks_3d"``: the detector's 3D landmarks (metres, the camera's axes:
+  MediaPipe's world landmarks), which settle how the fingers lean toward the camera;
 * ``{"hands": [such objects]}`` or a list of such objects: several hands (``--hand N`` picks);
 * the package's ``keypoints.json`` of a frame folder (:mod:`lisa_hand.data.keypoints`,
   ``{"views": {name: {"keypoints", "visible"}}}``): the view named like the photo (its stem or
   file name), or its only view; this form also serves several photos at once;
-* a ``keypoints.json`` written by ``lisa fit-photo`` (its ``"keypoints_2d_detected"`` and
-  ``"side"``);
+* a ``keypoints.json`` written by ``lisa fit-photo`` (its ``"keypoints_2d_detected"``,
+  ``"side"`` and ``"landmarks_3d"``: the detection's fit again);
 * OpenPose's JSON (``{"people": [{"hand_right_keypoints_2d": [63 values], ...}]}``: ``x, y,
   confidence`` triples; the side from the key).
 
@@ -115,8 +117,26 @@ def _side(value: Any, where: str) -> str | None:
     return value
 
 
-def _array_hand(values: Any, visible: Any, side: Any, where: str) -> tuple:
-    """(keypoints [21, 2], visible [21] bool, side) from a [21, 2] or [21, 3] array."""
+def _landmarks(values: Any, where: str) -> np.ndarray | None:
+    """[21, 3] metres (the detector's 3D landmarks) or None when not given."""
+    if values is None:
+        return None
+    try:
+        array = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where}: 'landmarks_3d' must be numbers: [21, 3] metres") from None
+    if array.shape != (NUM_KEYPOINTS, 3) or not np.isfinite(array).all():
+        raise ValueError(f"{where}: 'landmarks_3d' must be [21, 3] finite metres, got "
+                         f"{list(array.shape)}")
+    if np.abs(array - array.mean(axis=0)).max() > 0.5:
+        raise ValueError(f"{where}: 'landmarks_3d' span more than a metre: they must be metres")
+    return array
+
+
+def _array_hand(values: Any, visible: Any, side: Any, where: str,
+                landmarks: Any = None) -> tuple:
+    """(keypoints [21, 2], visible [21] bool, side, landmarks [21, 3] or None) from a [21, 2]
+    or [21, 3] array (and the 3D landmarks, if given)."""
     try:
         array = np.asarray(values, dtype=np.float64)
         shown = None if visible is None else np.asarray(visible, dtype=np.float64) > 0
@@ -130,7 +150,7 @@ def _array_hand(values: Any, visible: Any, side: Any, where: str) -> tuple:
         shown = array[:, 2] > 0 if array.shape[1] == 3 else np.ones(NUM_KEYPOINTS, bool)
     if shown.shape != (NUM_KEYPOINTS,):
         raise ValueError(f"{where}: 'visible' must be [21], got {list(shown.shape)}")
-    return array[:, :2], shown, _side(side, where)
+    return array[:, :2], shown, _side(side, where), _landmarks(landmarks, where)
 
 
 def _entries(data: Any, path: Path, photo: Any) -> list[tuple]:
@@ -138,7 +158,8 @@ def _entries(data: Any, path: Path, photo: Any) -> list[tuple]:
     where = str(path)
     if isinstance(data, list) and data and all(isinstance(item, dict) for item in data):
         return [_array_hand(item.get("keypoints"), item.get("visible"), item.get("side"),
-                            f"{where}: hand {index}") for index, item in enumerate(data)]
+                            f"{where}: hand {index}", item.get("landmarks_3d"))
+                for index, item in enumerate(data)]
     if isinstance(data, list):
         return [_array_hand(data, None, None, where)]
     if not isinstance(data, dict):
@@ -153,7 +174,8 @@ def _entries(data: Any, path: Path, photo: Any) -> list[tuple]:
         return _openpose(data["people"], where)
     for key in ("keypoints_2d_detected", "keypoints"):
         if key in data:
-            return [_array_hand(data[key], data.get("visible"), data.get("side"), where)]
+            return [_array_hand(data[key], data.get("visible"), data.get("side"), where,
+                                data.get("landmarks_3d"))]
     raise ValueError(f"{where}: no keypoints found; expected {_FORMS}")
 
 
@@ -169,7 +191,7 @@ def _frame_view(path: Path, data: dict, photo: Any) -> tuple:
         raise ValueError(f"{path}: no view named {photo.path.stem!r} (the photo's name); "
                          f"views: {', '.join(map(str, views)) or 'none'}")
     entry = read_keypoints(path, names[:1])[names[0]]
-    return entry.keypoints, entry.visible, _side(data.get("side"), str(path))
+    return entry.keypoints, entry.visible, _side(data.get("side"), str(path)), None
 
 
 def _openpose(people: Any, where: str) -> list[tuple]:
@@ -225,12 +247,12 @@ def read_given_hands(path: str | os.PathLike, photo: Any) -> list[PhotoHand]:
     path = Path(path)
     hands = []
     entries = _entries(read_json(path), path, photo)
-    for index, (keypoints, visible, side) in enumerate(entries):
+    for index, (keypoints, visible, side, landmarks) in enumerate(entries):
         where = f"{path}: hand {index}" if len(entries) > 1 else str(path)
         _check_in_photo(keypoints, visible, photo, where)
         filled = fill_hidden(keypoints, visible)
         hands.append(PhotoHand(keypoints=filled * _image_factors(photo), visible=visible,
-                               side=side, score=None, source=str(path)))
+                               side=side, score=None, source=str(path), landmarks_3d=landmarks))
     return hands
 
 

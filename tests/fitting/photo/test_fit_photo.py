@@ -27,6 +27,7 @@ from lisa_hand.fitting.sides import mirror_hand
 from lisa_hand.geometry import axis_angle_to_matrix
 from lisa_hand.geometry.meshing import Mesh
 from lisa_hand.skeleton import KEYPOINT_NAMES, forward_kinematics, mirror_points
+from lisa_hand.skeleton.params import read_params
 from tests.assets import PHOTOS
 from tests.fitting.image_scene import load_float_template, tiny_model
 from tests.fitting.photo.photo_scene import (
@@ -307,6 +308,52 @@ def test_detected_hands_and_an_unsure_side(model_file, tmp_path, monkeypatch):
     assert any("split vote 3 right : 1 left" in line for line in notes[0.9])
 
 
+def test_keypoints_json_fits_the_detection_again(model_file, tmp_path, monkeypatch):
+    """A fit's keypoints.json keeps the detector's 3D landmarks; given back with --keypoints it
+    gives the detection's fit again (the landmarks lean the fingers: without them the fit
+    differs)."""
+    from lisa_hand.data import detect
+
+    model, path = model_file
+    photo = render_photo(model, [photo_hand(model)])
+    jpeg = save_jpeg(tmp_path / "hand.jpg", photo.image)
+    points, landmarks = photo.keypoints[0], photo.keypoints_3d[0]
+    # The landmarks lean every finger the other way along its camera ray than the true hand.
+    landmarks = landmarks * [1.0, 1.0, -1.0]
+    found = [detect.DetectedHand(keypoints=points, score=0.98, side="right",
+                                 box=(*points.min(0), *points.max(0)), side_votes=(3, 0),
+                                 landmarks_3d=landmarks)]
+    monkeypatch.setattr(detect, "photo_extra_missing", lambda: None)
+    monkeypatch.setattr(detect, "detect_hands", lambda image, max_hands=4: found)
+    options = dict(focal_px=FOCAL, model_path=path, device="cpu", progress=False, log=None,
+                   config=fast_config(color_iters=0))
+    fit_photo_folder(jpeg, tmp_path / "detected", **options)
+    written = tmp_path / "detected" / "keypoints.json"
+    np.testing.assert_allclose(json.loads(written.read_text())["landmarks_3d"], landmarks,
+                               atol=1e-12)
+    fit_photo_folder(jpeg, tmp_path / "again", keypoints_json=written, **options)
+    plain = save_keypoints(tmp_path / "plain.json", points, "right")
+    fit_photo_folder(jpeg, tmp_path / "plain", keypoints_json=plain, **options)
+    pose = {name: read_params(tmp_path / name / "params.json").pose
+            for name in ("detected", "again", "plain")}
+    torch.testing.assert_close(pose["again"], pose["detected"], atol=1e-5, rtol=0)
+    assert (pose["plain"] - pose["detected"]).abs().max() > 0.05
+
+
+def test_landmarks_in_a_keypoints_file_are_checked(big_photo, tmp_path):
+    points = hand_points().tolist()
+    for landmarks, message in (([[0.0, 0.0, 0.5]] * 20, "must be [21, 3] finite metres"),
+                               ([[0.0, 0.0, 0.0]] * 20 + [[0.0, 0.0, 2.0]], "must be metres")):
+        path = tmp_path / "kp.json"
+        path.write_text(json.dumps({"keypoints": points, "landmarks_3d": landmarks}))
+        with pytest.raises(ValueError) as info:
+            read_given_hands(path, big_photo)
+        assert str(info.value).startswith(str(path)) and message in str(info.value)
+    given = np.random.default_rng(0).normal(0.0, 0.03, (21, 3))
+    path.write_text(json.dumps({"hands": [{"keypoints": points, "landmarks_3d": given.tolist()}]}))
+    np.testing.assert_allclose(read_given_hands(path, big_photo)[0].landmarks_3d, given)
+
+
 def test_a_failure_while_writing_leaves_the_previous_fit(model_file, tmp_path, monkeypatch):
     model, path = model_file
     photo = render_photo(model, [photo_hand(model)])
@@ -359,7 +406,6 @@ def test_a_real_photo_with_detection(tmp_path):
 def test_the_mesh_ends_past_the_wrist_without_specks(model_file, tmp_path):
     from lisa_hand.data.meshio import load_mesh
     from lisa_hand.geometry.pieces import MIN_PIECE_FRACTION, surface_pieces
-    from lisa_hand.skeleton.params import read_params
     from lisa_hand.skeleton.wrist import WRIST_CLIP_M, wrist_plane
 
     model, path = model_file
