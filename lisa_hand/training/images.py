@@ -168,6 +168,11 @@ class ImageTrainConfig:
     loss cannot thin the prior's surface (VolSDF's density reaches about a beta beyond the zero
     level, so matching the silhouette shrinks the SDF while beta is large). Needs ``scan.npz``
     per frame; 0 (default): the paper's losses."""
+    freeze_geometry: bool = False
+    """Keep the prior's SDF and skinning MLPs as they are (needs a prior): only the colour MLP,
+    the codes, beta, the calibration, the shading and the pose offsets learn. The images then
+    teach colour on the prior's geometry, which learnt from exact signed distances in every
+    pose of its training, rather than reshaping it from a few poses' pixels. NOT in the paper."""
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """Colour of the images' background (black in the dataset and in InterHand2.6M)."""
     beta_init: float = 0.003
@@ -322,6 +327,12 @@ def build_image_model(
     unseen: list[str] = []
     if prior_model is not None:
         unseen = model.init_from_prior(prior_model)
+    if config.freeze_geometry:
+        if prior_model is None:
+            raise ValueError("freeze_geometry keeps a prior's geometry: give a prior "
+                             "(lisa train --prior RUN)")
+        for mlp in (model.field.sdf_mlp, model.field.skinning_mlp):
+            mlp.requires_grad_(False)
     return model, unseen
 
 

@@ -321,3 +321,25 @@ def _surface_error(model, data, config) -> float:
             terms = model(batch, render=config.render, batched=True)
         errors.append(float(terms["surf"]))
     return sum(errors) / len(errors)
+
+
+def test_freeze_geometry_keeps_the_priors_mlps(tiny_data, prior_run, tmp_path):
+    """With ``freeze_geometry`` a run leaves the prior's SDF and skinning MLPs bit for bit and
+    still trains the colour MLP and the codes; without a prior it is refused."""
+    prior = load_prior(prior_run)
+    config = tiny_image_config(trainer=tiny_trainer(steps=4), freeze_geometry=True)
+    train_images(tiny_data, tmp_path / "frozen", config, prior=prior_run)
+    model = load_image_model(tmp_path / "frozen")
+    for name in ("sdf_mlp", "skinning_mlp"):
+        for (key, value), (_, before) in zip(getattr(model.field, name).state_dict().items(),
+                                             getattr(prior.field, name).state_dict().items(),
+                                             strict=True):
+            assert torch.equal(value, before), f"{name}.{key}"
+    start, _ = build_image_model(RayFrames(tiny_data, "train", max_band_px=2),
+                                 resolve_prior(config, prior_run)[0], prior)
+    assert not all(torch.equal(a, b) for a, b in zip(model.field.color_mlp.parameters(),
+                                                     start.field.color_mlp.parameters(),
+                                                     strict=True))
+    assert not torch.equal(model.shape_codes.weight, start.shape_codes.weight)
+    with pytest.raises(ValueError, match="freeze_geometry keeps a prior's geometry"):
+        train_images(tiny_data, tmp_path / "none", config)
