@@ -23,7 +23,9 @@ two shared real photos.
   and the geometry guard's figures of the fit (connected
   pieces of the fitted surface, its area over the keypoint-stage mesh's, from the fit's report)
   and the keypoint reprojection error (mean distance between the detected and the fitted 2D
-  keypoints of ``keypoints.json``, pixels of the original photo).
+  keypoints of ``keypoints.json``, pixels of the original photo), and how well the fitted hand
+  matches the photo (``metrics.json``: its silhouette's IoU with the mask the fit started from,
+  the PSNR of its colours inside both: :func:`lisa_hand.fitting.photo.artefacts.agreement`).
 
 Targets (on 2 CPU cores): under 30 s a photo (every photo), PA-MPJPE under 5 mm (mean
 over the synthetic photos), one piece on each real photo; the summary says which are met.
@@ -110,6 +112,10 @@ class SharedResult:
     guard_passed: bool | None
     side: str | None
     error: str | None = None
+    silhouette_iou: float | None = None
+    """The fitted hand's silhouette against the mask the fit started from (metrics.json)."""
+    psnr_in_mask_db: float | None = None
+    """Its colours against the photo's where both are the hand, dB (metrics.json)."""
 
 
 @dataclass
@@ -279,12 +285,15 @@ def _shared_one(fit, path: Path, out_dir: Path, options: dict) -> SharedResult:
     folders = _fitted_folders(out_dir)
     fit = _read_fit(folders[0])
     guard = _guard_of(reports)
+    numbers = json.loads((folders[0] / "metrics.json").read_text())["per_photo"][0]
     return SharedResult(
         photo=path.name, seconds=seconds,
         pieces=None if guard is None else int(guard.pieces),
         area_ratio=None if guard is None else float(guard.area_ratio),
         keypoint_error_px=keypoint_error_px(fit),
-        guard_passed=None if guard is None else bool(guard.passed), side=fit.get("side"))
+        guard_passed=None if guard is None else bool(guard.passed), side=fit.get("side"),
+        silhouette_iou=numbers.get("silhouette_iou"),
+        psnr_in_mask_db=numbers.get("psnr_in_mask_db"))
 
 
 def _mean(values) -> float:
@@ -429,7 +438,9 @@ def _shared_line(result: SharedResult) -> str:
         return f"  {result.photo}: failed: {result.error}"
     return (f"  {result.photo}: {result.seconds:.1f} s, {result.pieces} piece(s), area ratio "
             f"{_number(result.area_ratio, 3)}, keypoint error {_number(result.keypoint_error_px)}"
-            f" px, guard {'passed' if result.guard_passed else 'failed'}")
+            f" px, silhouette IoU {_number(result.silhouette_iou, 3)}, PSNR in the mask "
+            f"{_number(result.psnr_in_mask_db)} dB, guard "
+            f"{'passed' if result.guard_passed else 'failed'}")
 
 
 def _table(result: PhotoBenchmark) -> list[str]:
@@ -446,12 +457,15 @@ def _table(result: PhotoBenchmark) -> list[str]:
                  f"{result.detector_wrist_shift:+.3f} of the wrist-to-middle-knuckle length "
                  "towards the fingers from the true wrist (detector_wrist_shift)"]
     if result.shared:
-        rows += ["", "| real photo | s | pieces | area ratio | keypoint error px | guard |",
-                 "| --- | --- | --- | --- | --- | --- |"]
+        rows += ["", "| real photo | s | pieces | area ratio | keypoint error px | silhouette "
+                 "IoU | PSNR in mask dB | guard |", "| --- | --- | --- | --- | --- | --- | --- "
+                 "| --- |"]
         for shared in result.shared.values():
             rows.append(f"| {shared.photo} | {_number(shared.seconds)} | "
                         f"{'-' if shared.pieces is None else shared.pieces} | "
                         f"{_number(shared.area_ratio, 3)} | {_number(shared.keypoint_error_px)} "
+                        f"| {_number(shared.silhouette_iou, 3)} | "
+                        f"{_number(shared.psnr_in_mask_db)} "
                         f"| {shared.error or ('passed' if shared.guard_passed else 'failed')} |")
     return rows
 

@@ -29,7 +29,10 @@ One fitted hand's folder (``DIR``, or ``DIR/handN`` when a photo holds several h
   (:func:`lisa_hand.fitting.photo.report.overlay_image`);
 * ``report.html``: one self-contained page with the pictures and the numbers;
 * ``metrics.json``: the numbers of the report: per photo the keypoint errors (original pixels),
-  the camera and its focal length, the wrist's distance; the geometry guard of the fit
+  the camera and its focal length, the wrist's distance, how well the fitted hand matches the
+  photo (``"silhouette_iou"``: its silhouette against the mask the fit started from,
+  ``"psnr_in_mask_db"``: its colours against the photo's inside both; :func:`agreement`); the
+  geometry guard of the fit
   (``"guard"``) and the same figures for the written ``mesh.ply`` (``"surface"``), where the side
   and the mask came from, timings, notes.
 
@@ -74,7 +77,7 @@ from ..outputs import (
 
 __all__ = ["PHOTO_FILES", "PHOTO_DESCRIBED", "PhotoOfHand", "PhotoViewOutputs",
            "PhotoHandOutputs", "photo_entry", "build_hand_outputs", "photo_report_html",
-           "keypoints_record", "photo_artefacts"]
+           "keypoints_record", "photo_artefacts", "agreement"]
 
 PHOTO_FILES = ("params.json", "mesh.ply", "keypoints.json", "camera.json", "cameras.json",
                "mask.png", "overlay.png", "report.html", "metrics.json", "hands.json",
@@ -117,6 +120,7 @@ class PhotoViewOutputs:
     detector_px: [21, 2] original pixels, the detector's own keypoints when the fit was given
     them changed (its wrist moved to the skeleton's), else None. landmarks_3d: [21, 3] metres,
     the detector's 3D landmarks the fit was given (camera axes), else None.
+    silhouette_iou, psnr_db: how well the fitted hand matches the photo (:func:`agreement`).
     """
 
     photo: Path
@@ -132,6 +136,8 @@ class PhotoViewOutputs:
     keypoint_error_px: float
     detector_px: np.ndarray | None = None
     landmarks_3d: np.ndarray | None = None
+    silhouette_iou: float = float("nan")
+    psnr_db: float = float("nan")
 
 
 @dataclass
@@ -221,6 +227,7 @@ def _view_outputs(model: Any, mesh: Any, keypoints_world: np.ndarray, item: Phot
     error = np.linalg.norm((fitted - item.hand.keypoints) / factors, axis=1)[visible]
     overlay = overlay_image(photo.image[y0:y1, x0:x1], rgb, alpha,
                             item.hand.keypoints - [x0, y0], fitted - [x0, y0])
+    iou, psnr = agreement(photo.image[y0:y1, x0:x1], item.coarse[y0:y1, x0:x1], rgb, alpha)
     return PhotoViewOutputs(
         photo=photo.path, original_size=(int(width), int(height)), camera=camera,
         camera_source=item.camera_source, detected_px=item.hand.keypoints / factors,
@@ -229,7 +236,32 @@ def _view_outputs(model: Any, mesh: Any, keypoints_world: np.ndarray, item: Phot
         keypoint_error_px=float(error.mean()),
         detector_px=(None if item.hand.detector_keypoints is None
                      else item.hand.detector_keypoints / factors),
-        landmarks_3d=item.hand.landmarks_3d)
+        landmarks_3d=item.hand.landmarks_3d, silhouette_iou=iou, psnr_db=psnr)
+
+
+def agreement(photo: np.ndarray, mask: np.ndarray, rgb: np.ndarray,
+              alpha: np.ndarray) -> tuple[float, float]:
+    """How well a fitted hand's render matches the photo it was fitted to: (the intersection
+    over union of its silhouette, alpha > 0.5, and the mask the fit started from, which the
+    fitted hand did not shape; the PSNR in dB of its colours against the photo's where both are
+    the hand). photo: [H, W, 3] float in [0, 1]; mask: [H, W] bool; rgb: [h, w, 3] colour times
+    alpha (over black) and alpha: [h, w], the render (:func:`_render_crop`), the photo and the
+    mask resized to it. NaN PSNR where they share no pixel."""
+    from .mask import resize_array
+
+    height, width = alpha.shape
+    seen = alpha > 0.5
+    hand = resize_array(mask, (width, height))
+    image = resize_array(np.clip(photo * 255.0 + 0.5, 0, 255).astype(np.uint8),
+                         (width, height)).astype(np.float64) / 255.0
+    union = int((seen | hand).sum())
+    both = seen & hand
+    iou = float(both.sum()) / union if union else float("nan")
+    if not both.any():
+        return iou, float("nan")
+    colour = rgb[both].astype(np.float64) / alpha[both, None]
+    error = float(np.mean((np.clip(colour, 0.0, 1.0) - image[both]) ** 2))
+    return iou, 10.0 * math.log10(1.0 / max(error, 1e-10))
 
 
 def build_hand_outputs(model: Any, params: HandParams, photos: Sequence[PhotoOfHand],
@@ -256,7 +288,8 @@ def build_hand_outputs(model: Any, params: HandParams, photos: Sequence[PhotoOfH
             "keypoint_error_px_max": float(distances.max()),
             "wrist_distance_m": float(np.linalg.norm(view.keypoints_3d[0])),
             "wrist_depth_m": float(view.keypoints_3d[0, 2]),
-            "mask_fraction": float(view.mask.mean())})
+            "mask_fraction": float(view.mask.mean()),
+            "silhouette_iou": view.silhouette_iou, "psnr_in_mask_db": view.psnr_db})
     metrics = {"photos": [str(view.photo) for view in views], "side": params.side,
                "keypoint_error_px": float(np.mean([v.keypoint_error_px for v in views])),
                "per_photo": per_photo}
@@ -283,7 +316,9 @@ def photo_report_html(hand: PhotoHandOutputs, notes: Sequence[str]) -> str:
                                                    f"{numbers['keypoint_error_px_max']:.2f}",
                 "wrist distance (m)": numbers["wrist_distance_m"],
                 "mask": f"{metrics.get('mask', 'n/a')}, {100 * numbers['mask_fraction']:.1f} % "
-                        "of the photo"}
+                        "of the photo",
+                "fit against the photo (silhouette IoU with the first mask / PSNR in it)":
+                    f"{numbers['silhouette_iou']:.3f} / {numbers['psnr_in_mask_db']:.2f} dB"}
         surface = metrics.get("surface")
         if index == 0 and surface:
             rows["mesh.ply surface"] = (f"{surface['pieces']} piece(s), area "

@@ -338,6 +338,10 @@ def test_keypoints_json_fits_the_detection_again(model_file, tmp_path, monkeypat
             for name in ("detected", "again", "plain")}
     torch.testing.assert_close(pose["again"], pose["detected"], atol=1e-5, rtol=0)
     assert (pose["plain"] - pose["detected"]).abs().max() > 0.05
+    numbers = json.loads((tmp_path / "detected" / "metrics.json").read_text())["per_photo"][0]
+    # The hand is its own model's render: its silhouette covers the keypoints' first mask
+    # (measured IoU 0.72: that mask is coarse) and its colours match it (30 dB).
+    assert numbers["silhouette_iou"] > 0.6 and numbers["psnr_in_mask_db"] > 25.0
 
 
 def test_landmarks_in_a_keypoints_file_are_checked(big_photo, tmp_path):
