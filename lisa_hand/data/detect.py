@@ -88,6 +88,7 @@ import warnings
 from collections.abc import Callable, Sequence
 from contextlib import nullcontext
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -530,13 +531,7 @@ def _search(hands: Any, pixels: np.ndarray, config: DetectConfig, max_hands: int
                 from .detect_further import search_further
 
                 further = search_further(hands, pixels, found, around, levels, index, fill,
-                                         config, max_hands)
-            known = found + [hand for hand, _ in further]
-            if config.further_search and landmark is not None and len(known) < max_hands:
-                from .detect_hidden import HIDDEN, search_hidden
-
-                further += [(hand, HIDDEN) for hand in
-                            search_hidden(landmark, pixels, known, config, max_hands)]
+                                         config, max_hands, landmark)
             return [(hand, level) for hand in found] + further
     return []
 
@@ -605,16 +600,16 @@ def detect_hands(image: np.ndarray, max_hands: int = 4, config: DetectConfig | N
     # for the whole search.
     options = dict(static_image_mode=True, model_complexity=config.model_complexity,
                    min_detection_confidence=config.min_detection_confidence)
-    if landmark_factory is None and default_factory and config.hidden_search:
+    if not config.hidden_search:
+        landmark_factory = None
+    elif landmark_factory is None and default_factory:
         from .detect_hidden import LandmarkModel
 
-        def landmark_factory() -> Any:
-            return LandmarkModel(config.model_complexity)
+        landmark_factory = partial(LandmarkModel, config.model_complexity)
     two = config.pair_detector and max_hands > 2
     with native_stderr_captured(), hands_factory(max_num_hands=max_hands, **options) as hands, \
             (hands_factory(max_num_hands=2, **options) if two else nullcontext()) as pair, \
-            (landmark_factory() if landmark_factory is not None and config.hidden_search
-             else nullcontext()) as landmark:
+            (landmark_factory() if landmark_factory else nullcontext()) as landmark:
         hands_found = _search(hands, pixels, config, max_hands, pair, landmark)
         if not hands_found and _greyscale(pixels):  # no skin colour to go by: lend it one
             tinted = np.round(pixels * np.asarray(_SKIN_TINT)).astype(np.uint8)

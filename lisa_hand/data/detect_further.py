@@ -1,6 +1,7 @@
 """The further search of :func:`lisa_hand.data.detect.detect_hands` (its module docstring,
 "More hands"): once a search level has found fewer hands than wanted, windows beside each hand,
-the image with the hands painted out, and one finer crop level. It works with the detector's
+the image with the hands painted out, one finer crop level, and last the landmark model alone
+(:mod:`lisa_hand.data.detect_hidden`). It works with the detector's
 window mechanics (:func:`lisa_hand.data.detect._find`); the detector imports it when it first
 searches further."""
 
@@ -21,13 +22,29 @@ _DETECTABLE = 0.1  # the smallest hand the palm detector finds well, a share of 
 
 def search_further(hands: Any, pixels: np.ndarray, found: list[_Found], around: list[_Found],
                    levels: list[tuple[str, list[Window]]], index: int, fill: np.ndarray,
-                   config: DetectConfig, max_hands: int) -> list[Named]:
+                   config: DetectConfig, max_hands: int, landmark: Any = None) -> list[Named]:
     """More hands after level ``index`` found ``found`` (:mod:`lisa_hand.data.detect`, "More
-    hands"): beside each hand (``around``: what its refinement windows showed besides it), with
-    the hands painted out, again around the new ones; if neither finds one, in the coarsest crop
-    level after ``index`` whose crops show a hand ``further_smallest`` times the smallest found
-    one at :data:`_DETECTABLE` of their long side (the finest where none does; none where the
-    whole image does)."""
+    hands"): with the palm detector ``hands`` (:func:`_palm_search`), then, while fewer than
+    ``max_hands`` are known, with the landmark model alone (``landmark``, None: not) around
+    every hand (:func:`lisa_hand.data.detect_hidden.search_hidden`)."""
+    more = _palm_search(hands, pixels, found, around, levels, index, fill, config, max_hands)
+    known = found + [hand for hand, _ in more]
+    if landmark is not None and len(known) < max_hands:
+        from .detect_hidden import HIDDEN, search_hidden
+
+        more += [(hand, HIDDEN) for hand in
+                 search_hidden(landmark, pixels, known, config, max_hands)]
+    return more
+
+
+def _palm_search(hands: Any, pixels: np.ndarray, found: list[_Found], around: list[_Found],
+                 levels: list[tuple[str, list[Window]]], index: int, fill: np.ndarray,
+                 config: DetectConfig, max_hands: int) -> list[Named]:
+    """More hands with the palm detector: beside each hand (``around``: what its refinement
+    windows showed besides it), with the hands painted out, again around the new ones; if
+    neither finds one, in the coarsest crop level after ``index`` whose crops show a hand
+    ``further_smallest`` times the smallest found one at :data:`_DETECTABLE` of their long side
+    (the finest where none does; none where the whole image does)."""
     known, fresh, more = list(found), list(found), []
     while fresh and len(known) < max_hands:
         windows = [window for hand in fresh for window in _beside(hand, config)]
